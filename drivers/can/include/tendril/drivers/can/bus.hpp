@@ -1,0 +1,37 @@
+// The Bus interface: what the CANopen master and simulated nodes see of a CAN bus.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "tendril/drivers/can/frame.hpp"
+
+namespace tendril::can {
+
+// Counters every bus keeps; read from any thread.
+struct BusStatistics {
+  std::uint64_t frames_sent = 0;
+  std::uint64_t frames_received = 0;
+  std::uint64_t send_failures = 0;
+  std::uint64_t error_frames = 0;
+  std::uint64_t bus_off_events = 0;
+};
+
+// One endpoint on a CAN bus. send() never blocks; receive() waits at most `timeout`
+// (zero = poll). Error frames are delivered through receive() with Frame::error set.
+// One thread sends and receives on an endpoint at a time; different endpoints are independent.
+class Bus {
+ public:
+  virtual ~Bus() = default;
+  virtual SendResult send(const Frame& frame) noexcept = 0;
+  virtual std::optional<Frame> receive(std::chrono::nanoseconds timeout) noexcept = 0;
+  virtual BusState state() const noexcept = 0;
+  virtual BusStatistics statistics() const noexcept = 0;
+  virtual std::string name() const = 0;
+  // Nominal bitrate in bit/s, used for bus-load accounting.
+  virtual std::uint32_t bitrate() const noexcept = 0;
+};
+
+}  // namespace tendril::can
