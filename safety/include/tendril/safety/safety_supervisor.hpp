@@ -1,0 +1,139 @@
+// SafetySupervisor: the per-robot safety state machine every command passes through (DESIGN §5).
+// States DISABLED → ENABLED ⇄ PAUSED, any → FAULT, plus an e-stop latch that only reset_estop()
+// clears. It checks goals and velocities against the robot's LimitSet, clamps each tick's setpoint
+// into the soft limits, holds the robot when the servo stream stops, and faults on tracking error,
+// repeated loop overruns and faults reported from drives or buses. Every transition, refusal,
+// fault and hold goes into a lock-free event log.
+//
+// Threading: the control thread owns the supervisor and is the only caller of the mutating methods
+// (request, tick, clamp_setpoint, servo_command_received, report_overrun, fault, estop, reset_estop);
+// commands from other threads reach it through the command mailbox. Any thread may call state(),
+// estop_latched(), check_goal(), check_velocity(), request_estop() and read the event log.
+// All per-tick methods are noexcept and allocation-free.
+//
+// Fault acknowledgement: `disable` from FAULT acknowledges the fault and returns to DISABLED. A cause
+// that persists raises the fault again when it is next reported (drive heartbeat, EMCY, bus-off are
+// re-reported by the bus thread) or checked (tracking error on the first tick after enabling).
+// From FAULT, enable/pause/resume are refused. While the e-stop is latched every state command is
+// refused; reset_estop() clears the latch and any fault and leaves the robot DISABLED.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+
+#include "tendril/safety/limit_set.hpp"
+#include "tendril/safety/safety_event_log.hpp"
+#include "tendril/safety/safety_types.hpp"
+
+namespace tendril::safety {
+
+struct SupervisorOptions {
+  double command_timeout = 0.150;  // s without servo_command_received() before the servo stream holds
+  int max_consecutive_overruns = 10;
+};
+
+// First limit violation found by a check; kind == kNone means the input is acceptable.
+struct Violation {
+  ViolationKind kind = ViolationKind::kNone;
+  int joint = -1;      // index of the offending joint, -1 for size errors
+  double value = 0.0;  // the offending value (for kWrongSize: the size given)
+  double limit = 0.0;  // the limit it broke (for kWrongSize: the size expected)
+  explicit operator bool() const noexcept { return kind != ViolationKind::kNone; }
+};
+
+struct ClampResult {
+  int clamped_joints = 0;   // joints whose position or velocity was changed
+  int first_joint = -1;     // first such joint
+  bool non_finite = false;  // a non-finite position was found (velocity zeroed); tick() will fault
+};
+
+struct FaultInfo {
+  FaultCode code = FaultCode::kNone;
+  int joint = -1;
+  double time = 0.0;
+  char text[96] = {};
+};
+
+struct TickResult {
+  OperatingState state = OperatingState::kDisabled;
+  bool motion_allowed = false;  // ENABLED and no e-stop: setpoints may move
+  bool servo_live = false;      // servo_jv stream refreshed within the timeout
+};
+
+class SafetySupervisor {
+ public:
+  // Throws std::invalid_argument if the options are out of range (timeout ≤ 0, overruns < 1).
+  explicit SafetySupervisor(LimitSet limits, SupervisorOptions options = {});
+
+  const LimitSet& limits() const noexcept { return limits_; }
+  const SupervisorOptions& options() const noexcept { return options_; }
+  std::size_t joints() const noexcept { return limits_.size(); }
+
+  // --- state machine (control thread) ---
+  CommandResult request(double t, StateCommand command) noexcept;
+  void estop(double t) noexcept;
+  CommandResult reset_estop(double t) noexcept;
+  // External fault (drive heartbeat lost, EMCY, bus-off, …). detail may be null.
+  void fault(double t, FaultCode code, int joint, const char* detail) noexcept;
+
+  // --- any thread ---
+  // Latches the e-stop immediately as seen by state()/estop_latched(); the control thread logs it and
+  // completes the transition at its next tick() or request().
+  void request_estop() noexcept { estop_requested_.store(true, std::memory_order_release); }
+  OperatingState state() const noexcept;
+  bool estop_latched() const noexcept;
+
+  // --- checks (any thread; const, no logging) ---
+  Violation check_goal(std::span<const double> goal) const noexcept;          // size, finite, [lower, upper]
+  Violation check_velocity(std::span<const double> velocity) const noexcept;  // size, finite, |v| ≤ max
+  // Writes a message such as "joint 'roll' velocity 3.2 rad/s exceeds the limit 1.5 rad/s" into buf.
+  void describe(const Violation& violation, std::span<char> buf) const noexcept;
+  std::string describe(const Violation& violation) const;  // allocates: not for the control thread
+
+  // --- per tick (control thread) ---
+  // Keeps positions inside [lower + margin, upper − margin] (zeroing velocity that pushes outwards)
+  // and velocities within ±max_velocity.
+  ClampResult clamp_setpoint(std::span<double> q, std::span<double> qd) const noexcept;
+  void servo_command_received(double t) noexcept;
+  // Servo timeout, measurement/setpoint validity and tracking error (while ENABLED or PAUSED, when the
+  // drives follow a setpoint).
+  TickResult tick(double t, std::span<const double> measured, std::span<const double> setpoint) noexcept;
+  // Once per control cycle: N consecutive overruns fault, a good cycle resets the count.
+  void report_overrun(double t, bool overran) noexcept;
+
+  bool servo_live() const noexcept { return servo_live_; }
+  bool motion_allowed() const noexcept { return state() == OperatingState::kEnabled; }
+  const FaultInfo& fault_cause() const noexcept { return fault_cause_; }  // control thread
+  int consecutive_overruns() const noexcept { return consecutive_overruns_; }
+  std::uint64_t total_overruns() const noexcept { return total_overruns_; }
+
+  SafetyEventLog& events() noexcept { return events_; }
+  const SafetyEventLog& events() const noexcept { return events_; }
+
+ private:
+  void transition(double t, OperatingState to, EventKind kind, FaultCode code, int joint,
+                  const char* text) noexcept;
+  void log(double t, EventKind kind, FaultCode code, int joint, OperatingState from, OperatingState to,
+           const char* text) noexcept;
+  void raise_fault(double t, FaultCode code, int joint, const char* text) noexcept;
+  void process_estop_request(double t) noexcept;
+  CommandResult refuse(double t, StateCommand command, CommandResult why) noexcept;
+
+  LimitSet limits_;
+  SupervisorOptions options_;
+  std::atomic<OperatingState> state_{OperatingState::kDisabled};
+  std::atomic<bool> estop_latched_{false};
+  std::atomic<bool> estop_requested_{false};
+  FaultInfo fault_cause_{};
+  bool servo_live_ = false;
+  double last_servo_time_ = 0.0;
+  int consecutive_overruns_ = 0;
+  std::uint64_t total_overruns_ = 0;
+  SafetyEventLog events_;
+};
+
+}  // namespace tendril::safety
