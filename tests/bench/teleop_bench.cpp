@@ -1,0 +1,117 @@
+// Per-tick cost of the SRMC control path: quintic sample, PID, forward kinematics, supervisor.
+#include <benchmark/benchmark.h>
+
+#include <array>
+#include <memory>
+
+#include "tendril/safety/safety_supervisor.hpp"
+#include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/pid.hpp"
+#include "tendril/teleop/quintic_interpolator.hpp"
+
+namespace {
+
+using tendril::teleop::ConstantCurvatureCatheter;
+using JV = ConstantCurvatureCatheter::JointVector;
+
+constexpr std::array<double, 4> kGoal{20.0, 0.8, 0.4, -0.5};
+
+void BM_QuinticSample(benchmark::State& state) {
+  tendril::teleop::QuinticInterpolator interp(4);
+  interp.reset(std::array<double, 4>{});
+  interp.retarget(0.0, kGoal, 2.0, 5.0);
+  std::array<double, 4> q{}, qd{}, qdd{};
+  double t = 0.0;
+  for (auto _ : state) {
+    interp.sample(t, q, qd, qdd);
+    benchmark::DoNotOptimize(q);
+    t += 1e-4;
+    if (t > interp.duration()) t = 0.0;
+  }
+}
+BENCHMARK(BM_QuinticSample);
+
+void BM_QuinticRetargetMidMotion(benchmark::State& state) {
+  tendril::teleop::QuinticInterpolator interp(4);
+  interp.reset(std::array<double, 4>{});
+  interp.retarget(0.0, kGoal, 2.0, 5.0);
+  const double t_mid = 0.4 * interp.duration();
+  const std::array<double, 4> other{-5.0, -0.5, -0.3, 0.6};
+  for (auto _ : state) {
+    // Re-seed from the same mid-motion state each time so every iteration does the same search.
+    interp.reset(std::array<double, 4>{});
+    interp.retarget(0.0, kGoal, 2.0, 5.0);
+    benchmark::DoNotOptimize(interp.retarget(t_mid, other, 2.0, 5.0));
+  }
+}
+BENCHMARK(BM_QuinticRetargetMidMotion);
+
+void BM_Pid(benchmark::State& state) {
+  tendril::teleop::Pid pid(
+      {.kp = 2.0, .ki = 1.0, .kd = 0.01, .output_limit = 5.0, .derivative_filter_time = 0.002});
+  double y = 0.0;
+  for (auto _ : state) {
+    const double u = pid.update(1.0, y, 1e-3);
+    y += 1e-3 * (u - y);
+    benchmark::DoNotOptimize(y);
+  }
+}
+BENCHMARK(BM_Pid);
+
+void BM_TipPose(benchmark::State& state) {
+  const ConstantCurvatureCatheter cat(tendril::teleop::CatheterParameters{});
+  JV q(10.0, 0.3, 0.4, -0.5);
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(cat.tip_pose(q));
+    q[2] += 1e-9;
+  }
+}
+BENCHMARK(BM_TipPose);
+
+void BM_TipJacobian(benchmark::State& state) {
+  const ConstantCurvatureCatheter cat(tendril::teleop::CatheterParameters{});
+  const JV q(10.0, 0.3, 0.4, -0.5);
+  for (auto _ : state) benchmark::DoNotOptimize(cat.tip_position_jacobian(q));
+}
+BENCHMARK(BM_TipJacobian);
+
+void BM_Backbone(benchmark::State& state) {
+  const ConstantCurvatureCatheter cat(tendril::teleop::CatheterParameters{});
+  const JV q(10.0, 0.3, 0.4, -0.5);
+  std::array<Eigen::Vector3d, 128> points;
+  const auto per_segment = static_cast<std::size_t>(state.range(0));
+  for (auto _ : state) benchmark::DoNotOptimize(cat.backbone(q, per_segment, points));
+}
+BENCHMARK(BM_Backbone)->Arg(10)->Arg(50);
+
+// One full 1 kHz tick for a 4-joint catheter: sample, 4 PIDs, tip pose, clamp, supervisor tick.
+void BM_ControlTick(benchmark::State& state) {
+  tendril::teleop::QuinticInterpolator interp(4);
+  interp.reset(std::array<double, 4>{10.0, 0.0, 0.0, 0.0});
+  interp.retarget(0.0, kGoal, 2.0, 5.0);
+  std::array<tendril::teleop::Pid, 4> pids;
+  pids.fill(tendril::teleop::Pid({.kp = 2.0, .ki = 1.0, .kd = 0.01, .output_limit = 5.0}));
+  const ConstantCurvatureCatheter cat(tendril::teleop::CatheterParameters{});
+  auto supervisor = std::make_unique<tendril::safety::SafetySupervisor>(tendril::safety::LimitSet({
+      {"insertion", "mm", 0.0, 100.0, 1.0, 5.0, 20.0, 50.0},
+      {"roll", "rad", -3.0, 3.0, 0.1, 1.5, 5.0, 5.0},
+      {"proximal", "mm", -1.0, 1.0, 0.05, 0.5, 2.0, 5.0},
+      {"distal", "mm", -1.0, 1.0, 0.05, 0.5, 2.0, 5.0},
+  }));
+  supervisor->request(0.0, tendril::safety::StateCommand::kEnable);
+  std::array<double, 4> q{}, qd{}, qdd{}, measured{10.0, 0.0, 0.0, 0.0}, effort{};
+  double t = 0.0;
+  for (auto _ : state) {
+    interp.sample(t, q, qd, qdd);
+    supervisor->clamp_setpoint(q, qd);
+    for (std::size_t j = 0; j < 4; ++j) effort[j] = pids[j].update(q[j], measured[j], 1e-3);
+    benchmark::DoNotOptimize(cat.tip_pose(JV(measured[0], measured[1], measured[2], measured[3])));
+    benchmark::DoNotOptimize(supervisor->tick(t, measured, q));
+    benchmark::DoNotOptimize(effort);
+    t += 1e-3;
+    if (t > interp.duration()) t = 0.0;
+  }
+}
+BENCHMARK(BM_ControlTick);
+
+}  // namespace
