@@ -1,0 +1,92 @@
+// Server and robot configuration: JSON files validated at start-up. Every error names the file,
+// the key and what was expected, because a lab engineer editing JSON by hand reads it.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+namespace tendril::server {
+
+class ConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct DriveConfig {
+  std::string bus;
+  int node_id = 0;
+  double counts_per_unit = 1000.0;
+  std::int32_t offset_counts = 0;
+};
+
+struct JointConfig {
+  std::string name;
+  std::string unit;
+  double lower = 0.0;
+  double upper = 0.0;
+  double soft_margin = 0.0;
+  double max_velocity = 0.0;
+  double max_acceleration = 0.0;
+  double max_tracking_error = 0.0;
+  double initial_position = 0.0;  // where the simulated load starts
+  // Simulated drive model used when the joint's bus is virtual: a preset of
+  // sim::DriveParameters (srmc_insertion, srmc_roll, srmc_bend) or "generic".
+  std::string simulation_preset = "generic";
+  DriveConfig drive;
+};
+
+struct BusConfig {
+  std::string name;
+  std::string interface;  // "virtual" (simulated drives) or a SocketCAN interface such as "can0"
+  std::uint32_t bitrate = 1'000'000;
+  int sync_period_us = 1000;
+  double max_load = 0.7;
+  int heartbeat_period_ms = 20;
+  int drive_heartbeat_timeout_ms = 100;
+  int drive_heartbeat_period_ms = 20;
+  int master_heartbeat_timeout_ms = 100;
+};
+
+struct RobotConfig {
+  std::filesystem::path file;
+  std::string name;
+  std::string kind;
+  std::string description;
+  int command_timeout_ms = 150;
+  int max_consecutive_overruns = 10;
+  int enable_timeout_ms = 1000;
+  std::vector<JointConfig> joints;
+  std::vector<BusConfig> buses;
+  nlohmann::json kinematics;  // model-specific; validated by the model that reads it
+};
+
+struct ServerConfig {
+  std::filesystem::path file;
+  std::string host = "127.0.0.1";
+  unsigned short port = 8080;
+  std::string token;  // empty: generated at start-up
+  std::vector<std::string> allowed_origins;
+  std::filesystem::path web_root;
+  std::filesystem::path vendor_root;  // node_modules, for three.js
+  double control_rate_hz = 1000.0;
+  double publish_rate_hz = 50.0;
+  bool realtime_priority = true;  // ask for SCHED_FIFO + mlockall; runs without if refused
+  std::vector<std::filesystem::path> robot_files;
+  std::vector<RobotConfig> robots;
+};
+
+// Parses a robot file. Throws ConfigError("config/robots/srmc.json: joints[2].upper: expected a
+// number greater than lower (-6), got -8").
+RobotConfig load_robot_config(const std::filesystem::path& file);
+RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::path& file);
+
+// Parses the server file and every robot file it names (relative to the server file's folder).
+ServerConfig load_server_config(const std::filesystem::path& file);
+
+}  // namespace tendril::server

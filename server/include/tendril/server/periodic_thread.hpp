@@ -1,0 +1,78 @@
+// PeriodicThread: runs a function at a fixed rate on its own thread with absolute deadlines
+// (clock_nanosleep TIMER_ABSTIME on CLOCK_MONOTONIC), asking for SCHED_FIFO and mlockall and running
+// without them when refused. Period jitter and overruns are measured every cycle, lock-free.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <thread>
+
+namespace tendril::server {
+
+// Lock-free histogram of microsecond values: 1 µs bins to 200 µs, then 100 µs bins to 20 ms.
+class MicrosecondHistogram {
+ public:
+  void record(double us) noexcept;
+  // q in [0, 1]; returns the upper edge of the bin holding that quantile (µs).
+  double quantile(double q) const noexcept;
+  double max() const noexcept { return static_cast<double>(max_ns_.load(std::memory_order_relaxed)) / 1000.0; }
+  std::uint64_t count() const noexcept { return count_.load(std::memory_order_relaxed); }
+  void reset() noexcept;
+
+ private:
+  static constexpr std::size_t kFine = 200, kCoarse = 199, kBins = kFine + kCoarse + 1;
+  static std::size_t bin(double us) noexcept;
+  static double upper_edge(std::size_t b) noexcept;
+  std::array<std::atomic<std::uint64_t>, kBins> bins_{};
+  std::atomic<std::uint64_t> count_{0};
+  std::atomic<std::int64_t> max_ns_{0};
+};
+
+struct LoopStatistics {
+  std::uint64_t cycles = 0;
+  std::uint64_t overruns = 0;  // cycles whose work ran past the next deadline
+  double period_error_p50_us = 0, period_error_p99_us = 0, period_error_max_us = 0;
+  double work_p50_us = 0, work_p99_us = 0, work_max_us = 0;
+  bool realtime_scheduling = false;  // SCHED_FIFO granted
+  bool memory_locked = false;        // mlockall granted
+};
+
+class PeriodicThread {
+ public:
+  // The cycle function gets the cycle's deadline and whether the previous cycle overran. It must
+  // be real-time safe: no allocation, no locks, no blocking.
+  using Cycle = std::function<void(std::chrono::steady_clock::time_point deadline, bool previous_overrun)>;
+
+  PeriodicThread() = default;
+  ~PeriodicThread();
+  PeriodicThread(const PeriodicThread&) = delete;
+  PeriodicThread& operator=(const PeriodicThread&) = delete;
+
+  void start(std::string name, std::chrono::nanoseconds period, Cycle cycle, bool request_realtime, int priority = 80);
+  void stop();
+  bool running() const noexcept { return running_.load(); }
+  LoopStatistics statistics() const noexcept;
+  std::chrono::nanoseconds period() const noexcept { return period_; }
+
+ private:
+  void run();
+
+  std::string name_;
+  std::chrono::nanoseconds period_{1'000'000};
+  Cycle cycle_;
+  bool request_realtime_ = false;
+  int priority_ = 80;
+  std::thread thread_;
+  std::atomic<bool> running_{false};
+  std::atomic<bool> stop_{false};
+  std::atomic<std::uint64_t> cycles_{0}, overruns_{0};
+  std::atomic<bool> realtime_{false}, locked_{false};
+  MicrosecondHistogram period_error_;
+  MicrosecondHistogram work_;
+};
+
+}  // namespace tendril::server

@@ -1,0 +1,263 @@
+#include "tendril/server/config.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace tendril::server {
+namespace {
+
+// Reads typed values out of one JSON object and reports mistakes with the file and the key path.
+class Reader {
+ public:
+  Reader(const nlohmann::json& j, std::string file, std::string path)
+      : j_(j), file_(std::move(file)), path_(std::move(path)) {
+    if (!j_.is_object()) fail("", "an object", j_);
+  }
+
+  [[noreturn]] void fail(const std::string& key, const std::string& expected, const nlohmann::json& got) const {
+    std::string where = path_;
+    if (!key.empty()) where += (where.empty() ? "" : ".") + key;
+    std::string got_text = got.is_null() ? std::string("nothing") : got.dump();
+    if (got_text.size() > 60) got_text = got_text.substr(0, 57) + "...";
+    throw ConfigError(file_ + ": " + (where.empty() ? std::string("top level") : where) + ": expected " + expected +
+                      ", got " + got_text);
+  }
+
+  bool has(const std::string& key) const { return j_.contains(key); }
+  const nlohmann::json& raw(const std::string& key) const {
+    if (!j_.contains(key)) fail(key, "this key to be present", nullptr);
+    return j_.at(key);
+  }
+
+  std::string string(const std::string& key) const {
+    const auto& v = raw(key);
+    if (!v.is_string() || v.get<std::string>().empty()) fail(key, "a non-empty string", v);
+    return v.get<std::string>();
+  }
+  std::string string_or(const std::string& key, std::string fallback) const {
+    return has(key) ? string(key) : std::move(fallback);
+  }
+
+  double number(const std::string& key) const {
+    const auto& v = raw(key);
+    if (!v.is_number() || !std::isfinite(v.get<double>())) fail(key, "a finite number", v);
+    return v.get<double>();
+  }
+  double number_or(const std::string& key, double fallback) const { return has(key) ? number(key) : fallback; }
+  double positive(const std::string& key) const {
+    double v = number(key);
+    if (!(v > 0)) fail(key, "a number greater than 0", raw(key));
+    return v;
+  }
+  double positive_or(const std::string& key, double fallback) const { return has(key) ? positive(key) : fallback; }
+  double non_negative_or(const std::string& key, double fallback) const {
+    if (!has(key)) return fallback;
+    double v = number(key);
+    if (v < 0) fail(key, "a number of at least 0", raw(key));
+    return v;
+  }
+  long integer_in(const std::string& key, long lo, long hi) const {
+    const auto& v = raw(key);
+    if (!v.is_number_integer() || v.get<long>() < lo || v.get<long>() > hi)
+      fail(key, "an integer from " + std::to_string(lo) + " to " + std::to_string(hi), v);
+    return v.get<long>();
+  }
+  long integer_in_or(const std::string& key, long lo, long hi, long fallback) const {
+    return has(key) ? integer_in(key, lo, hi) : fallback;
+  }
+  bool boolean_or(const std::string& key, bool fallback) const {
+    if (!has(key)) return fallback;
+    const auto& v = raw(key);
+    if (!v.is_boolean()) fail(key, "true or false", v);
+    return v.get<bool>();
+  }
+  const nlohmann::json& array(const std::string& key, bool non_empty) const {
+    const auto& v = raw(key);
+    if (!v.is_array() || (non_empty && v.empty())) fail(key, non_empty ? "a non-empty array" : "an array", v);
+    return v;
+  }
+  Reader child(const std::string& key) const { return Reader(raw(key), file_, join(key)); }
+  Reader element(const std::string& key, std::size_t i) const {
+    return Reader(j_.at(key).at(i), file_, join(key) + "[" + std::to_string(i) + "]");
+  }
+  std::string join(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
+  const std::string& file() const { return file_; }
+
+ private:
+  const nlohmann::json& j_;
+  std::string file_;
+  std::string path_;
+};
+
+nlohmann::json read_json_file(const std::filesystem::path& file) {
+  std::ifstream in(file);
+  if (!in) throw ConfigError(file.string() + ": cannot open the file (does it exist and is it readable?)");
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  try {
+    return nlohmann::json::parse(buffer.str());
+  } catch (const nlohmann::json::parse_error& e) {
+    throw ConfigError(file.string() + ": not valid JSON: " + e.what());
+  }
+}
+
+bool is_identifier(const std::string& s) {
+  if (s.empty() || s.size() > 64) return false;
+  for (char c : s)
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-')) return false;
+  return true;
+}
+
+}  // namespace
+
+RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::path& file) {
+  Reader r(j, file.string(), "");
+  RobotConfig rc;
+  rc.file = file;
+  rc.name = r.string("name");
+  if (!is_identifier(rc.name)) r.fail("name", "letters, digits, '_' or '-' (it appears in URLs)", r.raw("name"));
+  rc.kind = r.string("kind");
+  rc.description = r.string_or("description", "");
+  rc.command_timeout_ms = static_cast<int>(r.integer_in_or("command_timeout_ms", 10, 10'000, 150));
+  rc.max_consecutive_overruns = static_cast<int>(r.integer_in_or("max_consecutive_overruns", 1, 100'000, 10));
+  rc.enable_timeout_ms = static_cast<int>(r.integer_in_or("enable_timeout_ms", 10, 60'000, 1000));
+
+  const auto& buses = r.array("buses", true);
+  std::set<std::string> bus_names;
+  for (std::size_t i = 0; i < buses.size(); ++i) {
+    Reader b = r.element("buses", i);
+    BusConfig bc;
+    bc.name = b.string("name");
+    if (!bus_names.insert(bc.name).second) b.fail("name", "a bus name not used before", b.raw("name"));
+    bc.interface = b.string("interface");
+    bc.bitrate = static_cast<std::uint32_t>(b.integer_in_or("bitrate", 10'000, 1'000'000, 1'000'000));
+    bc.sync_period_us = static_cast<int>(b.integer_in_or("sync_period_us", 250, 100'000, 1000));
+    bc.max_load = b.number_or("max_load", 0.7);
+    if (!(bc.max_load > 0 && bc.max_load <= 1)) b.fail("max_load", "a fraction in (0, 1]", b.raw("max_load"));
+    bc.heartbeat_period_ms = static_cast<int>(b.integer_in_or("heartbeat_period_ms", 1, 10'000, 20));
+    bc.drive_heartbeat_period_ms = static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
+    bc.drive_heartbeat_timeout_ms =
+        static_cast<int>(b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5 * bc.drive_heartbeat_period_ms));
+    bc.master_heartbeat_timeout_ms =
+        static_cast<int>(b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5 * bc.heartbeat_period_ms));
+    if (bc.drive_heartbeat_timeout_ms <= bc.drive_heartbeat_period_ms)
+      b.fail("drive_heartbeat_timeout_ms",
+             "more than drive_heartbeat_period_ms (" + std::to_string(bc.drive_heartbeat_period_ms) + ")",
+             bc.drive_heartbeat_timeout_ms);
+    if (bc.master_heartbeat_timeout_ms <= bc.heartbeat_period_ms)
+      b.fail("master_heartbeat_timeout_ms", "more than heartbeat_period_ms (" + std::to_string(bc.heartbeat_period_ms) + ")",
+             bc.master_heartbeat_timeout_ms);
+    rc.buses.push_back(bc);
+  }
+
+  const auto& joints = r.array("joints", true);
+  if (joints.size() > 16) r.fail("joints", "at most 16 joints", joints.size());
+  std::set<std::string> joint_names;
+  std::set<std::pair<std::string, int>> node_ids;
+  for (std::size_t i = 0; i < joints.size(); ++i) {
+    Reader jr = r.element("joints", i);
+    JointConfig jc;
+    jc.name = jr.string("name");
+    if (!is_identifier(jc.name)) jr.fail("name", "letters, digits, '_' or '-'", jr.raw("name"));
+    if (!joint_names.insert(jc.name).second) jr.fail("name", "a joint name not used before", jr.raw("name"));
+    jc.unit = jr.string("unit");
+    static const std::set<std::string> units{"mm", "m", "rad", "deg"};
+    if (!units.count(jc.unit)) jr.fail("unit", "one of mm, m, rad, deg", jr.raw("unit"));
+    jc.lower = jr.number("lower");
+    jc.upper = jr.number("upper");
+    if (!(jc.upper > jc.lower))
+      jr.fail("upper", "a number greater than lower (" + nlohmann::json(jc.lower).dump() + ")", jr.raw("upper"));
+    jc.soft_margin = jr.non_negative_or("soft_margin", 0.0);
+    if (2 * jc.soft_margin >= jc.upper - jc.lower)
+      jr.fail("soft_margin", "less than half the range upper - lower", jr.raw("soft_margin"));
+    jc.max_velocity = jr.positive("max_velocity");
+    jc.max_acceleration = jr.positive("max_acceleration");
+    jc.max_tracking_error = jr.positive_or("max_tracking_error", (jc.upper - jc.lower) / 10.0);
+    jc.initial_position = jr.number_or("initial_position", std::clamp(0.0, jc.lower, jc.upper));
+    if (jc.initial_position < jc.lower || jc.initial_position > jc.upper)
+      jr.fail("initial_position", "a position within [lower, upper]", jr.raw("initial_position"));
+    if (jr.has("simulation")) {
+      Reader sim = jr.child("simulation");
+      jc.simulation_preset = sim.string("preset");
+      static const std::set<std::string> presets{"generic", "srmc_insertion", "srmc_roll", "srmc_bend"};
+      if (!presets.count(jc.simulation_preset))
+        sim.fail("preset", "one of generic, srmc_insertion, srmc_roll, srmc_bend", sim.raw("preset"));
+    }
+    Reader d = jr.child("drive");
+    jc.drive.bus = d.string("bus");
+    if (!bus_names.count(jc.drive.bus)) d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
+    jc.drive.node_id = static_cast<int>(d.integer_in("node_id", 1, 126));
+    if (!node_ids.insert({jc.drive.bus, jc.drive.node_id}).second)
+      d.fail("node_id", "a node id not used by another joint on bus " + jc.drive.bus, d.raw("node_id"));
+    jc.drive.counts_per_unit = d.positive("counts_per_unit");
+    jc.drive.offset_counts = static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
+    // Positions must fit the 32-bit CiA 402 target with room to spare.
+    double max_counts = std::max(std::abs(jc.lower), std::abs(jc.upper)) * jc.drive.counts_per_unit;
+    if (max_counts > 2.0e9) d.fail("counts_per_unit", "a resolution whose limits fit in 32-bit counts", d.raw("counts_per_unit"));
+    rc.joints.push_back(jc);
+  }
+  rc.kinematics = r.has("kinematics") ? r.raw("kinematics") : nlohmann::json::object();
+  if (!rc.kinematics.is_object()) r.fail("kinematics", "an object", rc.kinematics);
+  return rc;
+}
+
+RobotConfig load_robot_config(const std::filesystem::path& file) {
+  return parse_robot_config(read_json_file(file), file);
+}
+
+ServerConfig load_server_config(const std::filesystem::path& file) {
+  const auto j = read_json_file(file);
+  Reader r(j, file.string(), "");
+  ServerConfig sc;
+  sc.file = file;
+  const auto dir = file.parent_path();
+  auto resolve = [&](const std::string& p) {
+    std::filesystem::path path(p);
+    return path.is_absolute() ? path : (dir / path).lexically_normal();
+  };
+  if (r.has("listen")) {
+    const std::string listen = r.string("listen");
+    auto colon = listen.rfind(':');
+    if (colon == std::string::npos || colon == 0) r.fail("listen", "HOST:PORT, e.g. 127.0.0.1:8080", r.raw("listen"));
+    sc.host = listen.substr(0, colon);
+    try {
+      int port = std::stoi(listen.substr(colon + 1));
+      if (port < 0 || port > 65535) throw std::out_of_range("port");
+      sc.port = static_cast<unsigned short>(port);
+    } catch (const std::exception&) {
+      r.fail("listen", "HOST:PORT with a port from 0 to 65535", r.raw("listen"));
+    }
+  }
+  sc.token = r.has("token") ? r.string("token") : "";
+  if (r.has("allowed_origins")) {
+    const auto& origins = r.array("allowed_origins", false);
+    for (std::size_t i = 0; i < origins.size(); ++i) {
+      if (!origins[i].is_string()) r.fail("allowed_origins[" + std::to_string(i) + "]", "a string", origins[i]);
+      sc.allowed_origins.push_back(origins[i].get<std::string>());
+    }
+  }
+  sc.web_root = resolve(r.string_or("web_root", "../web"));
+  sc.vendor_root = resolve(r.string_or("vendor_root", "../node_modules"));
+  sc.control_rate_hz = r.positive_or("control_rate_hz", 1000.0);
+  if (sc.control_rate_hz > 10'000) r.fail("control_rate_hz", "at most 10000", r.raw("control_rate_hz"));
+  sc.publish_rate_hz = r.positive_or("publish_rate_hz", 50.0);
+  if (sc.publish_rate_hz > 1000) r.fail("publish_rate_hz", "at most 1000", r.raw("publish_rate_hz"));
+  sc.realtime_priority = r.boolean_or("realtime_priority", true);
+  const auto& robots = r.array("robots", true);
+  std::set<std::string> names;
+  for (std::size_t i = 0; i < robots.size(); ++i) {
+    if (!robots[i].is_string()) r.fail("robots[" + std::to_string(i) + "]", "a path to a robot file", robots[i]);
+    auto path = resolve(robots[i].get<std::string>());
+    sc.robot_files.push_back(path);
+    sc.robots.push_back(load_robot_config(path));
+    if (!names.insert(sc.robots.back().name).second)
+      throw ConfigError(path.string() + ": name: robot name '" + sc.robots.back().name + "' is already used by another robot file");
+  }
+  return sc;
+}
+
+}  // namespace tendril::server

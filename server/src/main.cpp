@@ -1,0 +1,169 @@
+// tendrild: the tendril teleoperation server. Loads the configuration, boots the drives (simulated
+// by default), runs the control loop and serves the console and the API until SIGINT/SIGTERM, then
+// disables every drive before it exits.
+#include <pthread.h>
+#include <signal.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+#include <string>
+
+#include "tendril/drivers/canopen/master.hpp"
+#include "tendril/server/config.hpp"
+#include "tendril/server/http/http_server.hpp"
+#include "tendril/server/robot_runtime.hpp"
+#include "tendril/server/version.hpp"
+
+namespace {
+
+constexpr const char* kUsage = R"(usage: tendrild [options]
+
+Runs the tendril teleoperation server: real-time control of the configured robots over CANopen
+(simulated drives on a virtual bus unless a robot file names a SocketCAN interface), the browser
+console and the REST/WebSocket API.
+
+options:
+  --config FILE        server configuration (default: config/server.json in the current folder,
+                       else the one in the source tree); it lists the robot files to load
+  --listen HOST:PORT   address to serve on (default from the config: 127.0.0.1:8080); binding to
+                       anything but loopback exposes the robots to the network: do it on purpose
+  --token TOKEN        access token for the console and the API (default: $TENDRIL_TOKEN, else
+                       the config's "token", else a random one printed in the console URL)
+  --no-realtime        do not ask for SCHED_FIFO / mlockall for the control thread
+  --version            print the version and exit
+  --help               print this help and exit
+
+environment:
+  TENDRIL_TOKEN        access token (overridden by --token)
+
+On start it prints one line with the console URL:
+  tendril console: http://127.0.0.1:8080/?token=...
+SIGINT or SIGTERM disables the drives cleanly and exits.
+)";
+
+std::string random_token() {
+  std::ifstream urandom("/dev/urandom", std::ios::binary);
+  unsigned char bytes[24];
+  if (!urandom.read(reinterpret_cast<char*>(bytes), sizeof bytes))
+    throw std::runtime_error("cannot read /dev/urandom to make an access token; pass --token");
+  std::ostringstream out;
+  for (unsigned char b : bytes) out << std::hex << std::setw(2) << std::setfill('0') << static_cast<int>(b);
+  return out.str();
+}
+
+std::filesystem::path default_config() {
+  if (std::filesystem::exists("config/server.json")) return "config/server.json";
+  return std::filesystem::path(TENDRIL_SOURCE_DIR) / "config" / "server.json";
+}
+
+[[noreturn]] void usage_error(const std::string& message) {
+  std::cerr << "tendrild: " << message << "\n(see tendrild --help)\n";
+  std::exit(2);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace tendril::server;
+  std::filesystem::path config_file;
+  std::string listen, token;
+  bool no_realtime = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&](const char* name) -> std::string {
+      if (i + 1 >= argc) usage_error(std::string(name) + " needs a value");
+      return argv[++i];
+    };
+    if (arg == "--help" || arg == "-h") {
+      std::cout << kUsage;
+      return 0;
+    } else if (arg == "--version") {
+      std::cout << "tendrild " << version() << "\n";
+      return 0;
+    } else if (arg == "--config") {
+      config_file = value("--config");
+    } else if (arg == "--listen") {
+      listen = value("--listen");
+    } else if (arg == "--token") {
+      token = value("--token");
+    } else if (arg == "--no-realtime") {
+      no_realtime = true;
+    } else {
+      usage_error("unknown option '" + arg + "'");
+    }
+  }
+
+  // Block the stop signals before any thread starts, so that only the main thread takes them.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+
+  try {
+    if (config_file.empty()) config_file = default_config();
+    ServerConfig config = load_server_config(config_file);
+    if (!listen.empty()) {
+      auto colon = listen.rfind(':');
+      int port = -1;
+      try {
+        if (colon != std::string::npos) port = std::stoi(listen.substr(colon + 1));
+      } catch (const std::exception&) {
+      }
+      if (colon == std::string::npos || colon == 0 || port < 0 || port > 65535)
+        usage_error("--listen expects HOST:PORT, e.g. 127.0.0.1:8080, got '" + listen + "'");
+      config.host = listen.substr(0, colon);
+      config.port = static_cast<unsigned short>(port);
+    }
+    if (token.empty()) {
+      if (const char* env = std::getenv("TENDRIL_TOKEN"); env && *env) token = env;
+    }
+    if (token.empty()) token = config.token;
+    if (token.empty()) token = random_token();
+
+    RuntimeOptions ro;
+    ro.control_rate_hz = config.control_rate_hz;
+    ro.realtime_priority = config.realtime_priority && !no_realtime;
+    RobotRuntime runtime(config.robots, ro);
+    runtime.start();
+
+    HttpOptions ho;
+    ho.host = config.host;
+    ho.port = config.port;
+    ho.token = token;
+    ho.allowed_origins = config.allowed_origins;
+    ho.web_root = config.web_root.string();
+    ho.static_mounts["/vendor/three/"] = (config.vendor_root / "three").string();
+    ho.publish_rate_hz = config.publish_rate_hz;
+    HttpServer http(runtime, ho);
+    http.start();
+
+    std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
+    if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
+    std::cout << "tendril console: http://" << shown_host << ":" << http.port() << "/?token=" << token << std::endl;
+    const auto stats = runtime.loop_statistics();
+    (void)stats;
+
+    int signal_number = 0;
+    sigwait(&stop_signals, &signal_number);
+    std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
+              << " received: disabling the drives and stopping" << std::endl;
+    http.stop();
+    runtime.stop();
+    std::cerr << "tendrild: drives disabled, stopped cleanly" << std::endl;
+    return 0;
+  } catch (const ConfigError& e) {
+    std::cerr << "tendrild: configuration error: " << e.what() << "\n";
+    return 2;
+  } catch (const tendril::canopen::CanopenError& e) {
+    std::cerr << "tendrild: a drive did not come up: " << e.what() << "\n";
+    return 3;
+  } catch (const std::exception& e) {
+    std::cerr << "tendrild: " << e.what() << "\n";
+    return 1;
+  }
+}

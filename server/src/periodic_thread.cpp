@@ -1,0 +1,128 @@
+#include "tendril/server/periodic_thread.hpp"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
+#include <time.h>
+
+#include <cerrno>
+#include <cmath>
+
+namespace tendril::server {
+
+std::size_t MicrosecondHistogram::bin(double us) noexcept {
+  if (!(us >= 0)) us = 0;
+  if (us < kFine) return static_cast<std::size_t>(us);
+  auto coarse = static_cast<std::size_t>((us - kFine) / 100.0);
+  return coarse < kCoarse ? kFine + coarse : kBins - 1;
+}
+
+double MicrosecondHistogram::upper_edge(std::size_t b) noexcept {
+  if (b < kFine) return static_cast<double>(b + 1);
+  if (b < kFine + kCoarse) return kFine + 100.0 * static_cast<double>(b - kFine + 1);
+  return INFINITY;
+}
+
+void MicrosecondHistogram::record(double us) noexcept {
+  bins_[bin(us)].fetch_add(1, std::memory_order_relaxed);
+  count_.fetch_add(1, std::memory_order_relaxed);
+  auto ns = static_cast<std::int64_t>(us * 1000.0);
+  auto prev = max_ns_.load(std::memory_order_relaxed);
+  while (ns > prev && !max_ns_.compare_exchange_weak(prev, ns, std::memory_order_relaxed)) {
+  }
+}
+
+double MicrosecondHistogram::quantile(double q) const noexcept {
+  const auto n = count();
+  if (n == 0) return 0.0;
+  const auto target = static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(n)));
+  std::uint64_t seen = 0;
+  for (std::size_t b = 0; b < kBins; ++b) {
+    seen += bins_[b].load(std::memory_order_relaxed);
+    if (seen >= target && seen > 0) return std::min(upper_edge(b), max());
+  }
+  return max();
+}
+
+void MicrosecondHistogram::reset() noexcept {
+  for (auto& b : bins_) b.store(0, std::memory_order_relaxed);
+  count_.store(0);
+  max_ns_.store(0);
+}
+
+PeriodicThread::~PeriodicThread() { stop(); }
+
+void PeriodicThread::start(std::string name, std::chrono::nanoseconds period, Cycle cycle, bool request_realtime,
+                           int priority) {
+  stop();
+  name_ = std::move(name);
+  period_ = period;
+  cycle_ = std::move(cycle);
+  request_realtime_ = request_realtime;
+  priority_ = priority;
+  stop_.store(false);
+  running_.store(true);
+  thread_ = std::thread([this] { run(); });
+}
+
+void PeriodicThread::stop() {
+  stop_.store(true);
+  if (thread_.joinable()) thread_.join();
+  running_.store(false);
+}
+
+void PeriodicThread::run() {
+  pthread_setname_np(pthread_self(), name_.substr(0, 15).c_str());
+  if (request_realtime_) {
+    sched_param sp{};
+    sp.sched_priority = priority_;
+    realtime_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0);
+    locked_.store(mlockall(MCL_CURRENT | MCL_FUTURE) == 0);
+  }
+  using clock = std::chrono::steady_clock;
+  // steady_clock is CLOCK_MONOTONIC on Linux, so its epoch matches clock_nanosleep's.
+  auto deadline = clock::now() + period_;
+  bool overrun = false;
+  auto previous_wake = clock::time_point{};
+  while (!stop_.load(std::memory_order_relaxed)) {
+    const auto ns = deadline.time_since_epoch().count();
+    timespec ts{static_cast<time_t>(ns / 1'000'000'000), static_cast<long>(ns % 1'000'000'000)};
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+    const auto woke = clock::now();
+    if (previous_wake != clock::time_point{}) {
+      const double period_us = std::chrono::duration<double, std::micro>(woke - previous_wake).count();
+      period_error_.record(std::abs(period_us - std::chrono::duration<double, std::micro>(period_).count()));
+    }
+    previous_wake = woke;
+    cycle_(deadline, overrun);
+    const auto done = clock::now();
+    work_.record(std::chrono::duration<double, std::micro>(done - woke).count());
+    cycles_.fetch_add(1, std::memory_order_relaxed);
+    deadline += period_;
+    overrun = done > deadline;
+    if (overrun) {
+      overruns_.fetch_add(1, std::memory_order_relaxed);
+      // Skip the missed cycles instead of bursting to catch up: a late controller must not run
+      // several ticks back to back.
+      while (deadline < done) deadline += period_;
+    }
+  }
+}
+
+LoopStatistics PeriodicThread::statistics() const noexcept {
+  LoopStatistics s;
+  s.cycles = cycles_.load();
+  s.overruns = overruns_.load();
+  s.period_error_p50_us = period_error_.quantile(0.5);
+  s.period_error_p99_us = period_error_.quantile(0.99);
+  s.period_error_max_us = period_error_.max();
+  s.work_p50_us = work_.quantile(0.5);
+  s.work_p99_us = work_.quantile(0.99);
+  s.work_max_us = work_.max();
+  s.realtime_scheduling = realtime_.load();
+  s.memory_locked = locked_.load();
+  return s;
+}
+
+}  // namespace tendril::server

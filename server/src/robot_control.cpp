@@ -1,0 +1,248 @@
+// The control cycle: runs on the real-time thread (or from step()). No allocation, no locks, no
+// blocking: state arrives through LatestValue slots and the command mailbox, and leaves the same way.
+#include <cmath>
+#include <cstdio>
+
+#include "robot_runtime_impl.hpp"
+
+namespace tendril::server {
+
+namespace {
+using safety::OperatingState;
+using Cia = canopen::Cia402State;
+
+template <std::size_t N>
+void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c = 0) noexcept {
+  std::snprintf(buf, N, fmt, a, b, c);
+}
+}  // namespace
+
+void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now, bool previous_overrun) noexcept {
+  const double t = std::chrono::duration<double>(now - start_time).count();
+  const auto tick = ticks.fetch_add(1, std::memory_order_relaxed) + 1;
+  (void)tick;
+  for (auto& r : robots) control_robot(*r, t, previous_overrun);
+}
+
+void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept {
+  auto& s = r.rt;
+  auto& sup = *r.supervisor;
+  const std::span<const double> values(c.values.data(), c.count);
+  switch (c.kind) {
+    case CommandKind::state:
+      if (sup.request(t, c.state) == safety::CommandResult::kAccepted && c.state == safety::StateCommand::kEnable) {
+        s.enable_pending = true;
+        s.enable_started = t;
+        s.drives_ready = false;
+      }
+      if (c.state == safety::StateCommand::kPause || c.state == safety::StateCommand::kResume) {
+        // Pause and resume both start from rest at the current setpoint.
+        s.servo_active = false;
+        r.interpolator->reset({s.q_des.data(), r.n}, t);
+      }
+      break;
+    case CommandKind::move_jp:
+      // Re-checked here: the state may have changed since the network thread validated it.
+      if (sup.state() != OperatingState::kEnabled || !s.drives_ready || sup.check_goal(values)) break;
+      s.servo_active = false;
+      r.interpolator->retarget(t, values, {r.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
+      break;
+    case CommandKind::servo_jv:
+      if (sup.state() != OperatingState::kEnabled || !s.drives_ready || sup.check_velocity(values)) break;
+      for (std::size_t i = 0; i < r.n; ++i) s.servo_velocity[i] = values[i];
+      s.servo_active = true;
+      sup.servo_command_received(t);
+      break;
+    case CommandKind::estop:
+      sup.estop(t);
+      s.servo_active = false;
+      s.estop_tick = ticks.load(std::memory_order_relaxed);
+      break;
+    case CommandKind::estop_reset:
+      sup.reset_estop(t);
+      break;
+    case CommandKind::hold:
+      if (s.servo_active) {
+        s.servo_active = false;
+        r.interpolator->reset({s.q_des.data(), r.n}, t);
+      }
+      break;
+  }
+  ++s.commands_applied;
+}
+
+void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_overrun) noexcept {
+  auto& s = r.rt;
+  auto& sup = *r.supervisor;
+  const std::size_t n = r.n;
+
+  // 1. Read the drives.
+  std::array<canopen::DriveFeedback, kMaxJoints> fb;
+  bool all_enabled = true;
+  bool all_booted = true;
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& b = r.bindings[i];
+    fb[i] = b.bus->master->feedback(b.drive).load();
+    s.q[i] = fb[i].position;
+    s.qd[i] = fb[i].velocity;
+    s.effort[i] = fb[i].effort;
+    all_enabled = all_enabled && fb[i].state == Cia::operation_enabled;
+    all_booted = all_booted && fb[i].booted;
+  }
+  if (!s.initialised) {
+    for (std::size_t i = 0; i < n; ++i) {
+      s.q_des[i] = s.q[i];
+      s.heartbeat_was_alive[i] = fb[i].heartbeat_alive;
+      s.emcy_seen[i] = fb[i].emcy_count;
+    }
+    r.interpolator->reset({s.q_des.data(), n}, t);
+    s.initialised = true;
+  }
+
+  // 2. Drive watchdogs: heartbeat loss and EMCY fault the robot (edge-triggered, logged once).
+  for (std::size_t i = 0; i < n; ++i) {
+    const char* joint = r.config.joints[i].name.c_str();
+    if (s.heartbeat_was_alive[i] && !fb[i].heartbeat_alive) {
+      char detail[96];
+      text(detail, "drive '%s' stopped sending heartbeats", joint);
+      sup.fault(t, safety::FaultCode::kDriveHeartbeatLost, static_cast<int>(i), detail);
+    }
+    s.heartbeat_was_alive[i] = fb[i].heartbeat_alive;
+    if (fb[i].emcy_count != s.emcy_seen[i]) {
+      s.emcy_seen[i] = fb[i].emcy_count;
+      if (fb[i].last_emcy_code != canopen::emcy_code::no_error) {
+        char detail[96];
+        std::snprintf(detail, sizeof detail, "drive '%s' reported EMCY 0x%04X (error register 0x%02X)", joint,
+                      fb[i].last_emcy_code, fb[i].last_emcy_register);
+        sup.fault(t, safety::FaultCode::kDriveEmergency, static_cast<int>(i), detail);
+      }
+    }
+  }
+
+  // 3. Commands from the network threads.
+  RobotCommand command;
+  while (r.mailbox.pop(command)) apply_command(r, command, t);
+
+  // 4. Enabling: wait for every drive to reach operation enabled, then start from where they are.
+  OperatingState state = sup.state();
+  if (state == OperatingState::kEnabled || state == OperatingState::kPaused) {
+    if (!s.drives_ready) {
+      if (all_enabled) {
+        s.drives_ready = true;
+        s.enable_pending = false;
+        for (std::size_t i = 0; i < n; ++i) s.q_des[i] = s.q[i];
+        r.interpolator->reset({s.q_des.data(), n}, t);
+      } else if (t - s.enable_started > r.config.enable_timeout_ms / 1000.0) {
+        for (std::size_t i = 0; i < n; ++i) {
+          if (fb[i].state == Cia::operation_enabled) continue;
+          char detail[96];
+          std::snprintf(detail, sizeof detail, "drive '%s' did not enable within %d ms (it reports %s)",
+                        r.config.joints[i].name.c_str(), r.config.enable_timeout_ms, canopen::to_string(fb[i].state));
+          sup.fault(t, safety::FaultCode::kExternal, static_cast<int>(i), detail);
+          break;
+        }
+      }
+    } else if (!all_enabled) {
+      for (std::size_t i = 0; i < n; ++i) {
+        if (fb[i].state == Cia::operation_enabled) continue;
+        char detail[96];
+        std::snprintf(detail, sizeof detail, "drive '%s' left operation enabled (it reports %s)",
+                      r.config.joints[i].name.c_str(), canopen::to_string(fb[i].state));
+        sup.fault(t, safety::FaultCode::kDriveEmergency, static_cast<int>(i), detail);
+        break;
+      }
+    }
+  } else {
+    s.drives_ready = false;
+    s.enable_pending = false;
+  }
+  state = sup.state();
+
+  // 5. Mid-level control: joint interpolation or integrated servo velocity.
+  const std::span<double> q_des(s.q_des.data(), n), qd_des(s.qd_des.data(), n), qdd_des(s.qdd_des.data(), n);
+  if (state == OperatingState::kEnabled && s.drives_ready) {
+    if (s.servo_active && sup.servo_live()) {
+      for (std::size_t i = 0; i < n; ++i) {
+        s.qd_des[i] = s.servo_velocity[i];
+        s.q_des[i] += s.servo_velocity[i] * period;
+      }
+      r.interpolator->reset(q_des, t);
+    } else {
+      if (s.servo_active) {  // the stream stopped: hold where the setpoint is
+        s.servo_active = false;
+        r.interpolator->reset(q_des, t);
+      }
+      r.interpolator->sample(t, q_des, qd_des, qdd_des);
+    }
+  } else if (state == OperatingState::kPaused && s.drives_ready) {
+    for (std::size_t i = 0; i < n; ++i) s.qd_des[i] = 0.0;  // hold the setpoint
+  } else {
+    // Not commanding: the setpoint follows the measurement so that enabling never jumps.
+    for (std::size_t i = 0; i < n; ++i) {
+      s.q_des[i] = s.q[i];
+      s.qd_des[i] = 0.0;
+    }
+    s.servo_active = false;
+    r.interpolator->reset(q_des, t);
+  }
+  if (state == OperatingState::kEnabled && s.drives_ready) {
+    const auto clamp = sup.clamp_setpoint(q_des, qd_des);
+    if (clamp.clamped_joints > 0 && !s.servo_active) {
+      // The interpolator must not keep pulling against a clamped setpoint.
+      r.interpolator->reset(q_des, t);
+    }
+  }
+
+  // 6. Safety: servo timeout, tracking error, overruns.
+  sup.report_overrun(t, previous_overrun);
+  const bool tracking = state == OperatingState::kEnabled && s.drives_ready;
+  sup.tick(t, {s.q.data(), n}, tracking ? std::span<const double>(s.q_des.data(), n) : std::span<const double>(s.q.data(), n));
+  state = sup.state();
+
+  // 7. Write the drives.
+  const bool estop = sup.estop_latched();
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& b = r.bindings[i];
+    auto& slot = b.bus->master->command(b.drive);
+    canopen::DriveCommand dc = slot.load();
+    if (estop || state == OperatingState::kFault) {
+      dc.request = canopen::DriveRequest::quick_stop;
+    } else if (state == OperatingState::kEnabled || state == OperatingState::kPaused) {
+      dc.request = canopen::DriveRequest::enable;
+    } else if (fb[i].state == Cia::fault) {
+      dc.request = canopen::DriveRequest::fault_reset;  // acknowledged by disable: clear the drive fault
+    } else {
+      dc.request = canopen::DriveRequest::disable;
+    }
+    dc.target_position = s.q_des[i];
+    ++dc.sequence;
+    slot.store(dc);
+  }
+
+  // 8. Publish.
+  RobotSnapshot snap;
+  snap.tick = ticks.load(std::memory_order_relaxed);
+  snap.time = t;
+  snap.joints = static_cast<std::uint32_t>(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    snap.position[i] = s.q[i];
+    snap.velocity[i] = s.qd[i];
+    snap.effort[i] = s.effort[i];
+    snap.setpoint[i] = s.q_des[i];
+    snap.setpoint_velocity[i] = s.qd_des[i];
+    snap.drive_state[i] = fb[i].state;
+    snap.heartbeat_alive[i] = fb[i].heartbeat_alive;
+  }
+  snap.state = state;
+  snap.estop = estop;
+  snap.drives_ready = s.drives_ready;
+  snap.busy = s.enable_pending || s.servo_active || (s.drives_ready && !r.interpolator->done(t));
+  snap.fault = sup.fault_cause();
+  snap.estop_tick = s.estop_tick;
+  snap.commands_applied = s.commands_applied;
+  snap.mailbox_full = r.mailbox_full.load(std::memory_order_relaxed);
+  (void)all_booted;
+  r.snapshot.store(snap);
+}
+
+}  // namespace tendril::server

@@ -1,0 +1,80 @@
+#include "tendril/server/robot_kinematics.hpp"
+
+#include "tendril/server/config.hpp"
+#include "tendril/teleop/catheter_kinematics.hpp"
+
+namespace tendril::server {
+namespace {
+
+// The SRMC with the constant-curvature shape placeholder (seed 000 §4.6 gap note); the modal model
+// replaces it when the catheter-control work lands.
+class ConstantCurvatureCatheterModel final : public RobotKinematics {
+ public:
+  ConstantCurvatureCatheterModel(const teleop::CatheterParameters& p, std::size_t points)
+      : model_(p), points_per_segment_(points) {}
+  std::string frame() const override { return "world"; }
+  std::vector<Eigen::Vector3d> shape(std::span<const double> q) const override {
+    std::vector<Eigen::Vector3d> out(model_.backbone_point_count(points_per_segment_));
+    out.resize(model_.backbone(to_vector(q), points_per_segment_, out));
+    return out;
+  }
+  Pose tip(std::span<const double> q) const override {
+    const auto t = model_.tip_pose(to_vector(q));
+    return Pose{t.position, t.orientation()};
+  }
+
+ private:
+  static teleop::ConstantCurvatureCatheter::JointVector to_vector(std::span<const double> q) {
+    teleop::ConstantCurvatureCatheter::JointVector v;
+    for (int i = 0; i < 4; ++i) v[i] = q[static_cast<std::size_t>(i)];
+    return v;
+  }
+  teleop::ConstantCurvatureCatheter model_;
+  std::size_t points_per_segment_;
+};
+
+[[noreturn]] void fail(const std::string& file, const std::string& key, const std::string& expected,
+                       const nlohmann::json& got) {
+  throw ConfigError(file + ": kinematics." + key + ": expected " + expected + ", got " + got.dump());
+}
+
+double number(const nlohmann::json& j, const std::string& key, const std::string& file) {
+  if (!j.contains(key) || !j.at(key).is_number()) fail(file, key, "a number", j.value(key, nlohmann::json()));
+  return j.at(key).get<double>();
+}
+
+std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, const std::string& file, bool positive) {
+  const auto v = j.value(key, nlohmann::json());
+  if (!v.is_array() || v.size() != 2 || !v[0].is_number() || !v[1].is_number() ||
+      (positive && (v[0].get<double>() <= 0 || v[1].get<double>() <= 0)))
+    fail(file, key, positive ? "two positive numbers [proximal, distal]" : "two numbers [proximal, distal]", v);
+  return {v[0].get<double>(), v[1].get<double>()};
+}
+
+}  // namespace
+
+std::unique_ptr<RobotKinematics> make_kinematics(const nlohmann::json& k, std::size_t joint_count,
+                                                 const std::string& file) {
+  const auto model = k.value("model", std::string{});
+  if (model == "constant_curvature_catheter") {
+    if (joint_count != 4)
+      throw ConfigError(file + ": kinematics.model: constant_curvature_catheter needs the 4 SRMC joints "
+                        "(insertion, roll, proximal bend, distal bend), the file has " + std::to_string(joint_count));
+    teleop::CatheterParameters p;
+    const auto lengths = pair(k, "segment_lengths_mm", file, true);
+    const auto gains = pair(k, "bend_gain_rad_per_mm", file, false);
+    p.proximal_length = lengths[0];
+    p.distal_length = lengths[1];
+    p.proximal_curvature_gain = gains[0];
+    p.distal_curvature_gain = gains[1];
+    p.plane_offset = number(k, "plane_offset_rad", file);
+    p.flexure = k.contains("flexure_rad") ? number(k, "flexure_rad", file) : 0.0;
+    p.shaft_length = k.contains("shaft_display_length_mm") ? number(k, "shaft_display_length_mm", file) : 0.0;
+    const auto points = k.value("display_points_per_segment", 20);
+    if (points < 2 || points > 500) fail(file, "display_points_per_segment", "an integer from 2 to 500", points);
+    return std::make_unique<ConstantCurvatureCatheterModel>(p, static_cast<std::size_t>(points));
+  }
+  fail(file, "model", "a known model (constant_curvature_catheter)", model);
+}
+
+}  // namespace tendril::server

@@ -1,0 +1,283 @@
+#include "tendril/server/robot_runtime.hpp"
+
+#include <cmath>
+#include <sstream>
+
+#include "robot_runtime_impl.hpp"
+#include "tendril/drivers/can/socketcan_bus.hpp"
+#include "tendril/drivers/canopen/bus_load.hpp"
+
+namespace tendril::server {
+
+namespace {
+
+using safety::OperatingState;
+using Cia = canopen::Cia402State;
+
+sim::DriveParameters simulation_parameters(const JointConfig& j, const std::string& file, std::size_t index) {
+  sim::DriveParameters p;
+  if (j.simulation_preset == "srmc_insertion") {
+    p = sim::DriveParameters::srmc_insertion(j.name);
+  } else if (j.simulation_preset == "srmc_roll") {
+    p = sim::DriveParameters::srmc_roll(j.name);
+  } else if (j.simulation_preset == "srmc_bend") {
+    p = sim::DriveParameters::srmc_bend(j.name);
+  } else {
+    p.name = j.name;
+    // A generic lead-screw axis whose encoder matches the configured resolution.
+    p.units_per_output_rev = static_cast<double>(p.encoder_counts_per_motor_rev) * p.gear_ratio / j.drive.counts_per_unit;
+    p.max_velocity = 5.0 * j.max_velocity;
+  }
+  p.initial_position = j.initial_position;
+  const double sim_counts = p.counts_per_unit();
+  if (std::abs(sim_counts - j.drive.counts_per_unit) > 1e-6 * sim_counts) {
+    std::ostringstream msg;
+    msg << file << ": joints[" << index << "].drive.counts_per_unit: expected " << sim_counts
+        << " to match the simulated drive '" << j.simulation_preset << "' (encoder counts per joint unit), got "
+        << j.drive.counts_per_unit;
+    throw ConfigError(msg.str());
+  }
+  p.validate();
+  return p;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point a, std::chrono::steady_clock::time_point b) {
+  return std::chrono::duration<double>(b - a).count();
+}
+
+}  // namespace
+
+RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options) : impl_(std::make_unique<Impl>()) {
+  auto& im = *impl_;
+  im.options = options;
+  if (!(options.control_rate_hz > 0 && options.control_rate_hz <= 10'000))
+    throw ConfigError("control_rate_hz: expected a rate in (0, 10000] Hz, got " + std::to_string(options.control_rate_hz));
+  im.period = 1.0 / options.control_rate_hz;
+  if (robots.empty()) throw ConfigError("no robot configured: the server file must list at least one robot file");
+
+  for (auto& rc : robots) {
+    auto unit = std::make_unique<RobotUnit>();
+    unit->n = rc.joints.size();
+    const std::string file = rc.file.string();
+    unit->kinematics = make_kinematics(rc.kinematics, unit->n, file);
+
+    std::vector<safety::JointLimit> limits;
+    for (std::size_t i = 0; i < unit->n; ++i) {
+      const auto& j = rc.joints[i];
+      limits.push_back({j.name, j.unit, j.lower, j.upper, j.soft_margin, j.max_velocity, j.max_acceleration,
+                        j.max_tracking_error});
+      unit->max_velocity[i] = j.max_velocity;
+      unit->max_acceleration[i] = j.max_acceleration;
+    }
+    safety::SupervisorOptions so;
+    so.command_timeout = rc.command_timeout_ms / 1000.0;
+    so.max_consecutive_overruns = rc.max_consecutive_overruns;
+    unit->supervisor = std::make_unique<safety::SafetySupervisor>(safety::LimitSet(std::move(limits)), so);
+    unit->interpolator = std::make_unique<teleop::QuinticInterpolator>(unit->n);
+
+    // Buses and their drives.
+    std::map<std::string, BusUnit*> robot_buses;
+    for (const auto& bc : rc.buses) {
+      auto bus = std::make_unique<BusUnit>();
+      bus->config = bc;
+      bus->robot = rc.name;
+      std::vector<canopen::DriveSetup> setups;
+      std::vector<std::size_t> joint_index;
+      for (std::size_t i = 0; i < unit->n; ++i) {
+        const auto& j = rc.joints[i];
+        if (j.drive.bus != bc.name) continue;
+        canopen::DriveSetup ds;
+        ds.name = j.name;
+        ds.node_id = static_cast<std::uint8_t>(j.drive.node_id);
+        ds.counts_per_unit = j.drive.counts_per_unit;
+        ds.offset_counts = j.drive.offset_counts;
+        ds.heartbeat_producer_ms = static_cast<std::uint16_t>(bc.drive_heartbeat_period_ms);
+        ds.master_heartbeat_timeout_ms = static_cast<std::uint16_t>(bc.master_heartbeat_timeout_ms);
+        setups.push_back(ds);
+        joint_index.push_back(i);
+      }
+      const auto load = canopen::estimate_bus_load(bc.bitrate, std::chrono::microseconds(bc.sync_period_us), setups,
+                                                   std::chrono::milliseconds(bc.heartbeat_period_ms));
+      bus->load = load.load;
+      bus->load_breakdown = load.breakdown;
+      if (load.load > bc.max_load) {
+        std::ostringstream msg;
+        msg.precision(3);
+        msg << file << ": buses: bus '" << bc.name << "' would run at " << load.load * 100.0 << " % load ("
+            << load.bits_per_second / 1000.0 << " kbit/s worst case of " << bc.bitrate / 1000.0 << " kbit/s: "
+            << load.breakdown << "), over its ceiling of " << bc.max_load * 100.0
+            << " %. Lengthen sync_period_us, raise the bitrate, or move drives to another bus.";
+        throw ConfigError(msg.str());
+      }
+      canopen::MasterSetup ms;
+      ms.sync_period = std::chrono::microseconds(bc.sync_period_us);
+      ms.heartbeat_period = std::chrono::milliseconds(bc.heartbeat_period_ms);
+      ms.drive_heartbeat_timeout = std::chrono::milliseconds(bc.drive_heartbeat_timeout_ms);
+      if (bc.interface == "virtual") {
+        bus->virtual_bus = std::make_unique<can::VirtualBus>(rc.name + "/" + bc.name, bc.bitrate);
+        bus->master_endpoint = bus->virtual_bus->attach("master");
+        for (std::size_t k = 0; k < setups.size(); ++k) {
+          const auto i = joint_index[k];
+          auto params = simulation_parameters(rc.joints[i], file, i);
+          auto endpoint = bus->virtual_bus->attach("sim:" + rc.joints[i].name);
+          bus->sim_drives.push_back(
+              std::make_unique<sim::SimulatedCia402Drive>(setups[k].node_id, *endpoint, std::move(params)));
+          bus->sim_endpoints.push_back(std::move(endpoint));
+        }
+      } else {
+        bus->master_endpoint = std::make_unique<can::SocketCanBus>(bc.interface, bc.bitrate);
+      }
+      bus->master = std::make_unique<canopen::CanopenMaster>(*bus->master_endpoint, ms, setups);
+      robot_buses[bc.name] = bus.get();
+      im.buses.push_back(std::move(bus));
+    }
+    unit->bindings.resize(unit->n);
+    std::map<std::string, std::size_t> next_drive;
+    for (std::size_t i = 0; i < unit->n; ++i) {
+      auto* bus = robot_buses.at(rc.joints[i].drive.bus);
+      auto k = next_drive[bus->config.name]++;
+      unit->bindings[i].bus = bus;
+      unit->bindings[i].drive = k;
+      unit->bindings[i].sim = bus->virtual_bus ? bus->sim_drives[k].get() : nullptr;
+    }
+    unit->config = std::move(rc);
+    im.by_name[unit->config.name] = unit.get();
+    im.robots.push_back(std::move(unit));
+  }
+}
+
+RobotRuntime::~RobotRuntime() { stop(); }
+
+double RobotRuntime::time() const noexcept {
+  const auto now = impl_->options.stepped ? impl_->stepped_now : std::chrono::steady_clock::now();
+  return seconds_since(impl_->start_time, now);
+}
+
+std::size_t RobotRuntime::robot_count() const noexcept { return impl_->robots.size(); }
+std::uint64_t RobotRuntime::control_ticks() const noexcept { return impl_->ticks.load(); }
+LoopStatistics RobotRuntime::loop_statistics() const noexcept { return impl_->control_thread.statistics(); }
+
+std::unique_ptr<can::Bus> RobotRuntime::tap_bus(const std::string& robot, const std::string& bus) {
+  for (auto& b : impl_->buses)
+    if (b->robot == robot && b->config.name == bus && b->virtual_bus) return b->virtual_bus->attach("tap");
+  return nullptr;
+}
+
+sim::SimulatedCia402Drive* RobotRuntime::simulated_drive(const std::string& robot, const std::string& joint) {
+  auto it = impl_->by_name.find(robot);
+  if (it == impl_->by_name.end()) return nullptr;
+  for (std::size_t i = 0; i < it->second->n; ++i)
+    if (it->second->config.joints[i].name == joint) return it->second->bindings[i].sim;
+  return nullptr;
+}
+
+void RobotRuntime::start() {
+  auto& im = *impl_;
+  if (im.running.load()) return;
+  im.start_time = std::chrono::steady_clock::now();
+  im.stepped_now = im.start_time;
+  im.wall_offset = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  const auto dt = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+
+  for (auto& b : im.buses) {
+    if (b->sim_drives.empty()) continue;
+    if (im.options.stepped) continue;
+    auto* bus = b.get();
+    bus->sim_thread.start("sim:" + bus->config.name, std::chrono::milliseconds(1),
+                          [bus](std::chrono::steady_clock::time_point now, bool) {
+                            for (auto& d : bus->sim_drives) d->pump(now, 0.001);
+                          },
+                          false);
+  }
+  for (auto& b : im.buses) {
+    auto* bus = b.get();
+    std::function<void()> idle;
+    if (im.options.stepped) {
+      // Stepped: the simulated nodes only move when someone steps them, so step them while the
+      // master waits for SDO answers and boot-ups.
+      idle = [bus] {
+        const auto now = std::chrono::steady_clock::now();
+        for (auto& d : bus->sim_drives) d->pump(now, 0.001);
+      };
+    }
+    bus->master->start(idle);
+  }
+  if (im.options.stepped) {
+    im.stepped_now = std::chrono::steady_clock::now();
+  } else {
+    for (auto& b : im.buses) {
+      auto* bus = b.get();
+      bus->bus_thread = std::thread([&im, bus] { im.run_bus(*bus); });
+    }
+  }
+  im.running.store(true);
+  im.stopping.store(false);
+  if (!im.options.stepped) {
+    im.control_thread.start("control", dt,
+                            [&im](std::chrono::steady_clock::time_point deadline, bool overrun) {
+                              im.control_cycle(deadline, overrun);
+                            },
+                            im.options.realtime_priority);
+  }
+}
+
+void RobotRuntime::Impl::run_bus(BusUnit& b) {
+  pthread_setname_np(pthread_self(), "canbus");
+  // Wake at least every 200 µs so urgent commands (quick stop, disable) leave within a fraction of
+  // a control period even when the SYNC cycle is longer.
+  constexpr auto kMaxSleep = std::chrono::microseconds(200);
+  while (!stopping.load(std::memory_order_relaxed)) {
+    auto now = std::chrono::steady_clock::now();
+    auto wait = std::min<std::chrono::nanoseconds>(b.master->next_deadline() - now, kMaxSleep);
+    if (wait < std::chrono::nanoseconds(0)) wait = std::chrono::nanoseconds(0);
+    if (auto frame = b.master_endpoint->receive(wait)) {
+      b.master->handle(*frame, std::chrono::steady_clock::now());
+      while (auto more = b.master_endpoint->receive(std::chrono::nanoseconds(0)))
+        b.master->handle(*more, std::chrono::steady_clock::now());
+    }
+    b.master->poll(std::chrono::steady_clock::now());
+  }
+}
+
+void RobotRuntime::step() {
+  auto& im = *impl_;
+  if (!im.options.stepped) throw std::logic_error("RobotRuntime::step() is for stepped mode only");
+  if (!im.running.load()) throw std::logic_error("RobotRuntime::step() before start()");
+  im.stepped_now += std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+  const auto now = im.stepped_now;
+  for (auto& b : im.buses) {
+    for (auto& d : b->sim_drives) d->pump(now, im.period);
+    while (auto f = b->master_endpoint->receive(std::chrono::nanoseconds(0))) b->master->handle(*f, now);
+    b->master->poll(now);
+  }
+  im.control_cycle(now, false);
+  // Urgent requests from this cycle leave now, as the bus thread would within 200 µs.
+  for (auto& b : im.buses) b->master->poll(now);
+}
+
+void RobotRuntime::stop() {
+  auto& im = *impl_;
+  if (!im.running.exchange(false)) return;
+  im.control_thread.stop();
+  im.stopping.store(true);
+  for (auto& b : im.buses)
+    if (b->bus_thread.joinable()) b->bus_thread.join();
+  for (auto& b : im.buses) {
+    auto* bus = b.get();
+    std::function<void()> idle;
+    if (im.options.stepped) {
+      idle = [bus] {
+        const auto now = std::chrono::steady_clock::now();
+        for (auto& d : bus->sim_drives) d->pump(now, 0.001);
+      };
+    }
+    try {
+      bus->master->shutdown(std::chrono::milliseconds(500), idle);
+    } catch (const std::exception&) {
+      // Shutdown is best effort: the drives quick-stop by themselves when the master heartbeat ends.
+    }
+  }
+  for (auto& b : im.buses) b->sim_thread.stop();
+}
+
+}  // namespace tendril::server

@@ -1,0 +1,137 @@
+// Private parts of RobotRuntime shared by its source files (assembly, control cycle, API).
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "tendril/drivers/can/virtual_bus.hpp"
+#include "tendril/drivers/canopen/master.hpp"
+#include "tendril/drivers/sim/simulated_drive.hpp"
+#include "tendril/safety/safety_supervisor.hpp"
+#include "tendril/server/command_mailbox.hpp"
+#include "tendril/server/robot_kinematics.hpp"
+#include "tendril/server/robot_runtime.hpp"
+#include "tendril/teleop/latest_value.hpp"
+#include "tendril/teleop/quintic_interpolator.hpp"
+
+namespace tendril::server {
+
+inline constexpr std::size_t kMaxJoints = safety::kMaxJoints;
+using JointArray = std::array<double, kMaxJoints>;
+
+enum class CommandKind : std::uint8_t { state, move_jp, servo_jv, estop, estop_reset, hold };
+
+// One command from the network threads to the control thread; trivially copyable, fixed size.
+struct RobotCommand {
+  CommandKind kind = CommandKind::hold;
+  safety::StateCommand state = safety::StateCommand::kDisable;
+  std::uint32_t count = 0;
+  JointArray values{};
+  std::chrono::steady_clock::time_point received{};
+};
+
+// What the control thread publishes every tick.
+struct RobotSnapshot {
+  std::uint64_t tick = 0;
+  double time = 0.0;
+  std::uint32_t joints = 0;
+  JointArray position{}, velocity{}, effort{}, setpoint{}, setpoint_velocity{};
+  safety::OperatingState state = safety::OperatingState::kDisabled;
+  bool estop = false;
+  bool busy = false;      // a move is running, a servo stream is live, or drives are enabling
+  bool drives_ready = false;
+  std::array<canopen::Cia402State, kMaxJoints> drive_state{};
+  std::array<bool, kMaxJoints> heartbeat_alive{};
+  safety::FaultInfo fault{};
+  std::uint64_t estop_tick = 0;       // tick at which the last e-stop reached the control thread
+  std::uint64_t commands_applied = 0;
+  std::uint64_t mailbox_full = 0;
+};
+
+struct BusUnit {
+  BusConfig config;
+  std::string robot;
+  std::unique_ptr<can::VirtualBus> virtual_bus;  // null for SocketCAN
+  std::unique_ptr<can::Bus> master_endpoint;
+  std::unique_ptr<canopen::CanopenMaster> master;
+  std::vector<std::unique_ptr<can::Bus>> sim_endpoints;
+  std::vector<std::unique_ptr<sim::SimulatedCia402Drive>> sim_drives;
+  double load = 0.0;
+  std::string load_breakdown;
+  std::thread bus_thread;
+  PeriodicThread sim_thread;
+};
+
+struct JointBinding {
+  BusUnit* bus = nullptr;
+  std::size_t drive = 0;                  // index in the bus master's drive list
+  sim::SimulatedCia402Drive* sim = nullptr;  // when simulated
+};
+
+struct RobotUnit {
+  RobotConfig config;
+  std::unique_ptr<RobotKinematics> kinematics;
+  std::unique_ptr<safety::SafetySupervisor> supervisor;
+  std::unique_ptr<teleop::QuinticInterpolator> interpolator;
+  std::vector<JointBinding> bindings;
+  CommandMailbox<RobotCommand> mailbox{256};
+  teleop::LatestValue<RobotSnapshot> snapshot;
+  std::atomic<std::uint64_t> mailbox_full{0};
+  std::size_t n = 0;
+  JointArray max_velocity{}, max_acceleration{};
+
+  // Control-thread state (touched only by the control thread).
+  struct ControlState {
+    JointArray q{}, qd{}, effort{}, q_des{}, qd_des{}, qdd_des{}, servo_velocity{};
+    bool servo_active = false;
+    bool drives_ready = false;
+    double enable_started = 0.0;
+    bool enable_pending = false;
+    std::array<std::uint32_t, kMaxJoints> emcy_seen{};
+    std::array<bool, kMaxJoints> heartbeat_was_alive{};
+    std::uint64_t estop_tick = 0;
+    std::uint64_t commands_applied = 0;
+    bool initialised = false;
+  } rt;
+};
+
+struct RuntimeImplBase {
+  RuntimeOptions options;
+  std::vector<std::unique_ptr<RobotUnit>> robots;
+  std::vector<std::unique_ptr<BusUnit>> buses;
+  std::map<std::string, RobotUnit*> by_name;
+  PeriodicThread control_thread;
+  std::atomic<bool> running{false};
+  std::atomic<bool> stopping{false};
+  std::atomic<std::uint64_t> ticks{0};
+  std::chrono::steady_clock::time_point start_time{};
+  std::chrono::steady_clock::time_point stepped_now{};
+  double wall_offset = 0.0;  // unix time at start_time
+  double period = 0.001;
+
+  // Safety events drained from every supervisor, newest last; guarded by events_mutex.
+  mutable std::mutex events_mutex;
+  mutable std::deque<nlohmann::json> events;
+  mutable std::uint64_t events_total = 0;
+  // Topic cache for change detection.
+  mutable std::mutex topic_mutex;
+  mutable std::map<std::string, std::pair<std::string, std::uint64_t>> topic_cache;
+};
+
+struct RobotRuntime::Impl : RuntimeImplBase {
+  void control_cycle(std::chrono::steady_clock::time_point now, bool previous_overrun) noexcept;
+  void control_robot(RobotUnit& r, double t, bool previous_overrun) noexcept;
+  void apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept;
+  void run_bus(BusUnit& b);
+  void collect_events() const;
+};
+
+}  // namespace tendril::server
