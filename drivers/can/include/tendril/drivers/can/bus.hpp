@@ -17,6 +17,7 @@ struct BusStatistics {
   std::uint64_t send_failures = 0;
   std::uint64_t error_frames = 0;
   std::uint64_t bus_off_events = 0;
+  std::uint64_t receive_overflows = 0;  // frames dropped because the receive queue was full
 };
 
 // One endpoint on a CAN bus. send() never blocks; receive() waits at most `timeout`

@@ -1,6 +1,7 @@
 // SocketCanBus: a Linux SocketCAN CAN_RAW endpoint (can0, vcan0, ...).
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <stdexcept>
 #include <string>
@@ -14,6 +15,12 @@ class CanSetupError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+// The controller state after an error frame with class bits `error_class` (Frame::id of an error
+// frame) and detail bytes `data` (data[1]: controller warning/passive/active bits), starting from
+// `current`. Bus-off wins; a restart returns to error-active. Pure, so it is testable without CAN.
+BusState bus_state_after_error_frame(std::uint32_t error_class, const std::array<std::uint8_t, 8>& data,
+                                     BusState current) noexcept;
 
 class SocketCanBus final : public Bus {
  public:
