@@ -43,8 +43,9 @@ void Pid::reset() noexcept {
   output_ = 0.0;
 }
 
-double Pid::update(double setpoint, double measurement, double dt) noexcept {
-  if (!std::isfinite(setpoint) || !std::isfinite(measurement) || !std::isfinite(dt) || dt <= 0.0) {
+double Pid::update(double setpoint, double measurement, double dt, double feed_forward) noexcept {
+  if (!std::isfinite(setpoint) || !std::isfinite(measurement) || !std::isfinite(dt) || dt <= 0.0 ||
+      !std::isfinite(feed_forward)) {
     output_ = 0.0;
     return 0.0;
   }
@@ -61,7 +62,8 @@ double Pid::update(double setpoint, double measurement, double dt) noexcept {
 
   const double limit = gains_.output_limit;
   const double proportional = gains_.kp * error;
-  const double damping = gains_.kd * derivative_;
+  // Feed-forward joins the damping term so saturation and anti-windup see the whole output.
+  const double damping = gains_.kd * derivative_ + feed_forward;
   const double integral_step = gains_.ki * error * dt;
 
   switch (gains_.anti_windup) {

@@ -855,7 +855,7 @@ void SimulatedCia402Drive::enter_state(Cia402State s) noexcept {
       // Hold where the load is until the next SYNC latches a target.
       if (state_ != Cia402State::quick_stop_active) {
         demand_pos_ = measured;
-        integrator_ = 0.0;
+        servo_.reset();
       }
       demand_vel_ = 0.0;
       latched_target_ = interp_start_ = demand_pos_;
@@ -880,7 +880,7 @@ void SimulatedCia402Drive::enter_state(Cia402State s) noexcept {
     default:
       ramping_ = false;
       demand_vel_ = 0.0;
-      integrator_ = 0.0;
+      servo_.reset();
       break;
   }
   state_ = s;
@@ -968,9 +968,15 @@ void SimulatedCia402Drive::latch_targets() noexcept {
 void SimulatedCia402Drive::compute_gains() noexcept {
   const double inertia = params_.motor_inertia + params_.load_inertia;
   const double w = 2.0 * std::numbers::pi * params_.servo_bandwidth_hz;
-  kp_ = inertia * w * w;
-  kd_ = 2.0 * inertia * w;
-  ki_ = kp_ * w / 8.0;
+  teleop::PidGains g;
+  g.kp = inertia * w * w;
+  g.kd = 2.0 * inertia * w;
+  g.ki = g.kp * w / 8.0;
+  g.output_limit = params_.max_torque;
+  g.integral_limit = params_.max_torque;
+  g.derivative_filter_time = 1.0 / (2.0 * std::numbers::pi * params_.velocity_filter_hz);
+  g.anti_windup = teleop::AntiWindup::kConditional;
+  servo_ = teleop::Pid(g);
 }
 
 void SimulatedCia402Drive::update_demand(double dt) noexcept {
@@ -1035,18 +1041,13 @@ void SimulatedCia402Drive::physics_substep(double h) noexcept {
   // Servo: PID on position with velocity feed-forward, torque-limited, conditional integration.
   double torque = 0.0;
   if (servo_active() && powered_) {
-    const double e = (demand_pos_ - measured) * rad_per_count;
-    const double ev = (demand_vel_ - velocity_estimate_) * rad_per_count;
-    const double feed_forward = params_.viscous_friction * demand_vel_ * rad_per_count;
-    const double unsaturated = kp_ * e + ki_ * integrator_ + kd_ * ev + feed_forward;
-    torque = std::clamp(unsaturated, -params_.max_torque, params_.max_torque);
-    if (torque == unsaturated || (e > 0) != (unsaturated > 0)) {
-      integrator_ += e * h;
-      const double limit = params_.max_torque / ki_;
-      integrator_ = std::clamp(integrator_, -limit, limit);
-    }
+    // teleop::Pid damps on the measured velocity; the demanded velocity enters as feed-forward
+    // (kd·v_demand + viscous friction), which makes the damping act on the velocity error.
+    const double v_demand = demand_vel_ * rad_per_count;
+    const double feed_forward = (servo_.gains().kd + params_.viscous_friction) * v_demand;
+    torque = servo_.update(demand_pos_ * rad_per_count, measured * rad_per_count, h, feed_forward);
   } else {
-    integrator_ = 0.0;
+    servo_.reset();
   }
   motor_torque_ = torque;
 
@@ -1164,7 +1165,7 @@ void SimulatedCia402Drive::power_cycle() noexcept {
   state_ = Cia402State::not_ready_to_switch_on;
   ramping_ = false;
   demand_vel_ = 0.0;
-  integrator_ = 0.0;
+  servo_.reset();
   motor_torque_ = 0.0;
   last_controlword_ = 0;
   limit_warning_ = limit_emcy_sent_ = false;
@@ -1200,7 +1201,7 @@ void SimulatedCia402Drive::set_powered(bool on) noexcept {
   nmt_ = NmtState::boot_up;
   ramping_ = false;
   demand_vel_ = 0.0;
-  integrator_ = 0.0;
+  servo_.reset();
   motor_torque_ = 0.0;
 }
 

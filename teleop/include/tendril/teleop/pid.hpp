@@ -33,7 +33,9 @@ class Pid {
 
   // One control step: returns the clamped output. A non-finite input or dt ≤ 0 leaves the state
   // untouched and returns 0 (no drive effort) — the safe choice for a corrupted sample.
-  double update(double setpoint, double measurement, double dt) noexcept;
+  // feed_forward is added to the output before the limit (e.g. kd·v_desired plus friction
+  // compensation), so saturation and anti-windup account for it.
+  double update(double setpoint, double measurement, double dt, double feed_forward = 0.0) noexcept;
 
   void reset() noexcept;
 

@@ -19,6 +19,7 @@
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/drivers/canopen/protocol.hpp"
 #include "tendril/drivers/sim/object_dictionary.hpp"
+#include "tendril/teleop/pid.hpp"
 
 namespace tendril::sim {
 
@@ -257,8 +258,7 @@ class SimulatedCia402Drive {
   std::int32_t position_counts_ = 0;
   double measured_counts_prev_ = 0.0;
   double velocity_estimate_ = 0.0;  // counts/s, filtered
-  double integrator_ = 0.0;
-  double kp_ = 0, ki_ = 0, kd_ = 0;
+  teleop::Pid servo_;  // the drive's position loop (motor rad -> N m)
   std::mt19937_64 rng_;
   std::normal_distribution<double> noise_{0.0, 1.0};
 };
