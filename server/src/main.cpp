@@ -11,6 +11,7 @@
 #include <iostream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "tendril/drivers/canopen/master.hpp"
 #include "tendril/server/config.hpp"
@@ -33,6 +34,8 @@ options:
                        anything but loopback exposes the robots to the network: do it on purpose
   --token TOKEN        access token for the console and the API (default: $TENDRIL_TOKEN, else
                        the config's "token", else a random one printed in the console URL)
+  --allowed-origin O   also accept browser connections from origin O (repeatable), e.g. when
+                       serving behind a proxy or from a container; default: the server's own
   --no-realtime        do not ask for SCHED_FIFO / mlockall for the control thread
   --version            print the version and exit
   --help               print this help and exit
@@ -72,6 +75,7 @@ int main(int argc, char** argv) {
   std::filesystem::path config_file;
   std::string listen, token;
   bool no_realtime = false;
+  std::vector<std::string> extra_origins;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&](const char* name) -> std::string {
@@ -90,6 +94,8 @@ int main(int argc, char** argv) {
       listen = value("--listen");
     } else if (arg == "--token") {
       token = value("--token");
+    } else if (arg == "--allowed-origin") {
+      extra_origins.push_back(value("--allowed-origin"));
     } else if (arg == "--no-realtime") {
       no_realtime = true;
     } else {
@@ -136,6 +142,7 @@ int main(int argc, char** argv) {
     ho.port = config.port;
     ho.token = token;
     ho.allowed_origins = config.allowed_origins;
+    ho.allowed_origins.insert(ho.allowed_origins.end(), extra_origins.begin(), extra_origins.end());
     ho.web_root = config.web_root.string();
     ho.static_mounts["/vendor/three/"] = (config.vendor_root / "three").string();
     ho.publish_rate_hz = config.publish_rate_hz;

@@ -112,7 +112,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
       s.emcy_seen[i] = fb[i].emcy_count;
       if (fb[i].last_emcy_code != canopen::emcy_code::no_error) {
         char detail[96];
-        std::snprintf(detail, sizeof detail, "drive '%s' reported EMCY 0x%04X (error register 0x%02X)", joint,
+        std::snprintf(detail, sizeof detail, "drive '%s' EMCY 0x%04X, error register 0x%02X", joint,
                       fb[i].last_emcy_code, fb[i].last_emcy_register);
         sup.fault(t, safety::FaultCode::kDriveEmergency, static_cast<int>(i), detail);
       }

@@ -1,5 +1,8 @@
 #include "tendril/server/robot_runtime.hpp"
 
+#include <pthread.h>
+#include <sched.h>
+
 #include <cmath>
 #include <sstream>
 
@@ -187,7 +190,7 @@ void RobotRuntime::start() {
                           [bus](std::chrono::steady_clock::time_point now, bool) {
                             for (auto& d : bus->sim_drives) d->pump(now, 0.001);
                           },
-                          false);
+                          im.options.realtime_priority, 70);
   }
   for (auto& b : im.buses) {
     auto* bus = b.get();
@@ -223,6 +226,12 @@ void RobotRuntime::start() {
 
 void RobotRuntime::Impl::run_bus(BusUnit& b) {
   pthread_setname_np(pthread_self(), "canbus");
+  if (options.realtime_priority) {
+    // Just below the control thread: SYNC and heartbeats must not starve behind the network threads.
+    sched_param sp{};
+    sp.sched_priority = 75;
+    pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+  }
   // Wake at least every 200 µs so urgent commands (quick stop, disable) leave within a fraction of
   // a control period even when the SYNC cycle is longer.
   constexpr auto kMaxSleep = std::chrono::microseconds(200);

@@ -173,7 +173,9 @@ TEST_F(RuntimeTest, OperatorLostStopsServoAtOnceAndDoesNotResume) {
 TEST_F(RuntimeTest, DriveHeartbeatLossFaultsTheRobotWithTheCause) {
   enable();
   runtime->simulated_drive("srmc", "roll")->set_silent(true);
-  // Consumer time is 100 ms in srmc.json.
+  // Consumer time is 250 ms in srmc.json: the fault comes after it, not before.
+  steps(200);
+  EXPECT_EQ(state(), "ENABLED");
   EXPECT_TRUE(step_until([&] { return state() == "FAULT"; }, 200));
   const auto faults = runtime->faults();
   ASSERT_FALSE(faults.empty());

@@ -1,0 +1,53 @@
+#include "tendril/server/http/lease.hpp"
+
+namespace tendril::server::http {
+
+LeaseManager::LeaseManager(std::chrono::milliseconds timeout) : timeout_(timeout) {}
+
+bool LeaseManager::held_by_locked(const std::string& key, Clock::time_point now) const {
+  return !holder_key_.empty() && holder_key_ == key && now < expires_;
+}
+
+bool LeaseManager::acquire(const std::string& key, const std::string& label, Clock::time_point now) {
+  std::lock_guard lock(mutex_);
+  const bool free = holder_key_.empty() || now >= expires_;
+  if (!free && holder_key_ != key) return false;
+  holder_key_ = key;
+  holder_label_ = label;
+  expires_ = now + timeout_;
+  return true;
+}
+
+bool LeaseManager::release(const std::string& key, Clock::time_point now) {
+  std::lock_guard lock(mutex_);
+  if (!held_by_locked(key, now)) return false;
+  holder_key_.clear();
+  holder_label_.clear();
+  return true;
+}
+
+bool LeaseManager::use(const std::string& key, Clock::time_point now) {
+  std::lock_guard lock(mutex_);
+  if (!held_by_locked(key, now)) return false;
+  expires_ = now + timeout_;
+  return true;
+}
+
+LeaseManager::Status LeaseManager::status(const std::string& key, Clock::time_point now) const {
+  std::lock_guard lock(mutex_);
+  Status status;
+  if (holder_key_.empty() || now >= expires_) return status;
+  status.held = true;
+  status.yours = holder_key_ == key;
+  status.holder_label = holder_label_;
+  status.remaining = std::chrono::duration_cast<std::chrono::milliseconds>(expires_ - now);
+  return status;
+}
+
+std::optional<std::string> LeaseManager::holder(Clock::time_point now) const {
+  std::lock_guard lock(mutex_);
+  if (holder_key_.empty() || now >= expires_) return std::nullopt;
+  return holder_key_;
+}
+
+}  // namespace tendril::server::http
