@@ -1,0 +1,73 @@
+// Shared helpers of the API tests: the server under test comes from the environment
+// (TENDRIL_URL = http://127.0.0.1:PORT, TENDRIL_TOKEN), as tests/api/run.sh sets it.
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import path from 'node:path';
+import {fileURLToPath} from 'node:url';
+
+export const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
+export const TOKEN = process.env.TENDRIL_TOKEN || '';
+if (!BASE_URL || !TOKEN) {
+  throw new Error('Set TENDRIL_URL (e.g. http://127.0.0.1:8080) and TENDRIL_TOKEN, or run tests/api/run.sh <tendrild>');
+}
+export const API = `${BASE_URL}/api/v1`;
+export const REPO_ROOT = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
+export const ROBOT = 'srmc';
+export const robotConfig = JSON.parse(fs.readFileSync(path.join(REPO_ROOT, 'config/robots/srmc.json'), 'utf8'));
+
+// The lease belongs to a client identity; with a Bearer token and no cookie that is X-Tendril-Client.
+export const CLIENT_ID = 'api-test';
+
+export async function call(method, urlPath, {body, raw, token = TOKEN, client = CLIENT_ID, headers = {}} = {}) {
+  const h = {Accept: 'application/json', ...headers};
+  if (token) h.Authorization = `Bearer ${token}`;
+  if (client) h['X-Tendril-Client'] = client;
+  let payload;
+  if (raw !== undefined) {
+    payload = raw;
+    h['Content-Type'] = 'application/json';
+  } else if (body !== undefined) {
+    payload = JSON.stringify(body);
+    h['Content-Type'] = 'application/json';
+  }
+  const response = await fetch(urlPath.startsWith('http') ? urlPath : API + urlPath, {method, headers: h, body: payload});
+  const text = await response.text();
+  let json = null;
+  try {
+    json = text ? JSON.parse(text) : null;
+  } catch {
+    json = null;
+  }
+  return {status: response.status, json, text, headers: response.headers};
+}
+
+export const get = (p, o) => call('GET', p, o);
+export const post = (p, body = {}, o = {}) => call('POST', p, {body, ...o});
+
+// API.md error shape: {"error":{"code":"snake_case","message":"for a person"}}.
+export function assertErrorShape(res, status, code) {
+  assert.equal(res.status, status, `expected HTTP ${status}, got ${res.status}: ${res.text}`);
+  assert.ok(res.json && typeof res.json.error === 'object', `error body missing: ${res.text}`);
+  assert.match(res.json.error.code, /^[a-z][a-z0-9_]*$/, `error.code not snake_case: ${res.text}`);
+  assert.equal(typeof res.json.error.message, 'string');
+  assert.ok(res.json.error.message.length > 0, 'error.message is empty');
+  if (code) assert.equal(res.json.error.code, code, `expected code ${code}: ${res.text}`);
+}
+
+export const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+// Polls `probe` until it returns a truthy value; bounded by a count of polls, not by wall-clock
+// assertions. Returns the last value (truthy or not) so the caller can assert with a message.
+export async function pollUntil(probe, {polls = 100, intervalMs = 50} = {}) {
+  let last;
+  for (let i = 0; i < polls; i++) {
+    last = await probe();
+    if (last && last.done) return last;
+    await sleep(intervalMs);
+  }
+  return last;
+}
+
+export function tolerance(unit) {
+  return unit === 'rad' ? 0.005 : unit === 'deg' ? 0.3 : 0.05;
+}

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# API tests: starts the given tendrild on a free port with a known token and the repo's config,
+# runs the node tests in tests/api/ (REST with fetch, WebSocket with @foxglove/ws-protocol), and
+# always stops the server. Usage: tests/api/run.sh [path/to/tendrild]  (default $TENDRILD, else
+# build/server/tendrild)
+set -uo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+# shellcheck source=tests/api/server.sh
+source "$here/server.sh"
+trap stop_tendrild EXIT INT TERM
+
+[ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
+start_tendrild "${1:-${TENDRILD:-$repo_root/build/server/tendrild}}" || exit 1
+# One file at a time: the files share one server and its single robot.
+node --test --test-concurrency=1 "$here"/*.test.mjs
+status=$?
+if [ $status -ne 0 ]; then
+  echo "--- last lines of the tendrild log ---" >&2
+  tail -n 40 "$TENDRIL_LOG" >&2
+fi
+exit $status

@@ -1,0 +1,85 @@
+# Sourced by tests/api/run.sh and tests/e2e/run.sh: starts a tendrild binary on a free loopback port
+# with a known token and the repo's config, waits for GET /api/v1/health, and kills it on exit.
+# After `start_tendrild <binary>`: TENDRIL_URL, TENDRIL_TOKEN and TENDRIL_LOG are exported.
+# The command line defaults to `tendrild --config <generated server.json>`; set TENDRILD_ARGS to
+# replace the arguments after the binary ({config}, {port} and {token} are substituted).
+
+repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+tendrild_pid=""
+tendrild_workdir=""
+
+stop_tendrild() {
+  if [ -n "$tendrild_pid" ] && kill -0 "$tendrild_pid" 2>/dev/null; then
+    kill -TERM "$tendrild_pid" 2>/dev/null || true
+    for _ in $(seq 50); do
+      kill -0 "$tendrild_pid" 2>/dev/null || break
+      sleep 0.1
+    done
+    kill -KILL "$tendrild_pid" 2>/dev/null || true
+    wait "$tendrild_pid" 2>/dev/null || true
+  fi
+  tendrild_pid=""
+  if [ -n "$tendrild_workdir" ] && [ -z "${KEEP_TENDRILD_LOG:-}" ]; then rm -rf "$tendrild_workdir"; fi
+}
+
+free_port() {
+  node -e 'const s=require("net").createServer();s.listen(0,"127.0.0.1",()=>{console.log(s.address().port);s.close();});'
+}
+
+start_tendrild() {
+  local binary="$1"
+  if [ -z "$binary" ] || [ ! -x "$binary" ]; then
+    echo "usage: $0 <path to tendrild>   ('$binary' is not an executable file)" >&2
+    return 2
+  fi
+  binary="$(cd "$(dirname "$binary")" && pwd)/$(basename "$binary")"
+  tendrild_workdir="$(mktemp -d /tmp/tendril-test.XXXXXX)"
+  local port token
+  port="$(free_port)"
+  token="test-$(od -An -N12 -tx1 /dev/urandom | tr -d ' \n')"
+  # Same settings as config/server.json, with absolute paths, our port and token. Real-time priority
+  # stays requested: on a busy machine it keeps the simulated drives' heartbeats on time (where it is
+  # refused, tendrild logs that and runs without).
+  cat > "$tendrild_workdir/server.json" <<JSON
+{
+  "listen": "127.0.0.1:$port",
+  "token": "$token",
+  "web_root": "$repo_root/web",
+  "vendor_root": "$repo_root/node_modules",
+  "control_rate_hz": 1000,
+  "publish_rate_hz": 50,
+  "realtime_priority": true,
+  "robots": ["$repo_root/config/robots/srmc.json"]
+}
+JSON
+  local args=(--config "$tendrild_workdir/server.json")
+  if [ -n "${TENDRILD_ARGS:-}" ]; then
+    local expanded="${TENDRILD_ARGS//\{config\}/$tendrild_workdir/server.json}"
+    expanded="${expanded//\{port\}/$port}"
+    expanded="${expanded//\{token\}/$token}"
+    read -r -a args <<< "$expanded"
+  fi
+  export TENDRIL_LOG="$tendrild_workdir/tendrild.log"
+  (cd "$repo_root" && exec "$binary" "${args[@]}") > "$TENDRIL_LOG" 2>&1 &
+  tendrild_pid=$!
+  export TENDRIL_URL="http://127.0.0.1:$port"
+  export TENDRIL_TOKEN="$token"
+  # Bounded by a count of tries; a server that died is reported at once with its log.
+  for _ in $(seq 150); do
+    if ! kill -0 "$tendrild_pid" 2>/dev/null; then
+      echo "tendrild exited during start-up; its output:" >&2
+      cat "$TENDRIL_LOG" >&2
+      tendrild_pid=""
+      return 1
+    fi
+    if node -e 'fetch(process.argv[1]).then(r=>process.exit(r.ok?0:1),()=>process.exit(1))' \
+         "$TENDRIL_URL/api/v1/health" 2>/dev/null; then
+      echo "tendrild up at $TENDRIL_URL (pid $tendrild_pid, log $TENDRIL_LOG)"
+      return 0
+    fi
+    sleep 0.2
+  done
+  echo "tendrild did not answer /api/v1/health; its output:" >&2
+  cat "$TENDRIL_LOG" >&2
+  return 1
+}

@@ -1,0 +1,98 @@
+// WebSocket contract tests: an independent Foxglove client (@foxglove/ws-protocol's FoxgloveClient
+// over the `ws` package) connects to /ws with subprotocol foxglove.websocket.v1 and ?token=.
+import {test} from 'node:test';
+import assert from 'node:assert/strict';
+import wsProtocol from '@foxglove/ws-protocol';
+import WebSocket from 'ws';
+
+const {FoxgloveClient} = wsProtocol;  // CommonJS package: no named ESM exports
+import {BASE_URL, TOKEN, ROBOT, robotConfig} from './helpers.mjs';
+
+const WS_URL = BASE_URL.replace(/^http/, 'ws') + '/ws';
+
+// Resolves with the first value `pick` returns for an event, or rejects after `ms` (a bound on a
+// hung server, not a speed assertion).
+function waitFor(client, event, pick, ms = 10000) {
+  return new Promise((resolve, reject) => {
+    const timer = setTimeout(() => reject(new Error(`no suitable '${event}' within ${ms} ms`)), ms);
+    const listener = (arg) => {
+      const v = pick(arg);
+      if (v !== undefined) {
+        clearTimeout(timer);
+        client.off(event, listener);
+        resolve(v);
+      }
+    };
+    client.on(event, listener);
+  });
+}
+
+function connect(url) {
+  const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
+  return {ws, client: new FoxgloveClient({ws})};
+}
+
+test('a WebSocket without the token is refused', async () => {
+  const ws = new WebSocket(WS_URL, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
+  const outcome = await new Promise((resolve) => {
+    ws.on('unexpected-response', (_req, res) => resolve(`http ${res.statusCode}`));
+    ws.on('open', () => resolve('open'));
+    ws.on('error', (err) => resolve(`error ${err.message}`));
+  });
+  ws.terminate();
+  assert.notEqual(outcome, 'open', 'handshake without token must not succeed');
+  assert.match(outcome, /401|403|error/);
+});
+
+test('serverInfo, advertised channels, and joint_states messages with 4 positions', async () => {
+  const {ws, client} = connect(`${WS_URL}?token=${encodeURIComponent(TOKEN)}`);
+  try {
+    const channels = new Map();
+    client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
+    const info = await waitFor(client, 'serverInfo', (i) => i);
+    assert.equal(ws.protocol, 'foxglove.websocket.v1');
+    assert.equal(typeof info.name, 'string');
+    assert.ok(Array.isArray(info.capabilities), 'serverInfo.capabilities is a list');
+
+    const jointTopic = `/${ROBOT}/joint_states`;
+    const channel = channels.get(jointTopic) ??
+      await waitFor(client, 'advertise', (list) => list.find((c) => c.topic === jointTopic));
+    for (const topic of [`/${ROBOT}/operating_state`, `/${ROBOT}/scene`, '/safety/events']) {
+      if (!channels.has(topic)) await waitFor(client, 'advertise', (list) => list.find((c) => c.topic === topic));
+    }
+    assert.equal(channel.encoding, 'json');
+    assert.equal(channel.schemaName, 'tendril.JointState');
+    assert.equal(channels.get(`/${ROBOT}/scene`).schemaName, 'foxglove.SceneUpdate');
+
+    const subscriptionId = client.subscribe(channel.id);
+    const decoder = new TextDecoder();
+    const messages = [];
+    await waitFor(client, 'message', (m) => {
+      if (m.subscriptionId !== subscriptionId) return undefined;
+      const bytes = new Uint8Array(m.data.buffer, m.data.byteOffset, m.data.byteLength);
+      messages.push({timestamp: m.timestamp, json: JSON.parse(decoder.decode(bytes))});
+      return messages.length >= 3 ? true : undefined;
+    });
+    for (const {timestamp, json} of messages) {
+      assert.ok(timestamp > 0n, 'message timestamp in ns');
+      assert.deepEqual(json.name, robotConfig.joints.map((j) => j.name));
+      assert.equal(json.position.length, 4);
+      json.position.forEach((v) => assert.ok(Number.isFinite(v)));
+      assert.equal(json.setpoint.length, 4, 'joint_states carries the setpoint too');
+    }
+
+    // The scene stream is a foxglove.SceneUpdate with the backbone polyline.
+    const sceneChannel = channels.get(`/${ROBOT}/scene`);
+    const sceneSub = client.subscribe(sceneChannel.id);
+    const scene = await waitFor(client, 'message', (m) => {
+      if (m.subscriptionId !== sceneSub) return undefined;
+      return JSON.parse(decoder.decode(new Uint8Array(m.data.buffer, m.data.byteOffset, m.data.byteLength)));
+    });
+    const backbone = scene.entities.find((e) => /(^|\/)backbone$/.test(e.id));
+    assert.ok(backbone, `scene has a backbone entity: ${JSON.stringify(scene).slice(0, 200)}`);
+    assert.ok(backbone.lines[0].points.length >= 2);
+    for (const p of backbone.lines[0].points) for (const k of ['x', 'y', 'z']) assert.ok(Number.isFinite(p[k]));
+  } finally {
+    client.close();
+  }
+});

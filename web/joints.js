@@ -1,0 +1,149 @@
+// Joint panel, built from the robot description of GET /api/v1/robots: per joint the measured value
+// and the setpoint with units, the limits, a range bar, and a goal (number input + slider kept within
+// the limits). Goals start at the setpoint and follow it until the operator edits them.
+
+const DECIMALS = {mm: 2, rad: 3, deg: 1};
+const STEP = {mm: 0.01, rad: 0.001, deg: 0.1};
+
+function prettyName(name) {
+  const s = String(name).replace(/_/g, ' ');
+  return s.charAt(0).toUpperCase() + s.slice(1);
+}
+
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === 'class') e.className = v;
+    else if (k === 'text') e.textContent = v;
+    else e.setAttribute(k, v);
+  }
+  e.append(...children);
+  return e;
+}
+
+export function buildJointPanel(form, jointDescriptions, onChange) {
+  form.replaceChildren();
+  const rows = jointDescriptions.map((j, index) => {
+    const unit = j.unit || '';
+    const decimals = DECIMALS[unit] ?? 3;
+    const step = STEP[unit] ?? 0.001;
+    const lower = Number(j.lower);
+    const upper = Number(j.upper);
+    const id = `joint-${index}`;
+    const fmt = (v) => (Number.isFinite(v) ? v.toFixed(decimals) : '—');
+    const degrees = (v) => (unit === 'rad' && Number.isFinite(v) ? `${(v * 180 / Math.PI).toFixed(1)}°` : '');
+
+    const measuredValue = el('span', {'data-testid': `joint-measured-${j.name}`, text: '—'});
+    const setpointValue = el('span', {'data-testid': `joint-setpoint-${j.name}`, text: '—'});
+    const measuredDeg = el('span', {class: 'readout-sub'});
+    const fill = el('span', {class: 'fill'});
+    const spMark = el('span', {class: 'sp'});
+    const bar = el('div', {class: 'range-bar', 'aria-hidden': 'true'}, fill, spMark);
+    const number = el('input', {
+      type: 'number', id: `${id}-goal`, min: String(lower), max: String(upper), step: String(step),
+      inputmode: 'decimal', 'data-testid': `joint-goal-${j.name}`,
+      'aria-label': `${prettyName(j.name)} goal in ${unit}`,
+    });
+    const slider = el('input', {
+      type: 'range', min: String(lower), max: String(upper), step: String(step),
+      'data-testid': `joint-slider-${j.name}`, 'aria-label': `${prettyName(j.name)} goal slider in ${unit}`,
+    });
+    const limitsText = `${fmt(lower)} … ${fmt(upper)} ${unit}` +
+      (unit === 'rad' ? ` (${degrees(lower)} … ${degrees(upper)})` : '');
+    const row = el('fieldset', {class: 'joint', 'data-testid': `joint-row-${j.name}`, 'aria-label': prettyName(j.name)},
+      el('div', {class: 'joint-head'},
+        el('span', {class: 'joint-name', text: prettyName(j.name)}),
+        el('span', {class: 'joint-limits', 'data-testid': `joint-limits-${j.name}`, text: `limits ${limitsText}`,
+                    title: Number.isFinite(Number(j.max_velocity)) ? `max velocity ${j.max_velocity} ${unit}/s` : ''})),
+      el('div', {class: 'joint-values'},
+        el('div', {class: 'readout'}, el('span', {class: 'readout-label', text: 'measured'}),
+          el('span', {class: 'readout-value'}, measuredValue, el('span', {class: 'unit', text: unit}), measuredDeg)),
+        el('div', {class: 'readout readout-setpoint'}, el('span', {class: 'readout-label', text: 'setpoint'}),
+          el('span', {class: 'readout-value'}, setpointValue, el('span', {class: 'unit', text: unit}))),
+        el('div', {class: 'readout readout-goal'}, el('label', {class: 'readout-label', for: `${id}-goal`, text: 'goal'}),
+          el('span', {class: 'goal-input-wrap'}, number, el('span', {class: 'goal-unit', text: unit})))),
+      bar,
+      slider);
+    form.appendChild(row);
+
+    const r = {
+      name: j.name, unit, lower, upper, decimals, row, number, slider, fill, spMark, measuredValue, measuredDeg,
+      setpointValue, fmt, edited: false, measured: NaN, setpoint: NaN,
+    };
+    const fraction = (v) => Math.min(1, Math.max(0, (v - lower) / (upper - lower || 1)));
+    r.fraction = fraction;
+    const validate = () => {
+      const v = Number(number.value);
+      const ok = number.value.trim() !== '' && Number.isFinite(v) && v >= lower && v <= upper;
+      number.setAttribute('aria-invalid', ok ? 'false' : 'true');
+      number.title = ok ? '' : `Enter a value between ${fmt(lower)} and ${fmt(upper)} ${unit}`;
+      return ok;
+    };
+    r.validate = validate;
+    number.addEventListener('input', () => {
+      r.edited = true;
+      number.classList.add('edited');
+      if (validate()) slider.value = number.value;
+      onChange();
+    });
+    slider.addEventListener('input', () => {
+      r.edited = true;
+      number.classList.add('edited');
+      number.value = Number(slider.value).toFixed(decimals);
+      validate();
+      onChange();
+    });
+    r.setGoal = (v) => {
+      if (!Number.isFinite(v)) return;
+      const clamped = Math.min(upper, Math.max(lower, v));
+      number.value = clamped.toFixed(decimals);
+      slider.value = String(clamped);
+      validate();
+    };
+    return r;
+  });
+
+  const byName = new Map(rows.map((r) => [r.name, r]));
+  const forEachValue = (js, values, fn) => {
+    if (!js || !Array.isArray(values)) return;
+    values.forEach((v, i) => {
+      const r = Array.isArray(js.name) ? byName.get(js.name[i]) : rows[i];
+      if (r) fn(r, Number(v));
+    });
+  };
+
+  return {
+    updateMeasured(js) {
+      forEachValue(js, js.position, (r, v) => {
+        r.measured = v;
+        r.measuredValue.textContent = r.fmt(v);
+        r.measuredValue.parentElement.parentElement.dataset.value = String(v);
+        r.measuredDeg.textContent = r.unit === 'rad' && Number.isFinite(v) ? `${(v * 180 / Math.PI).toFixed(1)}°` : '';
+        r.fill.style.width = `${(r.fraction(v) * 100).toFixed(2)}%`;
+        const margin = (r.upper - r.lower) * 0.03;
+        r.row.classList.toggle('near-limit', v <= r.lower + margin || v >= r.upper - margin);
+      });
+    },
+    updateSetpoint(js) {
+      if (!js) return;
+      forEachValue(js, js.position, (r, v) => {
+        r.setpoint = v;
+        r.setpointValue.textContent = r.fmt(v);
+        r.spMark.style.left = `calc(${(r.fraction(v) * 100).toFixed(2)}% - 1px)`;
+        if (!r.edited) r.setGoal(v);
+      });
+      onChange();
+    },
+    goals() { return rows.map((r) => Number(r.number.value)); },
+    invalidJoints() { return rows.filter((r) => !r.validate()).map((r) => prettyName(r.name)); },
+    // After a move is accepted the goals stay as typed; the setpoint now heads there.
+    markSent() { rows.forEach((r) => r.number.classList.remove('edited')); },
+    goalsFromSetpoint() {
+      rows.forEach((r) => {
+        r.edited = false;
+        r.number.classList.remove('edited');
+        r.setGoal(Number.isFinite(r.setpoint) ? r.setpoint : r.measured);
+      });
+    },
+  };
+}

@@ -1,0 +1,298 @@
+// 3D view of the catheter: backbone as a tube along the polyline (mm), the tip frame as axes, a
+// millimetre grid, and any other foxglove.SceneUpdate entities (lines, arrows, spheres, cubes) the
+// server publishes. Z is up, as in Foxglove. Renders only when something changed, to leave the CPU
+// to the control loop on small machines.
+import * as THREE from 'three';
+import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
+
+const BACKBONE_RADIUS_MM = 0.9;  // drawn thicker than the real 0.88 mm OD so it stays visible when zoomed out
+const GRID_SIZE_MM = 200;
+const GRID_STEP_MM = 10;
+const MIN_ARROW_MM = 10;
+
+function colorOf(c, fallback = 0xe3b341) {
+  if (!c) return new THREE.Color(fallback);
+  return new THREE.Color(c.r, c.g, c.b);
+}
+
+function toVec(p) {
+  return Array.isArray(p) ? new THREE.Vector3(p[0], p[1], p[2]) : new THREE.Vector3(p.x, p.y, p.z);
+}
+
+function applyPose(object, pose) {
+  if (!pose) return;
+  if (pose.position) object.position.set(pose.position.x || 0, pose.position.y || 0, pose.position.z || 0);
+  const o = pose.orientation;
+  if (o) object.quaternion.set(o.x || 0, o.y || 0, o.z || 0, o.w === undefined ? 1 : o.w);
+}
+
+function disposeTree(object) {
+  object.traverse((child) => {
+    child.geometry?.dispose();
+    if (child.material) [].concat(child.material).forEach((m) => m.dispose());
+  });
+}
+
+// Name of the WebGL renderer ("" when unknown), from a throwaway context.
+function probeRenderer() {
+  try {
+    const gl = document.createElement('canvas').getContext('webgl2') || document.createElement('canvas').getContext('webgl');
+    if (!gl) return '';
+    const info = gl.getExtension('WEBGL_debug_renderer_info');
+    const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+    gl.getExtension('WEBGL_lose_context')?.loseContext();
+    return name;
+  } catch {
+    return '';
+  }
+}
+
+export class CatheterView {
+  constructor(container) {
+    this.container = container;
+    this.available = false;
+    this.dirty = true;
+    this.hasFitted = false;
+    this.entities = new Map();  // SceneUpdate entity id -> Object3D
+    this.entityKeys = new Map();  // entity id -> content key of what is drawn
+    this.lastBackbone = null;
+    this.tipFromScene = false;
+    // Without a GPU (software rasteriser) draw cheaper: no multisampling, 1:1 pixels, fewer frames,
+    // so the browser does not starve the server on the same small machine.
+    this.software = /swiftshader|llvmpipe|software/i.test(probeRenderer());
+    try {
+      this.renderer = new THREE.WebGLRenderer({antialias: !this.software, preserveDrawingBuffer: true});
+    } catch (err) {
+      this.showMessage(`3D view unavailable: WebGL could not start (${err.message}). Joint control still works.`);
+      return;
+    }
+    this.available = true;
+    THREE.Object3D.DEFAULT_UP.set(0, 0, 1);
+    this.renderer.setPixelRatio(this.software ? 1 : Math.min(window.devicePixelRatio || 1, 2));
+    this.renderer.setClearColor(0x0b0f14);
+    this.renderer.domElement.setAttribute('data-testid', 'scene-canvas');
+    this.renderer.domElement.setAttribute('aria-label', '3D view of the catheter backbone and tip frame');
+    this.renderer.domElement.setAttribute('role', 'img');
+    container.appendChild(this.renderer.domElement);
+
+    this.scene = new THREE.Scene();
+    this.camera = new THREE.PerspectiveCamera(40, 1, 0.5, 5000);
+    this.camera.up.set(0, 0, 1);
+    this.camera.position.set(160, -200, 140);
+
+    this.controls = new OrbitControls(this.camera, this.renderer.domElement);
+    this.controls.target.set(0, 0, 40);
+    this.controls.enableDamping = false;
+    this.controls.addEventListener('change', () => this.requestRender());
+
+    this.scene.add(new THREE.HemisphereLight(0xdde8ff, 0x202830, 1.6));
+    const sun = new THREE.DirectionalLight(0xffffff, 1.8);
+    sun.position.set(100, -150, 250);
+    this.scene.add(sun);
+
+    const grid = new THREE.GridHelper(GRID_SIZE_MM, GRID_SIZE_MM / GRID_STEP_MM, 0x3d4b5c, 0x222b36);
+    grid.rotation.x = Math.PI / 2;  // GridHelper lies in XZ; the floor here is XY (Z up)
+    this.scene.add(grid);
+    this.worldAxes = new THREE.AxesHelper(20);
+    this.worldAxes.material.depthTest = false;
+    this.scene.add(this.worldAxes);
+
+    this.backboneGroup = new THREE.Group();
+    this.scene.add(this.backboneGroup);
+    this.backboneMaterial = new THREE.MeshStandardMaterial({color: 0xe3b341, roughness: 0.45, metalness: 0.2});
+
+    this.tipAxes = new THREE.AxesHelper(12);
+    this.tipAxes.material.linewidth = 2;
+    this.tipAxes.visible = false;
+    this.scene.add(this.tipAxes);
+    this.tipMarker = new THREE.Mesh(new THREE.SphereGeometry(1.6, 20, 14),
+                                    new THREE.MeshStandardMaterial({color: 0xffffff, emissive: 0x333333}));
+    this.tipMarker.visible = false;
+    this.scene.add(this.tipMarker);
+
+    this.resizeObserver = new ResizeObserver(() => this.resize());
+    this.resizeObserver.observe(container);
+    this.resize();
+    // At most ~30 frames a second (10 in software), and none while nothing changes.
+    const minFrameMs = this.software ? 100 : 30;
+    let lastFrame = 0;
+    const loop = (now) => {
+      if (this.dirty && now - lastFrame >= minFrameMs) {
+        lastFrame = now;
+        this.dirty = false;
+        this.renderer.render(this.scene, this.camera);
+      }
+      requestAnimationFrame(loop);
+    };
+    requestAnimationFrame(loop);
+  }
+
+  showMessage(text) {
+    const div = document.createElement('div');
+    div.className = 'scene-message';
+    div.textContent = text;
+    this.container.appendChild(div);
+  }
+
+  requestRender() { this.dirty = true; }
+
+  resize() {
+    const w = Math.max(1, this.container.clientWidth);
+    const h = Math.max(1, this.container.clientHeight);
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+    this.requestRender();
+  }
+
+  // Backbone polyline in mm, [[x,y,z],...] or [{x,y,z},...].
+  setBackbone(points) {
+    if (!this.available || !points || points.length < 2) return;
+    const vecs = points.map(toVec);
+    // Skip rebuilding the tube when nothing moved (at rest the stream repeats the same shape).
+    const key = vecs.map((v) => `${v.x.toFixed(2)},${v.y.toFixed(2)},${v.z.toFixed(2)}`).join(';');
+    if (key === this.lastBackbone) return;
+    this.lastBackbone = key;
+    this.backboneGroup.children.forEach((c) => c.geometry.dispose());
+    this.backboneGroup.clear();
+    // Consecutive duplicate points would give the tube a zero-length tangent.
+    const clean = vecs.filter((v, i) => i === 0 || v.distanceToSquared(vecs[i - 1]) > 1e-8);
+    if (clean.length >= 2) {
+      const path = new THREE.CatmullRomCurve3(clean, false, 'centripetal');
+      const tube = new THREE.TubeGeometry(path, Math.max(16, clean.length * 4), BACKBONE_RADIUS_MM, 10, false);
+      this.backboneGroup.add(new THREE.Mesh(tube, this.backboneMaterial));
+    }
+    const tip = clean[clean.length - 1];
+    this.tipMarker.position.copy(tip);
+    this.tipMarker.visible = true;
+    if (!this.tipFromCp && clean.length >= 2) {
+      // Without a measured tip pose, align the tip frame's z with the backbone tangent.
+      const tangent = tip.clone().sub(clean[clean.length - 2]).normalize();
+      this.tipAxes.position.copy(tip);
+      this.tipAxes.quaternion.setFromUnitVectors(new THREE.Vector3(0, 0, 1), tangent);
+      this.tipAxes.visible = !this.tipFromScene;
+    }
+    if (!this.hasFitted) this.fit();
+    this.requestRender();
+  }
+
+  // Measured tip pose (mm, quaternion [qx,qy,qz,qw]) from GET measured_cp.
+  setTipPose(position, orientation) {
+    if (!this.available || !position) return;
+    this.tipFromCp = true;
+    this.tipAxes.position.set(position[0], position[1], position[2]);
+    if (orientation && orientation.length === 4) {
+      this.tipAxes.quaternion.set(orientation[0], orientation[1], orientation[2], orientation[3]).normalize();
+    }
+    this.tipAxes.visible = !this.tipFromScene;
+    this.requestRender();
+  }
+
+  // foxglove.SceneUpdate (JSON). The entity "backbone" (or any entity whose first line is the
+  // backbone) becomes the tube; other primitives (e.g. the tip frame's arrows) are drawn as they come.
+  applySceneUpdate(update) {
+    if (!this.available || !update) return;
+    for (const del of update.deletions || []) {
+      if (del.type === 1) {
+        for (const id of [...this.entities.keys()]) this.removeEntity(id);
+        this.entityKeys.clear();
+      } else {
+        this.removeEntity(del.id);
+        this.entityKeys.delete(del.id);
+      }
+    }
+    for (const entity of update.entities || []) {
+      // tendril names it "<robot>/backbone"; plain "backbone" is accepted too.
+      if (/(^|\/)backbone$/.test(entity.id || '') && entity.lines && entity.lines.length) {
+        this.setBackbone(entity.lines[0].points);
+        const rest = {...entity, lines: entity.lines.slice(1)};
+        this.setEntity(`${entity.id}#extra`, rest);
+      } else {
+        if (/tip/.test(entity.id || '')) this.tipFromScene = true;
+        this.setEntity(entity.id, entity);
+      }
+    }
+    if (this.tipFromScene) this.tipAxes.visible = false;
+    this.requestRender();
+  }
+
+  removeEntity(id) {
+    const obj = this.entities.get(id);
+    if (!obj) return;
+    this.scene.remove(obj);
+    disposeTree(obj);
+    this.entities.delete(id);
+    this.entityKeys.delete(id);
+  }
+
+  setEntity(id, entity) {
+    // The stream repeats unchanged entities with new timestamps; rebuild only what changed.
+    const key = JSON.stringify([entity.lines, entity.arrows, entity.spheres, entity.cubes]);
+    if (this.entityKeys.get(id) === key) return;
+    this.entityKeys.set(id, key);
+    this.removeEntity(id);
+    const group = new THREE.Group();
+    for (const line of entity.lines || []) {
+      const pts = (line.points || []).map(toVec);
+      if (pts.length < 2) continue;
+      const geometry = new THREE.BufferGeometry().setFromPoints(pts);
+      const material = new THREE.LineBasicMaterial({color: colorOf(line.color), transparent: (line.color?.a ?? 1) < 1,
+                                                    opacity: line.color?.a ?? 1});
+      // type 0 line strip, 1 line loop, 2 line list
+      const obj = line.type === 2 ? new THREE.LineSegments(geometry, material)
+                : line.type === 1 ? new THREE.LineLoop(geometry, material)
+                : new THREE.Line(geometry, material);
+      applyPose(obj, line.pose);
+      group.add(obj);
+    }
+    for (const arrow of entity.arrows || []) {
+      // Arrows shorter than MIN_ARROW_MM (e.g. a tip frame sized for the 0.88 mm catheter) are drawn
+      // scaled up so they stay readable at the usual zoom; direction and origin are unchanged.
+      const given = (arrow.shaft_length || 0) + (arrow.head_length || 0) || MIN_ARROW_MM;
+      const k = Math.max(1, MIN_ARROW_MM / given);
+      const length = given * k;
+      const helper = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), length,
+                                           colorOf(arrow.color), (arrow.head_length || given * 0.25) * k,
+                                           (arrow.head_diameter || given * 0.15) * k);
+      applyPose(helper, arrow.pose);
+      group.add(helper);
+    }
+    for (const sphere of entity.spheres || []) {
+      const s = sphere.size || {x: 1, y: 1, z: 1};
+      const mesh = new THREE.Mesh(new THREE.SphereGeometry(0.5, 20, 14),
+                                  new THREE.MeshStandardMaterial({color: colorOf(sphere.color), transparent: true,
+                                                                  opacity: sphere.color?.a ?? 1}));
+      mesh.scale.set(s.x, s.y, s.z);
+      applyPose(mesh, sphere.pose);
+      group.add(mesh);
+    }
+    for (const cube of entity.cubes || []) {
+      const s = cube.size || {x: 1, y: 1, z: 1};
+      const mesh = new THREE.Mesh(new THREE.BoxGeometry(s.x, s.y, s.z),
+                                  new THREE.MeshStandardMaterial({color: colorOf(cube.color), transparent: true,
+                                                                  opacity: cube.color?.a ?? 1}));
+      applyPose(mesh, cube.pose);
+      group.add(mesh);
+    }
+    if (group.children.length === 0) return;
+    this.entities.set(id, group);
+    this.scene.add(group);
+  }
+
+  // Frame the camera on the backbone (and the grid origin).
+  fit() {
+    if (!this.available) return;
+    const box = new THREE.Box3().setFromObject(this.backboneGroup);
+    if (box.isEmpty()) box.set(new THREE.Vector3(-20, -20, 0), new THREE.Vector3(20, 20, 60));
+    box.expandByPoint(new THREE.Vector3(0, 0, 0));
+    const center = box.getCenter(new THREE.Vector3());
+    const radius = Math.max(30, box.getSize(new THREE.Vector3()).length() / 2);
+    const distance = radius / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2)) * 1.25;
+    const dir = new THREE.Vector3(0.55, -0.75, 0.45).normalize();
+    this.camera.position.copy(center).addScaledVector(dir, distance);
+    this.controls.target.copy(center);
+    this.controls.update();
+    this.hasFitted = true;
+    this.requestRender();
+  }
+}
