@@ -1,0 +1,127 @@
+// Foxglove WebSocket protocol v1 ("foxglove.websocket.v1") wire codecs as pure functions, so they can be
+// unit-tested and fuzzed without sockets. Follows foxglove/ws-protocol docs/spec.md: text frames are JSON
+// objects with an "op"; binary frames start with a one-byte opcode and use little-endian integers.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <variant>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+namespace tendril::server::http::foxglove {
+
+inline constexpr std::string_view kSubprotocol = "foxglove.websocket.v1";
+
+// Binary opcodes. Server and client opcode spaces are separate in the spec.
+enum class ServerBinaryOp : std::uint8_t { kMessageData = 0x01, kTime = 0x02, kServiceCallResponse = 0x03 };
+enum class ClientBinaryOp : std::uint8_t { kMessageData = 0x01, kServiceCallRequest = 0x02 };
+enum class StatusLevel : int { kInfo = 0, kWarning = 1, kError = 2 };
+
+// ---- client → server, text ----
+struct Subscription {
+  std::uint32_t id = 0;
+  std::uint32_t channel_id = 0;
+};
+struct SubscribeOp {
+  std::vector<Subscription> subscriptions;
+};
+struct UnsubscribeOp {
+  std::vector<std::uint32_t> subscription_ids;
+};
+// A channel the client wants to publish on (clientPublish capability).
+struct ClientChannel {
+  std::uint32_t id = 0;
+  std::string topic;
+  std::string encoding;
+  std::string schema_name;
+};
+struct ClientAdvertiseOp {
+  std::vector<ClientChannel> channels;
+};
+struct ClientUnadvertiseOp {
+  std::vector<std::uint32_t> channel_ids;
+};
+// A well-formed op this server does not implement (getParameters, fetchAsset, ...): not abuse.
+struct UnsupportedOp {
+  std::string op;
+};
+// Malformed input: not JSON, wrong types, missing fields. `message` is for a person.
+struct ProtocolError {
+  std::string message;
+};
+
+using ClientTextMessage = std::variant<SubscribeOp, UnsubscribeOp, ClientAdvertiseOp, ClientUnadvertiseOp,
+                                       UnsupportedOp, ProtocolError>;
+
+// Never throws; anything unexpected becomes ProtocolError. Nesting deeper than kMaxJsonDepth is refused.
+ClientTextMessage parse_client_text(std::string_view text);
+
+// ---- client → server, binary ----
+struct ClientMessageData {
+  std::uint32_t channel_id = 0;
+  std::string_view payload;  // views into the input
+};
+struct ServiceCallRequest {
+  std::uint32_t service_id = 0;
+  std::uint32_t call_id = 0;
+  std::string_view encoding;
+  std::string_view payload;
+};
+using ClientBinaryMessage = std::variant<ClientMessageData, ServiceCallRequest, ProtocolError>;
+ClientBinaryMessage parse_client_binary(std::string_view data);
+
+// ---- server → client, binary ----
+inline constexpr std::size_t kMessageDataHeaderBytes = 1 + 4 + 8;
+std::array<std::uint8_t, kMessageDataHeaderBytes> message_data_header(std::uint32_t subscription_id,
+                                                                      std::uint64_t log_time_ns);
+std::string encode_message_data(std::uint32_t subscription_id, std::uint64_t log_time_ns,
+                                std::string_view payload);
+std::string encode_service_call_response(std::uint32_t service_id, std::uint32_t call_id,
+                                         std::string_view encoding, std::string_view payload);
+
+// Decoders of the server frames and encoders of the client frames, for clients and tests.
+struct MessageData {
+  std::uint32_t subscription_id = 0;
+  std::uint64_t log_time_ns = 0;
+  std::string_view payload;
+};
+std::optional<MessageData> parse_message_data(std::string_view data);
+std::optional<ServiceCallRequest> parse_service_call_response(std::string_view data);
+std::string encode_service_call_request(std::uint32_t service_id, std::uint32_t call_id,
+                                        std::string_view encoding, std::string_view payload);
+std::string encode_client_message_data(std::uint32_t channel_id, std::string_view payload);
+
+// ---- server → client, text ----
+struct Channel {
+  std::uint32_t id = 0;
+  std::string topic;
+  std::string encoding = "json";
+  std::string schema_name;
+  std::string schema;  // JSON schema, as a string (the spec carries it as a string)
+};
+// Channel description for one of tendril's topics: schema name and JSON schema by topic kind.
+Channel channel_for_topic(std::uint32_t id, const std::string& topic);
+
+struct Service {
+  std::uint32_t id = 0;
+  std::string name;
+  std::string type;
+  std::string request_schema;
+  std::string response_schema;
+};
+
+nlohmann::json server_info(const std::string& name, const std::vector<std::string>& capabilities,
+                           const nlohmann::json& metadata, const std::string& session_id);
+nlohmann::json advertise(const std::vector<Channel>& channels);
+nlohmann::json unadvertise(const std::vector<std::uint32_t>& channel_ids);
+nlohmann::json advertise_services(const std::vector<Service>& services);
+nlohmann::json status(StatusLevel level, const std::string& message);
+nlohmann::json service_call_failure(std::uint32_t service_id, std::uint32_t call_id,
+                                    const std::string& message);
+
+}  // namespace tendril::server::http::foxglove

@@ -1,0 +1,100 @@
+// HttpServer: the REST + WebSocket front end of tendrild (Boost.Beast), on one port.
+//
+// - REST under /api/v1 (API.md) mapped onto ControlApi; GET /metrics at the root; static console files.
+// - WebSocket /ws speaking Foxglove WebSocket protocol v1 (subprotocol "foxglove.websocket.v1").
+//
+// Access (API.md "Start-up and access"):
+// - Every call but GET /api/v1/health and static files needs the token: `Authorization: Bearer <token>`,
+//   the session cookie `tendril_session` (set when a page is requested with `?token=`; it holds a random
+//   session id, never the token), or `?token=` on the WebSocket URL.
+// - Roles: a token holder is an operator. `?role=viewer` (page or WS URL; sticks to the cookie session) or
+//   the header `X-Tendril-Role: viewer` makes the session read-only: viewers get 403 `forbidden_role` on
+//   commands and on the lease, but may still trigger the e-stop (safety first).
+// - Lease: one operator commands at a time. Lease identity = the cookie session, else the
+//   `X-Tendril-Client` header value, else the TCP connection. A WebSocket shares its cookie session's
+//   identity, so a console that took the lease over REST also holds it on its socket. The lease expires
+//   `lease_timeout` after it was taken or last used by a command. When the holder's WebSocket closes,
+//   ControlApi::operator_lost() is called (servo stops); the lease stays until released or expired.
+// - Browsers: WebSocket handshakes and REST calls that carry an Origin header must come from an allowed
+//   origin (403 otherwise); a missing Origin (non-browser client) is allowed.
+#pragma once
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "tendril/server/control_api.hpp"
+
+namespace tendril::server {
+
+struct HttpOptions {
+  std::string host = "127.0.0.1";
+  unsigned short port = 8080;  // 0 = any free port; see HttpServer::port()
+  std::string token;           // required, never empty
+  // Origins allowed for browsers. Empty = the server's own origin http://host:port (plus
+  // http://localhost:port and http://127.0.0.1:port when bound to loopback, the same machine).
+  std::vector<std::string> allowed_origins;
+  std::string web_root;                              // static console files; empty = none
+  std::map<std::string, std::string> static_mounts;  // URL prefix -> directory, e.g. "/vendor/three/"
+  std::size_t max_body_bytes = 64 * 1024;            // REST request bodies (413 above)
+  std::size_t max_ws_message_bytes = 64 * 1024;      // client WebSocket messages (connection closed above)
+  int io_threads = 2;
+  double publish_rate_hz = 50;  // topic publishing; <= 0 = no publisher thread (call publish_once())
+  std::chrono::milliseconds lease_timeout{30000};
+  // Client WebSocket message rate limit (token bucket) and how many protocol violations
+  // (malformed messages, rate excess) a connection may commit before it is closed.
+  double ws_client_rate_hz = 200;
+  double ws_client_burst = 400;
+  int ws_max_violations = 20;
+  std::size_t ws_max_control_queue = 256;  // queued JSON messages per connection before it is closed
+  std::size_t ws_max_subscriptions = 256;
+  std::size_t max_sessions = 1024;  // cookie sessions kept; the oldest is forgotten first
+};
+
+// Set-up failure (port taken, bad address, missing token). The message is written for a person.
+class HttpServerError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+class HttpServer {
+ public:
+  // Per-connection view for tests and metrics.
+  struct ConnectionStats {
+    std::uint64_t id = 0;
+    std::size_t queued_messages = 0;  // control messages + newest-only data slots waiting to be written
+    std::size_t subscriptions = 0;
+    bool write_in_flight = false;
+    std::uint64_t dropped = 0;
+  };
+
+  HttpServer(ControlApi& api, HttpOptions options);
+  ~HttpServer();
+  HttpServer(const HttpServer&) = delete;
+  HttpServer& operator=(const HttpServer&) = delete;
+
+  // Binds and starts the I/O threads and the publisher. Throws HttpServerError.
+  void start();
+  // Closes the listener and every connection, joins all threads. Safe to call twice.
+  void stop();
+  // Bound port (useful with port 0). Valid after start().
+  unsigned short port() const;
+  // Prometheus text of the front end: clients, WS messages sent/dropped, HTTP responses by status.
+  std::string metrics() const;
+  // Asks ControlApi for every subscribed topic's message once and queues it to subscribers. The
+  // publisher thread calls this at publish_rate_hz; tests call it directly to step time.
+  void publish_once();
+  std::vector<ConnectionStats> connection_stats() const;
+
+  class Impl;  // implementation detail (declared public so the connection classes can name it)
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tendril::server

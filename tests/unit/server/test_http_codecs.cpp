@@ -1,0 +1,219 @@
+// Pure codecs of the HTTP/WebSocket front end: Foxglove frames, client op parsing, REST body parsing,
+// request helpers and the lease (with stepped time).
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "tendril/server/http/foxglove_protocol.hpp"
+#include "tendril/server/http/lease.hpp"
+#include "tendril/server/http/request_codec.hpp"
+
+using namespace tendril::server::http;
+namespace fg = tendril::server::http::foxglove;
+using nlohmann::json;
+
+TEST(FoxgloveCodec, MessageDataIsOpcodeThenLittleEndianIdsThenPayload) {
+  const std::string frame = fg::encode_message_data(0x04030201u, 0x0807060504030201ull, "{}");
+  ASSERT_EQ(frame.size(), 13u + 2u);
+  const unsigned char expected[] = {0x01, 0x01, 0x02, 0x03, 0x04, 0x01, 0x02,
+                                    0x03, 0x04, 0x05, 0x06, 0x07, 0x08};
+  for (std::size_t i = 0; i < sizeof(expected); ++i)
+    EXPECT_EQ(static_cast<unsigned char>(frame[i]), expected[i]) << i;
+  EXPECT_EQ(frame.substr(13), "{}");
+  const auto header = fg::message_data_header(0x04030201u, 0x0807060504030201ull);
+  EXPECT_EQ(std::string(header.begin(), header.end()), frame.substr(0, 13));
+  const auto parsed = fg::parse_message_data(frame);
+  ASSERT_TRUE(parsed);
+  EXPECT_EQ(parsed->subscription_id, 0x04030201u);
+  EXPECT_EQ(parsed->log_time_ns, 0x0807060504030201ull);
+  EXPECT_EQ(parsed->payload, "{}");
+  EXPECT_FALSE(fg::parse_message_data(frame.substr(0, 12)));
+}
+
+TEST(FoxgloveCodec, ServiceCallRequestAndResponseRoundTrip) {
+  const std::string request = fg::encode_service_call_request(7, 99, "json", R"({"robot":"a"})");
+  EXPECT_EQ(static_cast<unsigned char>(request[0]), 0x02);
+  const auto parsed = fg::parse_client_binary(request);
+  const auto* call = std::get_if<fg::ServiceCallRequest>(&parsed);
+  ASSERT_NE(call, nullptr);
+  EXPECT_EQ(call->service_id, 7u);
+  EXPECT_EQ(call->call_id, 99u);
+  EXPECT_EQ(call->encoding, "json");
+  EXPECT_EQ(call->payload, R"({"robot":"a"})");
+
+  const std::string response = fg::encode_service_call_response(7, 99, "json", "{}");
+  EXPECT_EQ(static_cast<unsigned char>(response[0]), 0x03);
+  const auto decoded = fg::parse_service_call_response(response);
+  ASSERT_TRUE(decoded);
+  EXPECT_EQ(decoded->call_id, 99u);
+  EXPECT_EQ(decoded->payload, "{}");
+}
+
+TEST(FoxgloveCodec, BrokenBinaryMessagesAreErrorsNotCrashes) {
+  EXPECT_TRUE(std::holds_alternative<fg::ProtocolError>(fg::parse_client_binary("")));
+  EXPECT_TRUE(std::holds_alternative<fg::ProtocolError>(fg::parse_client_binary(std::string("\x02\x01", 2))));
+  EXPECT_TRUE(std::holds_alternative<fg::ProtocolError>(fg::parse_client_binary(std::string("\x09", 1))));
+  // Encoding length claims more bytes than present.
+  std::string overrun = fg::encode_service_call_request(1, 2, "json", "");
+  overrun[9] = static_cast<char>(0xFF);
+  EXPECT_TRUE(std::holds_alternative<fg::ProtocolError>(fg::parse_client_binary(overrun)));
+  const auto data = fg::parse_client_binary(fg::encode_client_message_data(5, "{\"velocity\":[1]}"));
+  ASSERT_TRUE(std::holds_alternative<fg::ClientMessageData>(data));
+  EXPECT_EQ(std::get<fg::ClientMessageData>(data).channel_id, 5u);
+}
+
+TEST(FoxgloveCodec, ParsesSubscribeAndUnsubscribe) {
+  const auto parsed = fg::parse_client_text(
+      R"({"op":"subscribe","subscriptions":[{"id":3,"channelId":1},{"id":4,"channelId":2}]})");
+  const auto* subscribe = std::get_if<fg::SubscribeOp>(&parsed);
+  ASSERT_NE(subscribe, nullptr);
+  ASSERT_EQ(subscribe->subscriptions.size(), 2u);
+  EXPECT_EQ(subscribe->subscriptions[1].id, 4u);
+  EXPECT_EQ(subscribe->subscriptions[1].channel_id, 2u);
+  const auto un = fg::parse_client_text(R"({"op":"unsubscribe","subscriptionIds":[3]})");
+  ASSERT_TRUE(std::holds_alternative<fg::UnsubscribeOp>(un));
+  EXPECT_EQ(std::get<fg::UnsubscribeOp>(un).subscription_ids, std::vector<std::uint32_t>{3});
+}
+
+TEST(FoxgloveCodec, ParsesClientAdvertise) {
+  const auto parsed = fg::parse_client_text(
+      R"({"op":"advertise","channels":[{"id":1,"topic":"/srmc/servo_jv","encoding":"json","schemaName":"x"}]})");
+  const auto* advertise = std::get_if<fg::ClientAdvertiseOp>(&parsed);
+  ASSERT_NE(advertise, nullptr);
+  EXPECT_EQ(advertise->channels.at(0).topic, "/srmc/servo_jv");
+}
+
+TEST(FoxgloveCodec, MalformedClientTextIsAProtocolErrorWithAMessage) {
+  for (const char* text : {"", "not json", "[]", R"({"subscriptions":[]})", R"({"op":"subscribe"})",
+                           R"({"op":"subscribe","subscriptions":[{"id":-1,"channelId":1}]})",
+                           R"({"op":"subscribe","subscriptions":[{"id":4294967296,"channelId":1}]})",
+                           R"({"op":"subscribe","subscriptions":[{"id":1.5,"channelId":1}]})",
+                           R"({"op":"unsubscribe","subscriptionIds":["a"]})", R"({"op":"explode"})"}) {
+    const auto parsed = fg::parse_client_text(text);
+    const auto* error = std::get_if<fg::ProtocolError>(&parsed);
+    ASSERT_NE(error, nullptr) << text;
+    EXPECT_FALSE(error->message.empty()) << text;
+  }
+  EXPECT_TRUE(std::holds_alternative<fg::ProtocolError>(fg::parse_client_text(std::string(10000, '['))));
+  EXPECT_TRUE(std::holds_alternative<fg::UnsupportedOp>(fg::parse_client_text(R"({"op":"getParameters"})")));
+}
+
+TEST(FoxgloveCodec, ServerMessagesFollowTheSpecShapes) {
+  const json info = fg::server_info("tendril", {"clientPublish", "services"}, {{"k", "v"}}, "abc");
+  EXPECT_EQ(info["op"], "serverInfo");
+  EXPECT_EQ(info["supportedEncodings"], json::array({"json"}));
+  EXPECT_EQ(info["sessionId"], "abc");
+  const json adv = fg::advertise({fg::channel_for_topic(3, "/srmc/joint_states")});
+  EXPECT_EQ(adv["channels"][0]["id"], 3);
+  EXPECT_EQ(adv["channels"][0]["encoding"], "json");
+  EXPECT_EQ(adv["channels"][0]["schemaName"], "tendril.JointState");
+  // The schema is a JSON schema carried as a string.
+  ASSERT_TRUE(adv["channels"][0]["schema"].is_string());
+  EXPECT_EQ(json::parse(adv["channels"][0]["schema"].get<std::string>())["type"], "object");
+  EXPECT_EQ(fg::channel_for_topic(1, "/srmc/scene").schema_name, "foxglove.SceneUpdate");
+  EXPECT_EQ(fg::channel_for_topic(1, "/safety/events").schema_name, "tendril.SafetyEvent");
+  EXPECT_EQ(fg::status(fg::StatusLevel::kError, "x")["level"], 2);
+  EXPECT_EQ(fg::service_call_failure(1, 2, "m")["op"], "serviceCallFailure");
+}
+
+TEST(RestBody, EmptyBodyIsAnEmptyObject) {
+  const auto result = parse_json_body("", 100);
+  ASSERT_TRUE(result.ok());
+  EXPECT_EQ(result.body, json::object());
+}
+
+TEST(RestBody, ErrorsUseApiCodes) {
+  const auto bad = parse_json_body("{\"goal\": [1,", 1000);
+  EXPECT_EQ(bad.status, 400);
+  EXPECT_EQ(bad.code, "malformed_json");
+  EXPECT_NE(bad.message.find("byte"), std::string::npos);
+  const auto array = parse_json_body("[1,2]", 1000);
+  EXPECT_EQ(array.status, 400);
+  EXPECT_NE(array.message.find("object"), std::string::npos);
+  const auto big = parse_json_body(std::string(2000, ' '), 1000);
+  EXPECT_EQ(big.status, 413);
+  EXPECT_EQ(big.code, "body_too_large");
+  const auto deep = parse_json_body("{\"a\":" + std::string(100, '[') + std::string(100, ']') + "}", 100000);
+  EXPECT_EQ(deep.status, 400);
+  // Regression (fuzz_rest_body): a number that overflows a double once escaped as an exception.
+  EXPECT_EQ(parse_json_body("6666666666666666666E6666666{\"", 1000).status, 400);
+  EXPECT_EQ(parse_json_body(R"({"goal":[1e999]})", 1000).status, 400);
+  const auto ok = parse_json_body(R"({"goal":[1,2,3]})", 1000);
+  ASSERT_TRUE(ok.ok());
+  EXPECT_EQ(ok.body["goal"].size(), 3u);
+}
+
+TEST(RestBody, NestingScanSkipsBracketsInStrings) {
+  EXPECT_FALSE(json_nesting_exceeds(R"({"a":"[[[[[[[[[[[["})", 2));
+  EXPECT_TRUE(json_nesting_exceeds("[[[", 2));
+  EXPECT_FALSE(json_nesting_exceeds(R"({"a":"\"[[[["})", 1));
+}
+
+TEST(RequestHelpers, TargetPathAndQueryArePercentDecoded) {
+  const auto target = parse_target("/a%20b/c?token=x%2By&role=viewer&flag");
+  EXPECT_TRUE(target.valid);
+  EXPECT_EQ(target.path, "/a b/c");
+  EXPECT_EQ(target.query.at("token"), "x+y");
+  EXPECT_EQ(target.query.at("role"), "viewer");
+  EXPECT_EQ(target.query.at("flag"), "");
+  EXPECT_FALSE(parse_target("/a%2").valid);
+  EXPECT_FALSE(parse_target("/a%00b").valid);
+  EXPECT_EQ(split_path("/api//v1/robots/"), (std::vector<std::string>{"api", "v1", "robots"}));
+}
+
+TEST(RequestHelpers, HeadersAndSecrets) {
+  EXPECT_EQ(cookie_value("a=1; tendril_session=abc; b=2", "tendril_session"), "abc");
+  EXPECT_FALSE(cookie_value("a=1", "tendril_session"));
+  EXPECT_EQ(bearer_token("Bearer  tok "), "tok");
+  EXPECT_EQ(bearer_token("bearer tok"), "tok");
+  EXPECT_FALSE(bearer_token("Basic dXNlcg=="));
+  EXPECT_TRUE(constant_time_equal("secret", "secret"));
+  EXPECT_FALSE(constant_time_equal("secret", "secreT"));
+  EXPECT_FALSE(constant_time_equal("secret", "secret2"));
+  EXPECT_FALSE(constant_time_equal("", "x"));
+  EXPECT_EQ(split_header_list(" a, foxglove.websocket.v1 ,,b"),
+            (std::vector<std::string>{"a", "foxglove.websocket.v1", "b"}));
+  EXPECT_TRUE(origin_allowed("http://127.0.0.1:8080", {"http://127.0.0.1:8080"}));
+  EXPECT_FALSE(origin_allowed("http://127.0.0.1:8080.evil", {"http://127.0.0.1:8080"}));
+}
+
+TEST(RequestHelpers, MimeTypes) {
+  EXPECT_EQ(mime_type("index.html"), "text/html; charset=utf-8");
+  EXPECT_EQ(mime_type("three.module.JS"), "text/javascript; charset=utf-8");
+  EXPECT_EQ(mime_type("a.wasm"), "application/wasm");
+  EXPECT_EQ(mime_type("noext"), "application/octet-stream");
+}
+
+TEST(RequestHelpers, StaticPathsCannotEscapeTheRoot) {
+  const std::filesystem::path root = "/srv/web";
+  EXPECT_EQ(resolve_static_path(root, "/", "/"), root / "index.html");
+  EXPECT_EQ(resolve_static_path(root, "/js/app.js", "/"), root / "js" / "app.js");
+  EXPECT_EQ(resolve_static_path("/nm/three", "/vendor/three/build/three.module.js", "/vendor/three/"),
+            std::filesystem::path("/nm/three/build/three.module.js"));
+  EXPECT_FALSE(resolve_static_path(root, "/../etc/passwd", "/"));
+  EXPECT_FALSE(resolve_static_path(root, "/js/../../etc/passwd", "/"));
+  EXPECT_FALSE(resolve_static_path(root, "/.git/config", "/"));
+  EXPECT_FALSE(resolve_static_path(root, "/a\\..\\b", "/"));
+  EXPECT_FALSE(resolve_static_path(root, "/other", "/vendor/"));
+}
+
+TEST(Lease, OneHolderAtATimeAndExpiresWithoutUse) {
+  LeaseManager lease(std::chrono::milliseconds(1000));
+  const LeaseManager::Clock::time_point t0{};
+  EXPECT_TRUE(lease.acquire("a", "A", t0));
+  EXPECT_FALSE(lease.acquire("b", "B", t0 + std::chrono::milliseconds(10)));
+  EXPECT_TRUE(lease.use("a", t0 + std::chrono::milliseconds(900)));  // renews to 1900
+  EXPECT_FALSE(lease.use("b", t0 + std::chrono::milliseconds(900)));
+  EXPECT_FALSE(lease.acquire("b", "B", t0 + std::chrono::milliseconds(1500)));
+  const auto status = lease.status("b", t0 + std::chrono::milliseconds(1500));
+  EXPECT_TRUE(status.held);
+  EXPECT_FALSE(status.yours);
+  EXPECT_EQ(status.holder_label, "A");
+  EXPECT_EQ(status.remaining.count(), 400);
+  // Expired: anyone may take it, and the old holder no longer commands.
+  EXPECT_FALSE(lease.use("a", t0 + std::chrono::milliseconds(1900)));
+  EXPECT_TRUE(lease.acquire("b", "B", t0 + std::chrono::milliseconds(1900)));
+  EXPECT_FALSE(lease.release("a", t0 + std::chrono::milliseconds(1901)));
+  EXPECT_TRUE(lease.release("b", t0 + std::chrono::milliseconds(1901)));
+  EXPECT_FALSE(lease.holder(t0 + std::chrono::milliseconds(1902)));
+}

@@ -1,0 +1,649 @@
+// HttpServer over real loopback sockets (port 0) against FakeControlApi, a test double of the robot
+// runtime defined here. Publishing is stepped by calling publish_once() (publish_rate_hz = 0).
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include <boost/asio.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/websocket.hpp>
+
+#include "tendril/server/http/foxglove_protocol.hpp"
+#include "tendril/server/http/http_server.hpp"
+
+namespace {
+
+namespace beast = boost::beast;
+namespace bhttp = boost::beast::http;
+namespace websocket = boost::beast::websocket;
+namespace net = boost::asio;
+using tcp = net::ip::tcp;
+using nlohmann::json;
+using tendril::server::ApiResult;
+using tendril::server::HttpOptions;
+using tendril::server::HttpServer;
+namespace fg = tendril::server::http::foxglove;
+
+constexpr const char* kToken = "test-token-0123456789";
+
+// Test double: one robot "srmc"; records commands; topic payloads change on every poll when asked to.
+class FakeControlApi : public tendril::server::ControlApi {
+ public:
+  std::atomic<int> state_commands{0}, estops{0}, estop_resets{0}, servo_commands{0}, operator_lost_calls{0};
+  std::atomic<bool> topics_change{true};
+  std::atomic<std::size_t> payload_padding{0};
+  mutable std::atomic<std::uint64_t> joint_version{0};
+
+  json robots() const override { return json::array({{{"name", "srmc"}, {"kind", "test"}}}); }
+  bool has_robot(const std::string& robot) const override { return robot == "srmc"; }
+  ApiResult measured_js(const std::string&) const override {
+    return ApiResult::success({{"name", {"j1"}}, {"position", {0.5}}});
+  }
+  ApiResult setpoint_js(const std::string&) const override {
+    return ApiResult::success({{"position", {0.0}}});
+  }
+  ApiResult measured_cp(const std::string&) const override { return ApiResult::success({{"frame", "base"}}); }
+  ApiResult shape(const std::string&) const override {
+    return ApiResult::success({{"points", json::array()}});
+  }
+  ApiResult operating_state(const std::string&) const override {
+    return ApiResult::success({{"state", "ENABLED"}});
+  }
+  ApiResult state_command(const std::string&, const json& body) override {
+    if (!body.contains("command")) return ApiResult::error(400, "missing_field", "command is required");
+    ++state_commands;
+    return ApiResult::success({{"state", "ENABLED"}});
+  }
+  ApiResult mode(const std::string&, const json&) override { return ApiResult::success(json::object()); }
+  ApiResult move_jp(const std::string&, const json&) override {
+    return ApiResult::success({{"duration_s", 1.0}}, 202);
+  }
+  ApiResult servo_jv(const std::string&, const json&) override {
+    ++servo_commands;
+    return ApiResult::success(json::object());
+  }
+  ApiResult estop() override {
+    ++estops;
+    return ApiResult::success({{"estop", true}});
+  }
+  ApiResult estop_reset() override {
+    ++estop_resets;
+    return ApiResult::success({{"estop", false}});
+  }
+  json faults(std::size_t) const override { return json::array(); }
+  std::string metrics() const override { return "fake_control_loop_overruns_total 0\n"; }
+  std::vector<std::string> topics() const override { return {"/srmc/joint_states", "/srmc/operating_state"}; }
+  std::optional<json> topic_message(const std::string& topic, std::uint64_t since,
+                                    std::uint64_t& version) const override {
+    if (topic != "/srmc/joint_states") return std::nullopt;
+    if (topics_change) ++joint_version;
+    if (joint_version == since) return std::nullopt;
+    version = joint_version;
+    return json{{"position", {static_cast<double>(joint_version.load())}},
+                {"padding", std::string(payload_padding.load(), 'x')}};
+  }
+  void operator_lost() override { ++operator_lost_calls; }
+};
+
+struct Reply {
+  int status = 0;
+  bhttp::response<bhttp::string_body> raw;
+  json body() const { return json::parse(raw.body(), nullptr, false); }
+};
+
+Reply http_request(unsigned short port, bhttp::verb verb, const std::string& target,
+                   const std::string& body = "", const std::map<std::string, std::string>& headers = {}) {
+  net::io_context ioc;
+  tcp::socket socket(ioc);
+  socket.connect({net::ip::make_address("127.0.0.1"), port});
+  bhttp::request<bhttp::string_body> req{verb, target, 11};
+  req.set(bhttp::field::host, "127.0.0.1");
+  for (const auto& [name, value] : headers) req.set(name, value);
+  req.body() = body;
+  req.prepare_payload();
+  bhttp::write(socket, req);
+  beast::flat_buffer buffer;
+  Reply reply;
+  bhttp::response_parser<bhttp::string_body> parser;
+  parser.body_limit(64 * 1024 * 1024);
+  bhttp::read(socket, buffer, parser);
+  reply.raw = parser.release();
+  reply.status = reply.raw.result_int();
+  return reply;
+}
+
+std::map<std::string, std::string> bearer(const std::string& client = "") {
+  std::map<std::string, std::string> headers{{"Authorization", std::string("Bearer ") + kToken}};
+  if (!client.empty()) headers["X-Tendril-Client"] = client;
+  return headers;
+}
+
+void expect_error_shape(const Reply& reply, int status, const std::string& code) {
+  EXPECT_EQ(reply.status, status) << reply.raw.body();
+  const json body = reply.body();
+  ASSERT_TRUE(body.is_object()) << reply.raw.body();
+  EXPECT_EQ(body["error"]["code"], code) << reply.raw.body();
+  EXPECT_TRUE(body["error"]["message"].is_string() && !body["error"]["message"].get<std::string>().empty());
+}
+
+class WsClient {
+ public:
+  // Returns the handshake response status (101 on success).
+  int connect(unsigned short port, const std::string& target,
+              const std::map<std::string, std::string>& headers = {}, bool offer_subprotocol = true) {
+    beast::get_lowest_layer(ws_).connect({net::ip::make_address("127.0.0.1"), port});
+    ws_.set_option(
+        websocket::stream_base::decorator([headers, offer_subprotocol](websocket::request_type& req) {
+          if (offer_subprotocol) req.set(bhttp::field::sec_websocket_protocol, "foxglove.websocket.v1");
+          for (const auto& [name, value] : headers) req.set(name, value);
+        }));
+    beast::error_code ec;
+    ws_.handshake(response_, "127.0.0.1:" + std::to_string(port), target, ec);
+    return response_.result_int();
+  }
+  const websocket::response_type& response() const { return response_; }
+
+  // Next message; `binary` tells which kind it was. Returns false when the connection ended.
+  bool read(std::string& message, bool& binary) {
+    beast::flat_buffer buffer;
+    beast::error_code ec;
+    ws_.read(buffer, ec);
+    if (ec) return false;
+    message = beast::buffers_to_string(buffer.data());
+    binary = ws_.got_binary();
+    return true;
+  }
+  json read_json() {
+    std::string message;
+    bool binary = false;
+    while (read(message, binary)) {
+      if (!binary) return json::parse(message);
+    }
+    return nullptr;
+  }
+  // Reads until a JSON message with this op arrives (skipping others).
+  json read_op(const std::string& op) {
+    for (int i = 0; i < 50; ++i) {
+      const json message = read_json();
+      if (message.is_null()) return nullptr;
+      if (message["op"] == op) return message;
+    }
+    return nullptr;
+  }
+  std::string read_binary() {
+    std::string message;
+    bool binary = false;
+    while (read(message, binary)) {
+      if (binary) return message;
+    }
+    return {};
+  }
+  void send_text(const std::string& text) {
+    ws_.text(true);
+    ws_.write(net::buffer(text));
+  }
+  void send_binary(const std::string& data) {
+    ws_.binary(true);
+    ws_.write(net::buffer(data));
+  }
+  void close() {
+    beast::error_code ec;
+    ws_.close(websocket::close_code::normal, ec);
+  }
+  // Reads the greeting (serverInfo, advertise, advertiseServices) and returns the three messages.
+  std::vector<json> read_greeting() { return {read_json(), read_json(), read_json()}; }
+
+ private:
+  net::io_context ioc_;
+  websocket::stream<tcp::socket> ws_{ioc_};
+  websocket::response_type response_;
+};
+
+class HttpServerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("tendril-http-test-" + std::to_string(::getpid()) + "-" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir_ / "web" / "js");
+    std::filesystem::create_directories(dir_ / "three");
+    std::ofstream(dir_ / "web" / "index.html") << "<html>console</html>";
+    std::ofstream(dir_ / "web" / "js" / "app.js") << "console.log(1)";
+    std::ofstream(dir_ / "three" / "three.module.js") << "export const REVISION = '1';";
+    std::ofstream(dir_ / "secret.txt") << "TOP-SECRET";
+    options_.port = 0;
+    options_.token = kToken;
+    options_.web_root = (dir_ / "web").string();
+    options_.static_mounts["/vendor/three/"] = (dir_ / "three").string();
+    options_.publish_rate_hz = 0;  // tests step publishing with publish_once()
+    options_.max_body_bytes = 1024;
+  }
+  void TearDown() override {
+    if (server_) server_->stop();
+    std::error_code ignored;
+    std::filesystem::remove_all(dir_, ignored);
+  }
+  void start() {
+    server_ = std::make_unique<HttpServer>(api_, options_);
+    server_->start();
+    port_ = server_->port();
+  }
+  std::string ws_target() const { return std::string("/ws?token=") + kToken; }
+
+  FakeControlApi api_;
+  HttpOptions options_;
+  std::unique_ptr<HttpServer> server_;
+  unsigned short port_ = 0;
+  std::filesystem::path dir_;
+};
+
+TEST_F(HttpServerTest, HealthNeedsNoToken) {
+  start();
+  EXPECT_NE(port_, 0);
+  const Reply reply = http_request(port_, bhttp::verb::get, "/api/v1/health");
+  ASSERT_EQ(reply.status, 200);
+  EXPECT_EQ(reply.body()["status"], "ok");
+  EXPECT_TRUE(reply.body()["version"].is_string());
+  EXPECT_TRUE(reply.body()["uptime_s"].is_number());
+}
+
+TEST_F(HttpServerTest, ApiNeedsTheToken) {
+  start();
+  expect_error_shape(http_request(port_, bhttp::verb::get, "/api/v1/robots"), 401, "missing_token");
+  expect_error_shape(
+      http_request(port_, bhttp::verb::get, "/api/v1/robots", "", {{"Authorization", "Bearer nope"}}), 401,
+      "bad_token");
+  // The query token is for pages and the WS URL, not for REST.
+  expect_error_shape(http_request(port_, bhttp::verb::get, std::string("/api/v1/robots?token=") + kToken),
+                     401, "missing_token");
+  const Reply ok = http_request(port_, bhttp::verb::get, "/api/v1/robots", "", bearer());
+  ASSERT_EQ(ok.status, 200);
+  EXPECT_EQ(ok.body()[0]["name"], "srmc");
+  expect_error_shape(http_request(port_, bhttp::verb::get, "/metrics"), 401, "missing_token");
+}
+
+TEST_F(HttpServerTest, PageWithTokenSetsAnHttpOnlySessionCookieThatAuthenticates) {
+  start();
+  const Reply page = http_request(port_, bhttp::verb::get, std::string("/?token=") + kToken);
+  ASSERT_EQ(page.status, 200);
+  EXPECT_EQ(page.raw.body(), "<html>console</html>");
+  const std::string cookie(page.raw[bhttp::field::set_cookie]);
+  EXPECT_NE(cookie.find("tendril_session="), std::string::npos);
+  EXPECT_NE(cookie.find("HttpOnly"), std::string::npos);
+  EXPECT_NE(cookie.find("SameSite=Strict"), std::string::npos);
+  EXPECT_EQ(cookie.find(kToken), std::string::npos) << "the cookie must not carry the token";
+  const std::string pair = cookie.substr(0, cookie.find(';'));
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots", "", {{"Cookie", pair}}).status, 200);
+  expect_error_shape(
+      http_request(port_, bhttp::verb::get, "/api/v1/robots", "", {{"Cookie", "tendril_session=forged"}}),
+      401, "missing_token");
+  expect_error_shape(http_request(port_, bhttp::verb::get, "/?token=wrong"), 401, "bad_token");
+  // The cookie session is a lease identity of its own.
+  const Reply lease = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", {{"Cookie", pair}});
+  ASSERT_EQ(lease.status, 200);
+  EXPECT_EQ(lease.body()["holder"].get<std::string>().rfind("session:", 0), 0u);
+  EXPECT_EQ(lease.raw.body().find(pair.substr(pair.find('=') + 1)), std::string::npos)
+      << "the lease holder label must not reveal the session id";
+}
+
+TEST_F(HttpServerTest, LeaseGuardsCommandsButNotTheEstop) {
+  start();
+  const std::string command = R"({"command":"enable"})";
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, bearer("a")), 409,
+      "lease_held");
+  const Reply taken = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a"));
+  ASSERT_EQ(taken.status, 200) << taken.raw.body();
+  EXPECT_EQ(taken.body()["holder"], "client:a");
+  EXPECT_GT(taken.body()["expires_in_s"].get<double>(), 0.0);
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("b")), 409,
+                     "lease_held");
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, bearer("b")), 409,
+      "lease_held");
+  EXPECT_EQ(api_.state_commands, 0);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, bearer("a"))
+                .status,
+            200);
+  EXPECT_EQ(api_.state_commands, 1);
+  // E-stop: any authenticated client, lease or not. Reset needs the lease.
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "{}", bearer("b")).status, 200);
+  EXPECT_EQ(api_.estops, 1);
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/estop/reset", "{}", bearer("b")), 409,
+                     "lease_held");
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop/reset", "{}", bearer("a")).status, 200);
+  EXPECT_EQ(api_.estop_resets, 1);
+  // Release, then b may take it.
+  expect_error_shape(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", bearer("b")), 409,
+                     "lease_held");
+  EXPECT_EQ(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", bearer("a")).status, 200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("b")).status, 200);
+}
+
+TEST_F(HttpServerTest, ViewersAreReadOnlyButMayStopTheRobot) {
+  start();
+  auto viewer = bearer("v");
+  viewer["X-Tendril-Role"] = "viewer";
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", viewer), 403,
+                     "forbidden_role");
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/move_jp", R"({"goal":[0]})", viewer), 403,
+      "forbidden_role");
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots/srmc/measured_js", "", viewer).status, 200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "", viewer).status, 200);
+  EXPECT_EQ(api_.estops, 1);
+  expect_error_shape(
+      http_request(port_, bhttp::verb::get, "/api/v1/robots", "",
+                   {{"Authorization", std::string("Bearer ") + kToken}, {"X-Tendril-Role", "root"}}),
+      400, "bad_role");
+}
+
+TEST_F(HttpServerTest, BadRequestsGetTheErrorShape) {
+  start();
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a")).status, 200);
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/move_jp", "{\"goal\":[1,", bearer("a")),
+      400, "malformed_json");
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/move_jp",
+                                  "{\"goal\":\"" + std::string(4096, 'x') + "\"}", bearer("a")),
+                     413, "body_too_large");
+  expect_error_shape(
+      http_request(port_, bhttp::verb::get, "/api/v1/robots/nope/measured_js", "", bearer("a")), 404,
+      "unknown_robot");
+  expect_error_shape(http_request(port_, bhttp::verb::get, "/api/v1/nothing", "", bearer("a")), 404,
+                     "not_found");
+  const Reply wrong_method =
+      http_request(port_, bhttp::verb::get, "/api/v1/robots/srmc/move_jp", "", bearer("a"));
+  expect_error_shape(wrong_method, 405, "method_not_allowed");
+  EXPECT_EQ(wrong_method.raw[bhttp::field::allow], "POST");
+  const Reply accepted =
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/move_jp", R"({"goal":[0.1]})", bearer("a"));
+  EXPECT_EQ(accepted.status, 202);
+  EXPECT_EQ(accepted.body()["duration_s"], 1.0);
+  // A page from another origin may not call the API even with credentials.
+  auto foreign = bearer("a");
+  foreign["Origin"] = "http://evil.example";
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/estop", "", foreign), 403,
+                     "origin_not_allowed");
+}
+
+TEST_F(HttpServerTest, StaticFilesWithMimeTypesAndNoTraversal) {
+  start();
+  const Reply index = http_request(port_, bhttp::verb::get, "/");
+  ASSERT_EQ(index.status, 200);
+  EXPECT_EQ(index.raw[bhttp::field::content_type], "text/html; charset=utf-8");
+  const Reply js = http_request(port_, bhttp::verb::get, "/js/app.js");
+  ASSERT_EQ(js.status, 200);
+  EXPECT_EQ(js.raw[bhttp::field::content_type], "text/javascript; charset=utf-8");
+  const Reply three = http_request(port_, bhttp::verb::get, "/vendor/three/three.module.js");
+  ASSERT_EQ(three.status, 200);
+  EXPECT_NE(three.raw.body().find("REVISION"), std::string::npos);
+  for (const char* target : {"/../secret.txt", "/%2e%2e/secret.txt", "/js/..%2f..%2fsecret.txt",
+                             "/vendor/three/../../secret.txt", "/vendor/three/%2e%2e/secret.txt"}) {
+    const Reply reply = http_request(port_, bhttp::verb::get, target);
+    EXPECT_NE(reply.status, 200) << target;
+    EXPECT_EQ(reply.raw.body().find("TOP-SECRET"), std::string::npos) << target;
+  }
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/missing.js").status, 404);
+}
+
+TEST_F(HttpServerTest, WebSocketHandshakeChecksTokenOriginAndSubprotocol) {
+  start();
+  // Refused handshakes get a plain HTTP error (Beast's client does not expose the refusal body).
+  auto upgrade = [&](const std::string& target, std::map<std::string, std::string> headers) {
+    headers["Connection"] = "Upgrade";
+    headers["Upgrade"] = "websocket";
+    headers["Sec-WebSocket-Version"] = "13";
+    headers["Sec-WebSocket-Key"] = "dGhlIHNhbXBsZSBub25jZQ==";
+    return http_request(port_, bhttp::verb::get, target, "", headers);
+  };
+  const std::map<std::string, std::string> foxglove = {{"Sec-WebSocket-Protocol", "foxglove.websocket.v1"}};
+  expect_error_shape(upgrade("/ws", foxglove), 401, "missing_token");
+  expect_error_shape(upgrade("/ws?token=wrong", foxglove), 401, "bad_token");
+  auto evil = foxglove;
+  evil["Origin"] = "http://evil.example";
+  expect_error_shape(upgrade(ws_target(), evil), 403, "origin_not_allowed");
+  expect_error_shape(upgrade(ws_target(), {}), 400, "subprotocol_required");
+  {
+    WsClient client;
+    EXPECT_NE(client.connect(port_, "/ws"), 101);
+  }
+  {
+    WsClient client;
+    ASSERT_EQ(client.connect(port_, ws_target(), {{"Origin", "http://127.0.0.1:" + std::to_string(port_)}}),
+              101);
+    EXPECT_EQ(client.response()[bhttp::field::sec_websocket_protocol], "foxglove.websocket.v1");
+    const auto greeting = client.read_greeting();
+    EXPECT_EQ(greeting[0]["op"], "serverInfo");
+    EXPECT_EQ(greeting[0]["supportedEncodings"], json::array({"json"}));
+    EXPECT_NE(std::find(greeting[0]["capabilities"].begin(), greeting[0]["capabilities"].end(), "services"),
+              greeting[0]["capabilities"].end());
+    EXPECT_FALSE(greeting[0]["sessionId"].get<std::string>().empty());
+    EXPECT_EQ(greeting[1]["op"], "advertise");
+    ASSERT_EQ(greeting[1]["channels"].size(), 2u);
+    EXPECT_EQ(greeting[1]["channels"][0]["topic"], "/srmc/joint_states");
+    EXPECT_EQ(greeting[1]["channels"][0]["encoding"], "json");
+    EXPECT_EQ(greeting[2]["op"], "advertiseServices");
+    EXPECT_GE(greeting[2]["services"].size(), 6u);
+  }
+}
+
+TEST_F(HttpServerTest, SubscribeGetsBinaryFramesWithTheSubscriptionId) {
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  const auto greeting = client.read_greeting();
+  const std::uint32_t channel = greeting[1]["channels"][0]["id"];
+  client.send_text(
+      json{{"op", "subscribe"}, {"subscriptions", {{{"id", 42}, {"channelId", channel}}}}}.dump());
+  // Let the server process the subscribe before stepping the publisher.
+  for (int i = 0; i < 200 && server_->connection_stats().at(0).subscriptions == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  server_->publish_once();
+  const std::string frame = client.read_binary();
+  const auto data = fg::parse_message_data(frame);
+  ASSERT_TRUE(data);
+  EXPECT_EQ(data->subscription_id, 42u);
+  EXPECT_GT(data->log_time_ns, 0u);
+  const json payload = json::parse(data->payload);
+  EXPECT_EQ(payload["position"][0], static_cast<double>(api_.joint_version.load()));
+}
+
+TEST_F(HttpServerTest, ServiceCallsRoundTripAndRespectTheLease) {
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  const auto greeting = client.read_greeting();
+  std::map<std::string, std::uint32_t> ids;
+  for (const auto& service : greeting[2]["services"]) ids[service["name"]] = service["id"];
+
+  auto call = [&](const std::string& name, std::uint32_t call_id, const json& request) {
+    client.send_binary(fg::encode_service_call_request(ids.at(name), call_id, "json", request.dump()));
+    const std::string frame = client.read_binary();
+    const auto response = fg::parse_service_call_response(frame);
+    EXPECT_TRUE(response);
+    if (!response) return json();
+    EXPECT_EQ(response->call_id, call_id);
+    EXPECT_EQ(response->service_id, ids.at(name));
+    EXPECT_EQ(response->encoding, "json");
+    return json::parse(response->payload);
+  };
+  const json refused = call("state_command", 1, {{"robot", "srmc"}, {"command", "enable"}});
+  EXPECT_EQ(refused["status"], 409);
+  EXPECT_EQ(refused["error"]["code"], "lease_held");
+  EXPECT_EQ(call("lease", 2, json::object())["status"], 200);
+  const json done = call("state_command", 3, {{"robot", "srmc"}, {"command", "enable"}});
+  EXPECT_EQ(done["status"], 200);
+  EXPECT_EQ(done["body"]["state"], "ENABLED");
+  EXPECT_EQ(api_.state_commands, 1);
+  EXPECT_EQ(call("estop", 4, json::object())["status"], 200);
+  EXPECT_EQ(api_.estops, 1);
+  // Unknown service: serviceCallFailure, connection kept.
+  client.send_binary(fg::encode_service_call_request(999, 5, "json", "{}"));
+  const json failure = client.read_op("serviceCallFailure");
+  EXPECT_EQ(failure["callId"], 5);
+  EXPECT_EQ(call("lease", 6, {{"action", "status"}})["body"]["yours"], true);
+}
+
+TEST_F(HttpServerTest, MalformedClientJsonGetsAStatusAndKeepsTheConnection) {
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  client.read_greeting();
+  client.send_text("{not json");
+  const json status = client.read_op("status");
+  EXPECT_EQ(status["level"], 2);
+  EXPECT_FALSE(status["message"].get<std::string>().empty());
+  client.send_binary(fg::encode_service_call_request(7, 1, "json", R"({"action":"status"})"));
+  EXPECT_TRUE(fg::parse_service_call_response(client.read_binary()));
+}
+
+TEST_F(HttpServerTest, RepeatedAbuseClosesTheConnection) {
+  options_.ws_max_violations = 5;
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  client.read_greeting();
+  for (int i = 0; i < 5; ++i) client.send_text("garbage");
+  std::string message;
+  bool binary = false;
+  int statuses = 0;
+  while (client.read(message, binary)) ++statuses;  // ends when the server closes
+  EXPECT_GE(statuses, 5);
+  EXPECT_NE(server_->metrics().find("tendril_ws_closed_for_abuse_total 1"), std::string::npos);
+  for (int i = 0; i < 200 && !server_->connection_stats().empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_TRUE(server_->connection_stats().empty()) << "the closed connection must be unregistered";
+}
+
+TEST_F(HttpServerTest, ClientMessageRateIsLimited) {
+  options_.ws_client_rate_hz = 0.001;  // practically no refill during the test
+  options_.ws_client_burst = 3;
+  options_.ws_max_violations = 3;
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  client.read_greeting();
+  for (int i = 0; i < 6; ++i) client.send_text(R"({"op":"unsubscribe","subscriptionIds":[]})");
+  const json status = client.read_op("status");
+  EXPECT_NE(status["message"].get<std::string>().find("rate limit"), std::string::npos) << status;
+  std::string message;
+  bool binary = false;
+  while (client.read(message, binary)) {
+  }
+  EXPECT_NE(server_->metrics().find("tendril_ws_client_violations_total 3"), std::string::npos);
+}
+
+TEST_F(HttpServerTest, ClosingTheLeaseHoldersSocketStopsServo) {
+  start();
+  WsClient holder;
+  ASSERT_EQ(holder.connect(port_, ws_target(), {{"X-Tendril-Client", "console"}}), 101);
+  holder.read_greeting();
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("console")).status, 200);
+  WsClient bystander;
+  ASSERT_EQ(bystander.connect(port_, ws_target()), 101);
+  bystander.read_greeting();
+  bystander.close();
+  for (int i = 0; i < 100 && server_->connection_stats().size() > 1; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(api_.operator_lost_calls, 0) << "a non-holder leaving must not stop the robot";
+  holder.close();
+  for (int i = 0; i < 200 && api_.operator_lost_calls == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(api_.operator_lost_calls, 1);
+  // The lease itself stays with the console until released or expired.
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("x")).body()["holder"],
+            "client:console");
+}
+
+TEST_F(HttpServerTest, ClientPublishStreamsServoForTheHolderOnly) {
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target(), {{"X-Tendril-Client", "pad"}}), 101);
+  const auto greeting = client.read_greeting();
+  EXPECT_EQ(greeting[0]["capabilities"][0], "clientPublish");
+  client.send_text(R"({"op":"advertise","channels":[{"id":1,"topic":"/srmc/servo_jv","encoding":"json"}]})");
+  client.send_binary(fg::encode_client_message_data(1, R"({"velocity":[0.1]})"));
+  EXPECT_NE(client.read_op("status")["message"].get<std::string>().find("lease_held"), std::string::npos);
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("pad")).status, 200);
+  client.send_binary(fg::encode_client_message_data(1, R"({"velocity":[0.1]})"));
+  for (int i = 0; i < 200 && api_.servo_commands == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  EXPECT_EQ(api_.servo_commands, 1);
+}
+
+TEST_F(HttpServerTest, SlowReaderDropsOldMessagesAndStaysBounded) {
+  api_.payload_padding = 64 * 1024;  // large frames fill the socket buffers quickly
+  options_.max_ws_message_bytes = 4096;
+  start();
+  WsClient slow;
+  ASSERT_EQ(slow.connect(port_, ws_target()), 101);
+  const auto greeting = slow.read_greeting();
+  const std::uint32_t channel = greeting[1]["channels"][0]["id"];
+  slow.send_text(json{{"op", "subscribe"}, {"subscriptions", {{{"id", 1}, {"channelId", channel}}}}}.dump());
+  for (int i = 0; i < 200 && server_->connection_stats().at(0).subscriptions == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  // The client now stops reading. 2000 fresh 64 KiB messages (~128 MiB) cannot all fit in the socket
+  // buffers: the server must drop, and its queue for this client must never exceed one per subscription.
+  std::size_t max_queued = 0;
+  for (int i = 0; i < 2000; ++i) {
+    server_->publish_once();
+    const auto stats = server_->connection_stats();
+    ASSERT_EQ(stats.size(), 1u);
+    max_queued = std::max(max_queued, stats[0].queued_messages);
+  }
+  EXPECT_LE(max_queued, 1u);
+  const auto stats = server_->connection_stats().at(0);
+  EXPECT_GT(stats.dropped, 0u);
+  const std::string metrics = server_->metrics();
+  EXPECT_EQ(metrics.find("tendril_ws_messages_dropped_total 0\n"), std::string::npos);
+  EXPECT_NE(metrics.find("tendril_ws_messages_dropped_total "), std::string::npos);
+
+  // Another client is not held up by the slow one.
+  WsClient fast;
+  ASSERT_EQ(fast.connect(port_, ws_target()), 101);
+  fast.read_greeting();
+  fast.send_text(json{{"op", "subscribe"}, {"subscriptions", {{{"id", 9}, {"channelId", channel}}}}}.dump());
+  const auto data = fg::parse_message_data(fast.read_binary());  // latest message is sent on subscribe
+  ASSERT_TRUE(data);
+  EXPECT_EQ(data->subscription_id, 9u);
+}
+
+TEST_F(HttpServerTest, MetricsCombineControlAndFrontEnd) {
+  start();
+  http_request(port_, bhttp::verb::get, "/api/v1/robots");  // a 401
+  const Reply reply = http_request(port_, bhttp::verb::get, "/metrics", "", bearer());
+  ASSERT_EQ(reply.status, 200);
+  EXPECT_NE(reply.raw.body().find("fake_control_loop_overruns_total 0"), std::string::npos);
+  EXPECT_NE(reply.raw.body().find("tendril_http_requests_total{status=\"401\"} 1"), std::string::npos);
+  EXPECT_NE(reply.raw.body().find("tendril_ws_clients 0"), std::string::npos);
+}
+
+TEST_F(HttpServerTest, PortInUseIsAClearError) {
+  start();
+  HttpOptions second = options_;
+  second.port = port_;
+  HttpServer other(api_, second);
+  try {
+    other.start();
+    FAIL() << "binding a taken port must throw";
+  } catch (const tendril::server::HttpServerError& e) {
+    EXPECT_NE(std::string(e.what()).find("already in use"), std::string::npos) << e.what();
+  }
+  HttpOptions no_token = options_;
+  no_token.token.clear();
+  EXPECT_THROW(HttpServer(api_, no_token), tendril::server::HttpServerError);
+}
+
+}  // namespace
