@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Sets up and runs tendrild with the simulated SRMC catheter: installs what is missing, builds,
+# and starts the server, which prints the console URL. Extra arguments go to tendrild
+# (e.g. --listen 127.0.0.1:9090, --token T); see build/server/tendrild --help.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/install-deps.sh
+cmake -S . -B build-release -G Ninja -DCMAKE_BUILD_TYPE=Release -DTENDRIL_BUILD_TESTS=OFF \
+  -DTENDRIL_BUILD_BENCHMARKS=OFF >/dev/null
+cmake --build build-release -j "$(nproc)" --target tendrild
+exec build-release/server/tendrild --config config/server.json "$@"
