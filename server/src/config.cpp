@@ -18,13 +18,14 @@ class Reader {
     if (!j_.is_object()) fail("", "an object", j_);
   }
 
-  [[noreturn]] void fail(const std::string& key, const std::string& expected, const nlohmann::json& got) const {
+  [[noreturn]] void fail(const std::string& key, const std::string& expected,
+                         const nlohmann::json& got) const {
     std::string where = path_;
     if (!key.empty()) where += (where.empty() ? "" : ".") + key;
     std::string got_text = got.is_null() ? std::string("nothing") : got.dump();
     if (got_text.size() > 60) got_text = got_text.substr(0, 57) + "...";
-    throw ConfigError(file_ + ": " + (where.empty() ? std::string("top level") : where) + ": expected " + expected +
-                      ", got " + got_text);
+    throw ConfigError(file_ + ": " + (where.empty() ? std::string("top level") : where) + ": expected " +
+                      expected + ", got " + got_text);
   }
 
   bool has(const std::string& key) const { return j_.contains(key); }
@@ -47,13 +48,17 @@ class Reader {
     if (!v.is_number() || !std::isfinite(v.get<double>())) fail(key, "a finite number", v);
     return v.get<double>();
   }
-  double number_or(const std::string& key, double fallback) const { return has(key) ? number(key) : fallback; }
+  double number_or(const std::string& key, double fallback) const {
+    return has(key) ? number(key) : fallback;
+  }
   double positive(const std::string& key) const {
     double v = number(key);
     if (!(v > 0)) fail(key, "a number greater than 0", raw(key));
     return v;
   }
-  double positive_or(const std::string& key, double fallback) const { return has(key) ? positive(key) : fallback; }
+  double positive_or(const std::string& key, double fallback) const {
+    return has(key) ? positive(key) : fallback;
+  }
   double non_negative_or(const std::string& key, double fallback) const {
     if (!has(key)) return fallback;
     double v = number(key);
@@ -119,7 +124,8 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
   RobotConfig rc;
   rc.file = file;
   rc.name = r.string("name");
-  if (!is_identifier(rc.name)) r.fail("name", "letters, digits, '_' or '-' (it appears in URLs)", r.raw("name"));
+  if (!is_identifier(rc.name))
+    r.fail("name", "letters, digits, '_' or '-' (it appears in URLs)", r.raw("name"));
   rc.kind = r.string("kind");
   rc.description = r.string_or("description", "");
   rc.command_timeout_ms = static_cast<int>(r.integer_in_or("command_timeout_ms", 10, 10'000, 150));
@@ -139,17 +145,19 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
     bc.max_load = b.number_or("max_load", 0.7);
     if (!(bc.max_load > 0 && bc.max_load <= 1)) b.fail("max_load", "a fraction in (0, 1]", b.raw("max_load"));
     bc.heartbeat_period_ms = static_cast<int>(b.integer_in_or("heartbeat_period_ms", 1, 10'000, 20));
-    bc.drive_heartbeat_period_ms = static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
-    bc.drive_heartbeat_timeout_ms =
-        static_cast<int>(b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5 * bc.drive_heartbeat_period_ms));
-    bc.master_heartbeat_timeout_ms =
-        static_cast<int>(b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5 * bc.heartbeat_period_ms));
+    bc.drive_heartbeat_period_ms =
+        static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
+    bc.drive_heartbeat_timeout_ms = static_cast<int>(
+        b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5 * bc.drive_heartbeat_period_ms));
+    bc.master_heartbeat_timeout_ms = static_cast<int>(
+        b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5 * bc.heartbeat_period_ms));
     if (bc.drive_heartbeat_timeout_ms <= bc.drive_heartbeat_period_ms)
       b.fail("drive_heartbeat_timeout_ms",
              "more than drive_heartbeat_period_ms (" + std::to_string(bc.drive_heartbeat_period_ms) + ")",
              bc.drive_heartbeat_timeout_ms);
     if (bc.master_heartbeat_timeout_ms <= bc.heartbeat_period_ms)
-      b.fail("master_heartbeat_timeout_ms", "more than heartbeat_period_ms (" + std::to_string(bc.heartbeat_period_ms) + ")",
+      b.fail("master_heartbeat_timeout_ms",
+             "more than heartbeat_period_ms (" + std::to_string(bc.heartbeat_period_ms) + ")",
              bc.master_heartbeat_timeout_ms);
     rc.buses.push_back(bc);
   }
@@ -170,7 +178,8 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
     jc.lower = jr.number("lower");
     jc.upper = jr.number("upper");
     if (!(jc.upper > jc.lower))
-      jr.fail("upper", "a number greater than lower (" + nlohmann::json(jc.lower).dump() + ")", jr.raw("upper"));
+      jr.fail("upper", "a number greater than lower (" + nlohmann::json(jc.lower).dump() + ")",
+              jr.raw("upper"));
     jc.soft_margin = jr.non_negative_or("soft_margin", 0.0);
     if (2 * jc.soft_margin >= jc.upper - jc.lower)
       jr.fail("soft_margin", "less than half the range upper - lower", jr.raw("soft_margin"));
@@ -189,15 +198,18 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
     }
     Reader d = jr.child("drive");
     jc.drive.bus = d.string("bus");
-    if (!bus_names.count(jc.drive.bus)) d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
+    if (!bus_names.count(jc.drive.bus))
+      d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
     jc.drive.node_id = static_cast<int>(d.integer_in("node_id", 1, 126));
     if (!node_ids.insert({jc.drive.bus, jc.drive.node_id}).second)
       d.fail("node_id", "a node id not used by another joint on bus " + jc.drive.bus, d.raw("node_id"));
     jc.drive.counts_per_unit = d.positive("counts_per_unit");
-    jc.drive.offset_counts = static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
+    jc.drive.offset_counts =
+        static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
     // Positions must fit the 32-bit CiA 402 target with room to spare.
     double max_counts = std::max(std::abs(jc.lower), std::abs(jc.upper)) * jc.drive.counts_per_unit;
-    if (max_counts > 2.0e9) d.fail("counts_per_unit", "a resolution whose limits fit in 32-bit counts", d.raw("counts_per_unit"));
+    if (max_counts > 2.0e9)
+      d.fail("counts_per_unit", "a resolution whose limits fit in 32-bit counts", d.raw("counts_per_unit"));
     rc.joints.push_back(jc);
   }
   rc.kinematics = r.has("kinematics") ? r.raw("kinematics") : nlohmann::json::object();
@@ -222,7 +234,8 @@ ServerConfig load_server_config(const std::filesystem::path& file) {
   if (r.has("listen")) {
     const std::string listen = r.string("listen");
     auto colon = listen.rfind(':');
-    if (colon == std::string::npos || colon == 0) r.fail("listen", "HOST:PORT, e.g. 127.0.0.1:8080", r.raw("listen"));
+    if (colon == std::string::npos || colon == 0)
+      r.fail("listen", "HOST:PORT, e.g. 127.0.0.1:8080", r.raw("listen"));
     sc.host = listen.substr(0, colon);
     try {
       int port = std::stoi(listen.substr(colon + 1));
@@ -236,7 +249,8 @@ ServerConfig load_server_config(const std::filesystem::path& file) {
   if (r.has("allowed_origins")) {
     const auto& origins = r.array("allowed_origins", false);
     for (std::size_t i = 0; i < origins.size(); ++i) {
-      if (!origins[i].is_string()) r.fail("allowed_origins[" + std::to_string(i) + "]", "a string", origins[i]);
+      if (!origins[i].is_string())
+        r.fail("allowed_origins[" + std::to_string(i) + "]", "a string", origins[i]);
       sc.allowed_origins.push_back(origins[i].get<std::string>());
     }
   }
@@ -250,12 +264,14 @@ ServerConfig load_server_config(const std::filesystem::path& file) {
   const auto& robots = r.array("robots", true);
   std::set<std::string> names;
   for (std::size_t i = 0; i < robots.size(); ++i) {
-    if (!robots[i].is_string()) r.fail("robots[" + std::to_string(i) + "]", "a path to a robot file", robots[i]);
+    if (!robots[i].is_string())
+      r.fail("robots[" + std::to_string(i) + "]", "a path to a robot file", robots[i]);
     auto path = resolve(robots[i].get<std::string>());
     sc.robot_files.push_back(path);
     sc.robots.push_back(load_robot_config(path));
     if (!names.insert(sc.robots.back().name).second)
-      throw ConfigError(path.string() + ": name: robot name '" + sc.robots.back().name + "' is already used by another robot file");
+      throw ConfigError(path.string() + ": name: robot name '" + sc.robots.back().name +
+                        "' is already used by another robot file");
   }
   return sc;
 }

@@ -151,7 +151,8 @@ int main(int argc, char** argv) {
 
     std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
     if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
-    std::cout << "tendril console: http://" << shown_host << ":" << http.port() << "/?token=" << token << std::endl;
+    std::cout << "tendril console: http://" << shown_host << ":" << http.port() << "/?token=" << token
+              << std::endl;
     const auto stats = runtime.loop_statistics();
     (void)stats;
 

@@ -52,8 +52,8 @@ void MicrosecondHistogram::reset() noexcept {
 
 PeriodicThread::~PeriodicThread() { stop(); }
 
-void PeriodicThread::start(std::string name, std::chrono::nanoseconds period, Cycle cycle, bool request_realtime,
-                           int priority) {
+void PeriodicThread::start(std::string name, std::chrono::nanoseconds period, Cycle cycle,
+                           bool request_realtime, int priority) {
   stop();
   name_ = std::move(name);
   period_ = period;

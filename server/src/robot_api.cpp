@@ -11,10 +11,14 @@ using safety::OperatingState;
 
 const char* state_name(OperatingState s) {
   switch (s) {
-    case OperatingState::kDisabled: return "DISABLED";
-    case OperatingState::kEnabled: return "ENABLED";
-    case OperatingState::kPaused: return "PAUSED";
-    case OperatingState::kFault: return "FAULT";
+    case OperatingState::kDisabled:
+      return "DISABLED";
+    case OperatingState::kEnabled:
+      return "ENABLED";
+    case OperatingState::kPaused:
+      return "PAUSED";
+    case OperatingState::kFault:
+      return "FAULT";
   }
   return "FAULT";
 }
@@ -27,22 +31,25 @@ ApiResult unknown_robot(const std::string& robot) {
 std::optional<ApiResult> read_vector(const nlohmann::json& body, const char* key, std::size_t n,
                                      const RobotConfig& rc, JointArray& out) {
   if (!body.is_object() || !body.contains(key))
-    return ApiResult::error(400, "bad_request", std::string("expected a JSON object with \"") + key +
-                                                   "\": an array of " + std::to_string(n) + " numbers");
+    return ApiResult::error(400, "bad_request",
+                            std::string("expected a JSON object with \"") + key + "\": an array of " +
+                                std::to_string(n) + " numbers");
   const auto& v = body.at(key);
   if (!v.is_array())
     return ApiResult::error(400, "bad_request", std::string("\"") + key + "\" must be an array of numbers");
   if (v.size() != n) {
     std::string names;
     for (const auto& j : rc.joints) names += (names.empty() ? "" : ", ") + j.name;
-    return ApiResult::error(422, "wrong_size", std::string("\"") + key + "\" has " + std::to_string(v.size()) +
-                                                   " values; robot '" + rc.name + "' has " + std::to_string(n) +
-                                                   " joints (" + names + ")");
+    return ApiResult::error(422, "wrong_size",
+                            std::string("\"") + key + "\" has " + std::to_string(v.size()) +
+                                " values; robot '" + rc.name + "' has " + std::to_string(n) + " joints (" +
+                                names + ")");
   }
   for (std::size_t i = 0; i < n; ++i) {
     if (!v[i].is_number())
-      return ApiResult::error(400, "bad_request", std::string("\"") + key + "\"[" + std::to_string(i) +
-                                                     "] (joint '" + rc.joints[i].name + "') is not a number");
+      return ApiResult::error(400, "bad_request",
+                              std::string("\"") + key + "\"[" + std::to_string(i) + "] (joint '" +
+                                  rc.joints[i].name + "') is not a number");
     out[i] = v[i].get<double>();
     if (!std::isfinite(out[i]))
       return ApiResult::error(422, "not_finite", "joint '" + rc.joints[i].name + "': value is not finite");
@@ -50,16 +57,21 @@ std::optional<ApiResult> read_vector(const nlohmann::json& body, const char* key
   return std::nullopt;
 }
 
-nlohmann::json joint_state_json(const RobotUnit& r, const RobotSnapshot& s, double wall_offset, bool setpoint) {
-  nlohmann::json names = nlohmann::json::array(), pos = nlohmann::json::array(), vel = nlohmann::json::array(),
-                 eff = nlohmann::json::array();
+nlohmann::json joint_state_json(const RobotUnit& r, const RobotSnapshot& s, double wall_offset,
+                                bool setpoint) {
+  nlohmann::json names = nlohmann::json::array(), pos = nlohmann::json::array(),
+                 vel = nlohmann::json::array(), eff = nlohmann::json::array();
   for (std::size_t i = 0; i < r.n; ++i) {
     names.push_back(r.config.joints[i].name);
     pos.push_back(setpoint ? s.setpoint[i] : s.position[i]);
     vel.push_back(setpoint ? s.setpoint_velocity[i] : s.velocity[i]);
     eff.push_back(setpoint ? 0.0 : s.effort[i]);
   }
-  return {{"name", names}, {"position", pos}, {"velocity", vel}, {"effort", eff}, {"timestamp", wall_offset + s.time}};
+  return {{"name", names},
+          {"position", pos},
+          {"velocity", vel},
+          {"effort", eff},
+          {"timestamp", wall_offset + s.time}};
 }
 
 std::vector<double> positions(const RobotUnit& r, const RobotSnapshot& s) {
@@ -68,8 +80,8 @@ std::vector<double> positions(const RobotUnit& r, const RobotSnapshot& s) {
 
 }  // namespace
 
-#define TENDRIL_FIND_ROBOT(name)                                  \
-  auto found = impl_->by_name.find(name);                         \
+#define TENDRIL_FIND_ROBOT(name)                                 \
+  auto found = impl_->by_name.find(name);                        \
   if (found == impl_->by_name.end()) return unknown_robot(name); \
   RobotUnit& r = *found->second;
 
@@ -78,16 +90,26 @@ nlohmann::json RobotRuntime::robots() const {
   for (const auto& r : impl_->robots) {
     auto joints = nlohmann::json::array();
     for (const auto& j : r->config.joints)
-      joints.push_back(nlohmann::json{{"name", j.name}, {"unit", j.unit}, {"lower", j.lower}, {"upper", j.upper},
-                        {"max_velocity", j.max_velocity}, {"max_acceleration", j.max_acceleration}});
+      joints.push_back(nlohmann::json{{"name", j.name},
+                                      {"unit", j.unit},
+                                      {"lower", j.lower},
+                                      {"upper", j.upper},
+                                      {"max_velocity", j.max_velocity},
+                                      {"max_acceleration", j.max_acceleration}});
     auto buses = nlohmann::json::array();
     for (const auto& b : impl_->buses)
       if (b->robot == r->config.name)
-        buses.push_back(nlohmann::json{{"name", b->config.name}, {"interface", b->config.interface},
-                         {"simulated", b->virtual_bus != nullptr}, {"load", b->load}});
-    out.push_back(nlohmann::json{{"name", r->config.name}, {"kind", r->config.kind}, {"description", r->config.description},
-                   {"joints", joints}, {"modes", {"joint"}}, {"buses", buses},
-                   {"command_timeout_ms", r->config.command_timeout_ms}});
+        buses.push_back(nlohmann::json{{"name", b->config.name},
+                                       {"interface", b->config.interface},
+                                       {"simulated", b->virtual_bus != nullptr},
+                                       {"load", b->load}});
+    out.push_back(nlohmann::json{{"name", r->config.name},
+                                 {"kind", r->config.kind},
+                                 {"description", r->config.description},
+                                 {"joints", joints},
+                                 {"modes", {"joint"}},
+                                 {"buses", buses},
+                                 {"command_timeout_ms", r->config.command_timeout_ms}});
   }
   return out;
 }
@@ -120,7 +142,8 @@ ApiResult RobotRuntime::shape(const std::string& robot) const {
   TENDRIL_FIND_ROBOT(robot)
   const auto s = r.snapshot.load();
   auto points = nlohmann::json::array();
-  for (const auto& p : r.kinematics->shape(positions(r, s))) points.push_back(nlohmann::json::array({p.x(), p.y(), p.z()}));
+  for (const auto& p : r.kinematics->shape(positions(r, s)))
+    points.push_back(nlohmann::json::array({p.x(), p.y(), p.z()}));
   return ApiResult::success(
       {{"points", points}, {"frame", r.kinematics->frame()}, {"timestamp", impl_->wall_offset + s.time}});
 }
@@ -128,12 +151,19 @@ ApiResult RobotRuntime::shape(const std::string& robot) const {
 ApiResult RobotRuntime::operating_state(const std::string& robot) const {
   TENDRIL_FIND_ROBOT(robot)
   const auto s = r.snapshot.load();
-  nlohmann::json out = {{"state", state_name(s.state)}, {"mode", "joint"},       {"is_homed", true},
-                        {"is_busy", s.busy},            {"estop", s.estop},      {"drives_ready", s.drives_ready}};
+  nlohmann::json out = {{"state", state_name(s.state)},
+                        {"mode", "joint"},
+                        {"is_homed", true},
+                        {"is_busy", s.busy},
+                        {"estop", s.estop},
+                        {"drives_ready", s.drives_ready}};
   if (s.state == OperatingState::kFault || s.estop)
-    out["fault"] = {{"code", safety::to_string(s.fault.code)}, {"message", std::string(s.fault.text)},
-                    {"joint", s.fault.joint >= 0 ? nlohmann::json(r.config.joints[static_cast<std::size_t>(s.fault.joint)].name)
-                                                 : nlohmann::json(nullptr)}};
+    out["fault"] = {
+        {"code", safety::to_string(s.fault.code)},
+        {"message", std::string(s.fault.text)},
+        {"joint", s.fault.joint >= 0
+                      ? nlohmann::json(r.config.joints[static_cast<std::size_t>(s.fault.joint)].name)
+                      : nlohmann::json(nullptr)}};
   return ApiResult::success(out);
 }
 
@@ -144,39 +174,51 @@ bool post(RobotUnit& r, const RobotCommand& c) {
   return false;
 }
 ApiResult busy_mailbox(const std::string& robot) {
-  return ApiResult::error(503, "control_busy",
-                          "the control loop of '" + robot + "' is not taking commands fast enough; try again");
+  return ApiResult::error(
+      503, "control_busy",
+      "the control loop of '" + robot + "' is not taking commands fast enough; try again");
 }
 }  // namespace
 
 ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::json& body) {
   TENDRIL_FIND_ROBOT(robot)
   if (!body.is_object() || !body.contains("command") || !body["command"].is_string())
-    return ApiResult::error(400, "bad_request",
-                            "expected {\"command\": \"enable\" | \"disable\" | \"pause\" | \"resume\" | \"home\"}");
+    return ApiResult::error(
+        400, "bad_request",
+        "expected {\"command\": \"enable\" | \"disable\" | \"pause\" | \"resume\" | \"home\"}");
   const auto cmd = body["command"].get<std::string>();
   safety::StateCommand sc;
-  if (cmd == "enable") sc = safety::StateCommand::kEnable;
-  else if (cmd == "disable") sc = safety::StateCommand::kDisable;
-  else if (cmd == "pause") sc = safety::StateCommand::kPause;
-  else if (cmd == "resume") sc = safety::StateCommand::kResume;
+  if (cmd == "enable")
+    sc = safety::StateCommand::kEnable;
+  else if (cmd == "disable")
+    sc = safety::StateCommand::kDisable;
+  else if (cmd == "pause")
+    sc = safety::StateCommand::kPause;
+  else if (cmd == "resume")
+    sc = safety::StateCommand::kResume;
   else if (cmd == "home")
-    return ApiResult::error(422, "not_supported",
-                            "robot '" + robot + "' has absolute encoders and needs no homing (is_homed is true)");
+    return ApiResult::error(
+        422, "not_supported",
+        "robot '" + robot + "' has absolute encoders and needs no homing (is_homed is true)");
   else
-    return ApiResult::error(400, "bad_request", "unknown state command '" + cmd +
-                                                    "'; expected enable, disable, pause, resume or home");
+    return ApiResult::error(
+        400, "bad_request",
+        "unknown state command '" + cmd + "'; expected enable, disable, pause, resume or home");
   const auto s = r.snapshot.load();
   if (s.estop && sc != safety::StateCommand::kDisable)
-    return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
+    return ApiResult::error(409, "estop_latched",
+                            "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
   using OS = OperatingState;
-  const bool allowed = (sc == safety::StateCommand::kEnable && (s.state == OS::kDisabled || s.state == OS::kEnabled)) ||
-                       sc == safety::StateCommand::kDisable ||
-                       (sc == safety::StateCommand::kPause && (s.state == OS::kEnabled || s.state == OS::kPaused)) ||
-                       (sc == safety::StateCommand::kResume && (s.state == OS::kPaused || s.state == OS::kEnabled));
+  const bool allowed =
+      (sc == safety::StateCommand::kEnable && (s.state == OS::kDisabled || s.state == OS::kEnabled)) ||
+      sc == safety::StateCommand::kDisable ||
+      (sc == safety::StateCommand::kPause && (s.state == OS::kEnabled || s.state == OS::kPaused)) ||
+      (sc == safety::StateCommand::kResume && (s.state == OS::kPaused || s.state == OS::kEnabled));
   if (!allowed) {
-    std::string why = std::string("cannot ") + cmd + " robot '" + robot + "' while it is " + state_name(s.state);
-    if (s.state == OS::kFault) why += " (" + std::string(s.fault.text) + "); send disable to acknowledge the fault first";
+    std::string why =
+        std::string("cannot ") + cmd + " robot '" + robot + "' while it is " + state_name(s.state);
+    if (s.state == OS::kFault)
+      why += " (" + std::string(s.fault.text) + "); send disable to acknowledge the fault first";
     return ApiResult::error(409, "invalid_state", why);
   }
   RobotCommand c;
@@ -186,13 +228,24 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
   if (!post(r, c)) return busy_mailbox(robot);
   auto expected = s.state;
   switch (sc) {
-    case safety::StateCommand::kEnable: expected = OS::kEnabled; break;
-    case safety::StateCommand::kDisable: expected = OS::kDisabled; break;
-    case safety::StateCommand::kPause: expected = OS::kPaused; break;
-    case safety::StateCommand::kResume: expected = OS::kEnabled; break;
+    case safety::StateCommand::kEnable:
+      expected = OS::kEnabled;
+      break;
+    case safety::StateCommand::kDisable:
+      expected = OS::kDisabled;
+      break;
+    case safety::StateCommand::kPause:
+      expected = OS::kPaused;
+      break;
+    case safety::StateCommand::kResume:
+      expected = OS::kEnabled;
+      break;
   }
-  return ApiResult::success({{"state", state_name(expected)}, {"mode", "joint"}, {"is_homed", true},
-                             {"is_busy", sc == safety::StateCommand::kEnable || s.busy}, {"estop", false}});
+  return ApiResult::success({{"state", state_name(expected)},
+                             {"mode", "joint"},
+                             {"is_homed", true},
+                             {"is_busy", sc == safety::StateCommand::kEnable || s.busy},
+                             {"estop", false}});
 }
 
 ApiResult RobotRuntime::mode(const std::string& robot, const nlohmann::json& body) {
@@ -204,7 +257,9 @@ ApiResult RobotRuntime::mode(const std::string& robot, const nlohmann::json& bod
     return ApiResult::error(422, "unknown_mode",
                             "mode '" + m + "' is not available for robot '" + robot + "' (available: joint)");
   const auto s = r.snapshot.load();
-  if (s.busy) return ApiResult::error(409, "not_holding", "robot '" + robot + "' is moving; modes change only while it holds");
+  if (s.busy)
+    return ApiResult::error(409, "not_holding",
+                            "robot '" + robot + "' is moving; modes change only while it holds");
   return ApiResult::success({{"mode", m}});
 }
 
@@ -219,14 +274,17 @@ ApiResult RobotRuntime::move_jp(const std::string& robot, const nlohmann::json& 
   const auto s = r.snapshot.load();
   if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled)
-    return ApiResult::error(409, "not_enabled", std::string("robot '") + robot + "' is " + state_name(s.state) +
-                                                    "; enable it before moving");
+    return ApiResult::error(
+        409, "not_enabled",
+        std::string("robot '") + robot + "' is " + state_name(s.state) + "; enable it before moving");
   if (!s.drives_ready)
-    return ApiResult::error(409, "not_ready", "robot '" + robot + "' is still enabling its drives; try again shortly");
+    return ApiResult::error(409, "not_ready",
+                            "robot '" + robot + "' is still enabling its drives; try again shortly");
   // Predict the duration with the same interpolator the control thread will use.
   teleop::QuinticInterpolator predict(r.n);
   predict.reset({s.setpoint.data(), r.n}, 0.0);
-  predict.retarget(0.0, {c.values.data(), r.n}, {r.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
+  predict.retarget(0.0, {c.values.data(), r.n}, {r.max_velocity.data(), r.n},
+                   {r.max_acceleration.data(), r.n});
   c.received = std::chrono::steady_clock::now();
   if (!post(r, c)) return busy_mailbox(robot);
   return ApiResult::success({{"duration_s", predict.duration()}}, 202);
@@ -243,9 +301,10 @@ ApiResult RobotRuntime::servo_jv(const std::string& robot, const nlohmann::json&
   const auto s = r.snapshot.load();
   if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled || !s.drives_ready)
-    return ApiResult::error(409, "not_enabled", std::string("robot '") + robot + "' is " + state_name(s.state) +
-                                                    (s.drives_ready ? "" : " and its drives are not ready") +
-                                                    "; enable it before streaming velocities");
+    return ApiResult::error(409, "not_enabled",
+                            std::string("robot '") + robot + "' is " + state_name(s.state) +
+                                (s.drives_ready ? "" : " and its drives are not ready") +
+                                "; enable it before streaming velocities");
   c.received = std::chrono::steady_clock::now();
   if (!post(r, c)) return busy_mailbox(robot);
   return ApiResult::success({{"command_timeout_ms", r.config.command_timeout_ms}});
@@ -285,12 +344,9 @@ void RobotRuntime::Impl::collect_events() const {
   std::lock_guard lock(events_mutex);
   for (const auto& r : robots) {
     r->supervisor->events().drain([&](const safety::SafetyEvent& e) {
-      nlohmann::json j = {{"time", wall_offset + e.time},
-                          {"robot", r->config.name},
-                          {"kind", safety::to_string(e.kind)},
-                          {"code", safety::to_string(e.code)},
-                          {"from", state_name(e.from)},
-                          {"to", state_name(e.to)},
+      nlohmann::json j = {{"time", wall_offset + e.time},      {"robot", r->config.name},
+                          {"kind", safety::to_string(e.kind)}, {"code", safety::to_string(e.code)},
+                          {"from", state_name(e.from)},        {"to", state_name(e.to)},
                           {"message", std::string(e.text)}};
       if (e.joint >= 0 && static_cast<std::size_t>(e.joint) < r->n)
         j["joint"] = r->config.joints[static_cast<std::size_t>(e.joint)].name;
@@ -305,14 +361,16 @@ nlohmann::json RobotRuntime::faults(std::size_t max_events) const {
   impl_->collect_events();
   std::lock_guard lock(impl_->events_mutex);
   auto out = nlohmann::json::array();
-  for (auto it = impl_->events.rbegin(); it != impl_->events.rend() && out.size() < max_events; ++it) out.push_back(*it);
+  for (auto it = impl_->events.rbegin(); it != impl_->events.rend() && out.size() < max_events; ++it)
+    out.push_back(*it);
   return out;
 }
 
 std::string RobotRuntime::metrics() const {
   std::ostringstream m;
   const auto ls = impl_->control_thread.statistics();
-  m << "# HELP tendril_control_cycles_total Control loop cycles run.\n# TYPE tendril_control_cycles_total counter\n"
+  m << "# HELP tendril_control_cycles_total Control loop cycles run.\n# TYPE tendril_control_cycles_total "
+       "counter\n"
     << "tendril_control_cycles_total " << impl_->ticks.load() << "\n";
   m << "# HELP tendril_control_overruns_total Control cycles that ran past their deadline.\n"
        "# TYPE tendril_control_overruns_total counter\ntendril_control_overruns_total "
@@ -334,21 +392,26 @@ std::string RobotRuntime::metrics() const {
   m << "# HELP tendril_bus_load Worst-case CAN bus load computed from the configuration (fraction).\n"
        "# TYPE tendril_bus_load gauge\n";
   for (const auto& b : impl_->buses)
-    m << "tendril_bus_load{robot=\"" << b->robot << "\",bus=\"" << b->config.name << "\"} " << b->load << "\n";
+    m << "tendril_bus_load{robot=\"" << b->robot << "\",bus=\"" << b->config.name << "\"} " << b->load
+      << "\n";
   m << "# HELP tendril_bus_frames_total CAN frames by direction.\n# TYPE tendril_bus_frames_total counter\n";
   for (const auto& b : impl_->buses) {
     const auto st = b->master_endpoint->statistics();
-    m << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"sent\"} " << st.frames_sent << "\n"
-      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"received\"} " << st.frames_received
+    m << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"sent\"} " << st.frames_sent
       << "\n"
-      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"send_failed\"} " << st.send_failures
-      << "\n"
-      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"error\"} " << st.error_frames << "\n";
+      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"received\"} "
+      << st.frames_received << "\n"
+      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"send_failed\"} "
+      << st.send_failures << "\n"
+      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"error\"} " << st.error_frames
+      << "\n";
   }
-  m << "# HELP tendril_robot_state Operating state (1 for the current one).\n# TYPE tendril_robot_state gauge\n";
+  m << "# HELP tendril_robot_state Operating state (1 for the current one).\n# TYPE tendril_robot_state "
+       "gauge\n";
   for (const auto& r : impl_->robots) {
     const auto s = r->snapshot.load();
-    for (auto st : {OperatingState::kDisabled, OperatingState::kEnabled, OperatingState::kPaused, OperatingState::kFault})
+    for (auto st : {OperatingState::kDisabled, OperatingState::kEnabled, OperatingState::kPaused,
+                    OperatingState::kFault})
       m << "tendril_robot_state{robot=\"" << r->config.name << "\",state=\"" << state_name(st) << "\"} "
         << (s.state == st ? 1 : 0) << "\n";
     m << "tendril_robot_estop{robot=\"" << r->config.name << "\"} " << (s.estop ? 1 : 0) << "\n";
@@ -369,21 +432,38 @@ std::vector<std::string> RobotRuntime::topics() const {
 }
 
 namespace {
-nlohmann::json scene_update(const RobotUnit& r, const std::vector<Eigen::Vector3d>& pts, const Pose& tip, double stamp) {
+nlohmann::json scene_update(const RobotUnit& r, const std::vector<Eigen::Vector3d>& pts, const Pose& tip,
+                            double stamp) {
   const auto sec = static_cast<std::int64_t>(stamp);
-  const nlohmann::json ts = {{"sec", sec}, {"nsec", static_cast<std::int64_t>((stamp - static_cast<double>(sec)) * 1e9)}};
+  const nlohmann::json ts = {{"sec", sec},
+                             {"nsec", static_cast<std::int64_t>((stamp - static_cast<double>(sec)) * 1e9)}};
   const nlohmann::json identity = {{"position", {{"x", 0}, {"y", 0}, {"z", 0}}},
                                    {"orientation", {{"x", 0}, {"y", 0}, {"z", 0}, {"w", 1}}}};
   auto points = nlohmann::json::array();
   for (const auto& p : pts) points.push_back(nlohmann::json{{"x", p.x()}, {"y", p.y()}, {"z", p.z()}});
   auto empty = nlohmann::json::array();
-  nlohmann::json backbone = {
-      {"timestamp", ts}, {"frame_id", "world"}, {"id", r.config.name + "/backbone"},
-      {"lifetime", {{"sec", 0}, {"nsec", 0}}}, {"frame_locked", false}, {"metadata", empty},
-      {"arrows", empty}, {"cubes", empty}, {"spheres", empty}, {"cylinders", empty},
-      {"lines", {{{"type", 0}, {"pose", identity}, {"thickness", 0.9}, {"scale_invariant", false}, {"points", points},
-                  {"color", {{"r", 0.85}, {"g", 0.75}, {"b", 0.3}, {"a", 1}}}, {"colors", empty}, {"indices", empty}}}},
-      {"triangles", empty}, {"texts", empty}, {"models", empty}};
+  nlohmann::json backbone = {{"timestamp", ts},
+                             {"frame_id", "world"},
+                             {"id", r.config.name + "/backbone"},
+                             {"lifetime", {{"sec", 0}, {"nsec", 0}}},
+                             {"frame_locked", false},
+                             {"metadata", empty},
+                             {"arrows", empty},
+                             {"cubes", empty},
+                             {"spheres", empty},
+                             {"cylinders", empty},
+                             {"lines",
+                              {{{"type", 0},
+                                {"pose", identity},
+                                {"thickness", 0.9},
+                                {"scale_invariant", false},
+                                {"points", points},
+                                {"color", {{"r", 0.85}, {"g", 0.75}, {"b", 0.3}, {"a", 1}}},
+                                {"colors", empty},
+                                {"indices", empty}}}},
+                             {"triangles", empty},
+                             {"texts", empty},
+                             {"models", empty}};
   // Tip frame: three arrows along the tip's x (red), y (green), z (blue) axes.
   auto arrows = nlohmann::json::array();
   const Eigen::Matrix3d R = tip.orientation.toRotationMatrix();
@@ -393,10 +473,15 @@ nlohmann::json scene_update(const RobotUnit& r, const std::vector<Eigen::Vector3
   const std::array<std::pair<Eigen::Quaterniond, std::array<double, 3>>, 3> axes{
       {{to_x, {1, 0.2, 0.2}}, {to_y, {0.2, 1, 0.2}}, {to_z, {0.3, 0.5, 1}}}};
   for (const auto& [q, c] : axes)
-    arrows.push_back(nlohmann::json{{"pose", {{"position", {{"x", tip.position.x()}, {"y", tip.position.y()}, {"z", tip.position.z()}}},
-                                {"orientation", {{"x", q.x()}, {"y", q.y()}, {"z", q.z()}, {"w", q.w()}}}}},
-                      {"shaft_length", 4.0}, {"shaft_diameter", 0.3}, {"head_length", 1.0}, {"head_diameter", 0.8},
-                      {"color", {{"r", c[0]}, {"g", c[1]}, {"b", c[2]}, {"a", 1}}}});
+    arrows.push_back(nlohmann::json{
+        {"pose",
+         {{"position", {{"x", tip.position.x()}, {"y", tip.position.y()}, {"z", tip.position.z()}}},
+          {"orientation", {{"x", q.x()}, {"y", q.y()}, {"z", q.z()}, {"w", q.w()}}}}},
+        {"shaft_length", 4.0},
+        {"shaft_diameter", 0.3},
+        {"head_length", 1.0},
+        {"head_diameter", 0.8},
+        {"color", {{"r", c[0]}, {"g", c[1]}, {"b", c[2]}, {"a", 1}}}});
   nlohmann::json tip_entity = backbone;
   tip_entity["id"] = r.config.name + "/tip_frame";
   tip_entity["lines"] = empty;
@@ -405,7 +490,8 @@ nlohmann::json scene_update(const RobotUnit& r, const std::vector<Eigen::Vector3
 }
 }  // namespace
 
-std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& topic, std::uint64_t since_version,
+std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& topic,
+                                                          std::uint64_t since_version,
                                                           std::uint64_t& version) const {
   auto& im = *impl_;
   nlohmann::json msg;
@@ -416,7 +502,8 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
     if (version == since_version) return std::nullopt;
     auto list = nlohmann::json::array();
     const auto fresh = std::min<std::uint64_t>(im.events_total - since_version, im.events.size());
-    for (auto it = im.events.end() - static_cast<std::ptrdiff_t>(fresh); it != im.events.end(); ++it) list.push_back(*it);
+    for (auto it = im.events.end() - static_cast<std::ptrdiff_t>(fresh); it != im.events.end(); ++it)
+      list.push_back(*it);
     return nlohmann::json{{"events", list}};
   }
   const auto slash = topic.find('/', 1);

@@ -17,7 +17,8 @@ void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c
 }
 }  // namespace
 
-void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now, bool previous_overrun) noexcept {
+void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now,
+                                       bool previous_overrun) noexcept {
   const double t = std::chrono::duration<double>(now - start_time).count();
   const auto tick = ticks.fetch_add(1, std::memory_order_relaxed) + 1;
   (void)tick;
@@ -30,7 +31,8 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
   const std::span<const double> values(c.values.data(), c.count);
   switch (c.kind) {
     case CommandKind::state:
-      if (sup.request(t, c.state) == safety::CommandResult::kAccepted && c.state == safety::StateCommand::kEnable) {
+      if (sup.request(t, c.state) == safety::CommandResult::kAccepted &&
+          c.state == safety::StateCommand::kEnable) {
         s.enable_pending = true;
         s.enable_started = t;
         s.drives_ready = false;
@@ -137,7 +139,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
           if (fb[i].state == Cia::operation_enabled) continue;
           char detail[96];
           std::snprintf(detail, sizeof detail, "drive '%s' did not enable within %d ms (it reports %s)",
-                        r.config.joints[i].name.c_str(), r.config.enable_timeout_ms, canopen::to_string(fb[i].state));
+                        r.config.joints[i].name.c_str(), r.config.enable_timeout_ms,
+                        canopen::to_string(fb[i].state));
           sup.fault(t, safety::FaultCode::kExternal, static_cast<int>(i), detail);
           break;
         }
@@ -196,7 +199,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   // 6. Safety: servo timeout, tracking error, overruns.
   sup.report_overrun(t, previous_overrun);
   const bool tracking = state == OperatingState::kEnabled && s.drives_ready;
-  sup.tick(t, {s.q.data(), n}, tracking ? std::span<const double>(s.q_des.data(), n) : std::span<const double>(s.q.data(), n));
+  sup.tick(t, {s.q.data(), n},
+           tracking ? std::span<const double>(s.q_des.data(), n) : std::span<const double>(s.q.data(), n));
   state = sup.state();
 
   // 7. Write the drives.

@@ -43,11 +43,13 @@ double number(const nlohmann::json& j, const std::string& key, const std::string
   return j.at(key).get<double>();
 }
 
-std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, const std::string& file, bool positive) {
+std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, const std::string& file,
+                           bool positive) {
   const auto v = j.value(key, nlohmann::json());
   if (!v.is_array() || v.size() != 2 || !v[0].is_number() || !v[1].is_number() ||
       (positive && (v[0].get<double>() <= 0 || v[1].get<double>() <= 0)))
-    fail(file, key, positive ? "two positive numbers [proximal, distal]" : "two numbers [proximal, distal]", v);
+    fail(file, key, positive ? "two positive numbers [proximal, distal]" : "two numbers [proximal, distal]",
+         v);
   return {v[0].get<double>(), v[1].get<double>()};
 }
 
@@ -58,8 +60,10 @@ std::unique_ptr<RobotKinematics> make_kinematics(const nlohmann::json& k, std::s
   const auto model = k.value("model", std::string{});
   if (model == "constant_curvature_catheter") {
     if (joint_count != 4)
-      throw ConfigError(file + ": kinematics.model: constant_curvature_catheter needs the 4 SRMC joints "
-                        "(insertion, roll, proximal bend, distal bend), the file has " + std::to_string(joint_count));
+      throw ConfigError(file +
+                        ": kinematics.model: constant_curvature_catheter needs the 4 SRMC joints "
+                        "(insertion, roll, proximal bend, distal bend), the file has " +
+                        std::to_string(joint_count));
     teleop::CatheterParameters p;
     const auto lengths = pair(k, "segment_lengths_mm", file, true);
     const auto gains = pair(k, "bend_gain_rad_per_mm", file, false);
@@ -71,7 +75,8 @@ std::unique_ptr<RobotKinematics> make_kinematics(const nlohmann::json& k, std::s
     p.flexure = k.contains("flexure_rad") ? number(k, "flexure_rad", file) : 0.0;
     p.shaft_length = k.contains("shaft_display_length_mm") ? number(k, "shaft_display_length_mm", file) : 0.0;
     const auto points = k.value("display_points_per_segment", 20);
-    if (points < 2 || points > 500) fail(file, "display_points_per_segment", "an integer from 2 to 500", points);
+    if (points < 2 || points > 500)
+      fail(file, "display_points_per_segment", "an integer from 2 to 500", points);
     return std::make_unique<ConstantCurvatureCatheterModel>(p, static_cast<std::size_t>(points));
   }
   fail(file, "model", "a known model (constant_curvature_catheter)", model);

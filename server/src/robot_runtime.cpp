@@ -28,7 +28,8 @@ sim::DriveParameters simulation_parameters(const JointConfig& j, const std::stri
   } else {
     p.name = j.name;
     // A generic lead-screw axis whose encoder matches the configured resolution.
-    p.units_per_output_rev = static_cast<double>(p.encoder_counts_per_motor_rev) * p.gear_ratio / j.drive.counts_per_unit;
+    p.units_per_output_rev =
+        static_cast<double>(p.encoder_counts_per_motor_rev) * p.gear_ratio / j.drive.counts_per_unit;
     p.max_velocity = 5.0 * j.max_velocity;
   }
   p.initial_position = j.initial_position;
@@ -36,8 +37,8 @@ sim::DriveParameters simulation_parameters(const JointConfig& j, const std::stri
   if (std::abs(sim_counts - j.drive.counts_per_unit) > 1e-6 * sim_counts) {
     std::ostringstream msg;
     msg << file << ": joints[" << index << "].drive.counts_per_unit: expected " << sim_counts
-        << " to match the simulated drive '" << j.simulation_preset << "' (encoder counts per joint unit), got "
-        << j.drive.counts_per_unit;
+        << " to match the simulated drive '" << j.simulation_preset
+        << "' (encoder counts per joint unit), got " << j.drive.counts_per_unit;
     throw ConfigError(msg.str());
   }
   p.validate();
@@ -50,13 +51,16 @@ double seconds_since(std::chrono::steady_clock::time_point a, std::chrono::stead
 
 }  // namespace
 
-RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options) : impl_(std::make_unique<Impl>()) {
+RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options)
+    : impl_(std::make_unique<Impl>()) {
   auto& im = *impl_;
   im.options = options;
   if (!(options.control_rate_hz > 0 && options.control_rate_hz <= 10'000))
-    throw ConfigError("control_rate_hz: expected a rate in (0, 10000] Hz, got " + std::to_string(options.control_rate_hz));
+    throw ConfigError("control_rate_hz: expected a rate in (0, 10000] Hz, got " +
+                      std::to_string(options.control_rate_hz));
   im.period = 1.0 / options.control_rate_hz;
-  if (robots.empty()) throw ConfigError("no robot configured: the server file must list at least one robot file");
+  if (robots.empty())
+    throw ConfigError("no robot configured: the server file must list at least one robot file");
 
   for (auto& rc : robots) {
     auto unit = std::make_unique<RobotUnit>();
@@ -99,16 +103,16 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
         setups.push_back(ds);
         joint_index.push_back(i);
       }
-      const auto load = canopen::estimate_bus_load(bc.bitrate, std::chrono::microseconds(bc.sync_period_us), setups,
-                                                   std::chrono::milliseconds(bc.heartbeat_period_ms));
+      const auto load = canopen::estimate_bus_load(bc.bitrate, std::chrono::microseconds(bc.sync_period_us),
+                                                   setups, std::chrono::milliseconds(bc.heartbeat_period_ms));
       bus->load = load.load;
       bus->load_breakdown = load.breakdown;
       if (load.load > bc.max_load) {
         std::ostringstream msg;
         msg.precision(3);
         msg << file << ": buses: bus '" << bc.name << "' would run at " << load.load * 100.0 << " % load ("
-            << load.bits_per_second / 1000.0 << " kbit/s worst case of " << bc.bitrate / 1000.0 << " kbit/s: "
-            << load.breakdown << "), over its ceiling of " << bc.max_load * 100.0
+            << load.bits_per_second / 1000.0 << " kbit/s worst case of " << bc.bitrate / 1000.0
+            << " kbit/s: " << load.breakdown << "), over its ceiling of " << bc.max_load * 100.0
             << " %. Lengthen sync_period_us, raise the bitrate, or move drives to another bus.";
         throw ConfigError(msg.str());
       }
@@ -180,17 +184,19 @@ void RobotRuntime::start() {
   im.start_time = std::chrono::steady_clock::now();
   im.stepped_now = im.start_time;
   im.wall_offset = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-  const auto dt = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+  const auto dt =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
 
   for (auto& b : im.buses) {
     if (b->sim_drives.empty()) continue;
     if (im.options.stepped) continue;
     auto* bus = b.get();
-    bus->sim_thread.start("sim:" + bus->config.name, std::chrono::milliseconds(1),
-                          [bus](std::chrono::steady_clock::time_point now, bool) {
-                            for (auto& d : bus->sim_drives) d->pump(now, 0.001);
-                          },
-                          im.options.realtime_priority, 70);
+    bus->sim_thread.start(
+        "sim:" + bus->config.name, std::chrono::milliseconds(1),
+        [bus](std::chrono::steady_clock::time_point now, bool) {
+          for (auto& d : bus->sim_drives) d->pump(now, 0.001);
+        },
+        im.options.realtime_priority, 70);
   }
   for (auto& b : im.buses) {
     auto* bus = b.get();
@@ -216,11 +222,12 @@ void RobotRuntime::start() {
   im.running.store(true);
   im.stopping.store(false);
   if (!im.options.stepped) {
-    im.control_thread.start("control", dt,
-                            [&im](std::chrono::steady_clock::time_point deadline, bool overrun) {
-                              im.control_cycle(deadline, overrun);
-                            },
-                            im.options.realtime_priority);
+    im.control_thread.start(
+        "control", dt,
+        [&im](std::chrono::steady_clock::time_point deadline, bool overrun) {
+          im.control_cycle(deadline, overrun);
+        },
+        im.options.realtime_priority);
   }
 }
 
@@ -252,7 +259,8 @@ void RobotRuntime::step() {
   auto& im = *impl_;
   if (!im.options.stepped) throw std::logic_error("RobotRuntime::step() is for stepped mode only");
   if (!im.running.load()) throw std::logic_error("RobotRuntime::step() before start()");
-  im.stepped_now += std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+  im.stepped_now +=
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
   const auto now = im.stepped_now;
   for (auto& b : im.buses) {
     for (auto& d : b->sim_drives) d->pump(now, im.period);

@@ -46,12 +46,12 @@ struct RobotSnapshot {
   JointArray position{}, velocity{}, effort{}, setpoint{}, setpoint_velocity{};
   safety::OperatingState state = safety::OperatingState::kDisabled;
   bool estop = false;
-  bool busy = false;      // a move is running, a servo stream is live, or drives are enabling
+  bool busy = false;  // a move is running, a servo stream is live, or drives are enabling
   bool drives_ready = false;
   std::array<canopen::Cia402State, kMaxJoints> drive_state{};
   std::array<bool, kMaxJoints> heartbeat_alive{};
   safety::FaultInfo fault{};
-  std::uint64_t estop_tick = 0;       // tick at which the last e-stop reached the control thread
+  std::uint64_t estop_tick = 0;  // tick at which the last e-stop reached the control thread
   std::uint64_t commands_applied = 0;
   std::uint64_t mailbox_full = 0;
 };
@@ -72,7 +72,7 @@ struct BusUnit {
 
 struct JointBinding {
   BusUnit* bus = nullptr;
-  std::size_t drive = 0;                  // index in the bus master's drive list
+  std::size_t drive = 0;                     // index in the bus master's drive list
   sim::SimulatedCia402Drive* sim = nullptr;  // when simulated
 };
 

@@ -47,10 +47,13 @@ class RuntimeTest : public ::testing::Test {
     }
   }
   std::string state() { return runtime->operating_state("srmc").body["state"].get<std::string>(); }
-  std::vector<double> measured() { return runtime->measured_js("srmc").body["position"].get<std::vector<double>>(); }
+  std::vector<double> measured() {
+    return runtime->measured_js("srmc").body["position"].get<std::vector<double>>();
+  }
   void enable() {
     ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
-    ASSERT_TRUE(step_until([&] { return runtime->operating_state("srmc").body["drives_ready"].get<bool>(); }, 2000))
+    ASSERT_TRUE(
+        step_until([&] { return runtime->operating_state("srmc").body["drives_ready"].get<bool>(); }, 2000))
         << runtime->operating_state("srmc").body.dump();
   }
   bool at(const std::vector<double>& goal, double tol) {
@@ -124,8 +127,11 @@ TEST_F(RuntimeTest, EstopCommandsQuickStopOnEveryDriveWithinTwoTicks) {
   EXPECT_EQ(quick_stopped.size(), 4u) << "quick stop reached only " << quick_stopped.size() << " drives";
   EXPECT_LE(ticks_needed, 2u);
   EXPECT_TRUE(step_until(
-      [&] { return runtime->simulated_drive("srmc", "insertion")->state() == canopen::Cia402State::quick_stop_active ||
-                   runtime->simulated_drive("srmc", "insertion")->truth().velocity == 0.0; },
+      [&] {
+        return runtime->simulated_drive("srmc", "insertion")->state() ==
+                   canopen::Cia402State::quick_stop_active ||
+               runtime->simulated_drive("srmc", "insertion")->truth().velocity == 0.0;
+      },
       500));
   steps(500);
   const auto frozen = measured();
@@ -183,9 +189,12 @@ TEST_F(RuntimeTest, DriveHeartbeatLossFaultsTheRobotWithTheCause) {
   EXPECT_EQ(faults[0]["joint"], "roll");
   EXPECT_NE(faults[0]["message"].get<std::string>().find("roll"), std::string::npos);
   // The other drives are quick-stopped: nothing is left moving.
-  EXPECT_TRUE(step_until([&] {
-    return runtime->simulated_drive("srmc", "insertion")->state() == canopen::Cia402State::quick_stop_active;
-  }, 100));
+  EXPECT_TRUE(step_until(
+      [&] {
+        return runtime->simulated_drive("srmc", "insertion")->state() ==
+               canopen::Cia402State::quick_stop_active;
+      },
+      100));
 }
 
 TEST_F(RuntimeTest, DriveEmergencyFaultsTheRobot) {
@@ -226,7 +235,8 @@ TEST_F(RuntimeTest, StopDisablesTheDrives) {
   runtime->stop();
   for (const char* joint : {"insertion", "roll", "proximal_bend", "distal_bend"}) {
     const auto s = runtime->simulated_drive("srmc", joint)->state();
-    EXPECT_TRUE(s == canopen::Cia402State::switch_on_disabled || s == canopen::Cia402State::ready_to_switch_on)
+    EXPECT_TRUE(s == canopen::Cia402State::switch_on_disabled ||
+                s == canopen::Cia402State::ready_to_switch_on)
         << joint << ": " << canopen::to_string(s);
   }
 }

@@ -23,7 +23,8 @@ class Vcan : public ::testing::Test {
       b_ = std::make_unique<SocketCanBus>("vcan0");
     } catch (const CanSetupError& e) {
       // Inside the can-vm harness vcan0 must exist: a broken VM set-up is a failure, not a skip.
-      if (std::getenv("TENDRIL_CAN_VM") != nullptr) FAIL() << "vcan0 not available inside the VM: " << e.what();
+      if (std::getenv("TENDRIL_CAN_VM") != nullptr)
+        FAIL() << "vcan0 not available inside the VM: " << e.what();
       GTEST_SKIP() << "vcan0 not available: " << e.what();
     }
     // Drop anything left over from earlier tests.

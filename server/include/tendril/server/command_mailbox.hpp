@@ -13,7 +13,8 @@ namespace tendril::server {
 template <typename T>
 class CommandMailbox {
  public:
-  explicit CommandMailbox(std::size_t capacity_pow2 = 256) : mask_(capacity_pow2 - 1), cells_(new Cell[capacity_pow2]) {
+  explicit CommandMailbox(std::size_t capacity_pow2 = 256)
+      : mask_(capacity_pow2 - 1), cells_(new Cell[capacity_pow2]) {
     // Capacity must be a power of two so the index wraps with a mask.
     for (std::size_t i = 0; i < capacity_pow2; ++i) cells_[i].sequence.store(i, std::memory_order_relaxed);
   }

@@ -14,13 +14,15 @@ namespace tendril::server {
 
 // Mirrors the API.md error shape: {"error":{"code":..., "message":...}} with an HTTP status.
 struct ApiResult {
-  int status = 200;          // 200, 202, 400, 404, 409, 422, ...
-  std::string code;          // snake_case error code; empty on success
-  std::string message;       // for a person; empty on success
-  nlohmann::json body;       // success body (ignored on error)
+  int status = 200;     // 200, 202, 400, 404, 409, 422, ...
+  std::string code;     // snake_case error code; empty on success
+  std::string message;  // for a person; empty on success
+  nlohmann::json body;  // success body (ignored on error)
 
   bool ok() const noexcept { return status < 400; }
-  static ApiResult success(nlohmann::json body, int status = 200) { return {status, {}, {}, std::move(body)}; }
+  static ApiResult success(nlohmann::json body, int status = 200) {
+    return {status, {}, {}, std::move(body)};
+  }
   static ApiResult error(int status, std::string code, std::string message) {
     return {status, std::move(code), std::move(message), nullptr};
   }

@@ -19,7 +19,9 @@ class MicrosecondHistogram {
   void record(double us) noexcept;
   // q in [0, 1]; returns the upper edge of the bin holding that quantile (µs).
   double quantile(double q) const noexcept;
-  double max() const noexcept { return static_cast<double>(max_ns_.load(std::memory_order_relaxed)) / 1000.0; }
+  double max() const noexcept {
+    return static_cast<double>(max_ns_.load(std::memory_order_relaxed)) / 1000.0;
+  }
   std::uint64_t count() const noexcept { return count_.load(std::memory_order_relaxed); }
   void reset() noexcept;
 
@@ -52,7 +54,8 @@ class PeriodicThread {
   PeriodicThread(const PeriodicThread&) = delete;
   PeriodicThread& operator=(const PeriodicThread&) = delete;
 
-  void start(std::string name, std::chrono::nanoseconds period, Cycle cycle, bool request_realtime, int priority = 80);
+  void start(std::string name, std::chrono::nanoseconds period, Cycle cycle, bool request_realtime,
+             int priority = 80);
   void stop();
   bool running() const noexcept { return running_.load(); }
   LoopStatistics statistics() const noexcept;

@@ -50,7 +50,8 @@ class LatestValue {
   void copy_out(T& v) const noexcept {
     auto* dst = reinterpret_cast<unsigned char*>(&v);
     for (std::size_t i = 0; i < sizeof(T); ++i)
-      dst[i] = std::atomic_ref<unsigned char>(const_cast<unsigned char&>(bytes_[i])).load(std::memory_order_relaxed);
+      dst[i] = std::atomic_ref<unsigned char>(const_cast<unsigned char&>(bytes_[i]))
+                   .load(std::memory_order_relaxed);
   }
 
   std::atomic<std::uint64_t> seq_{0};

@@ -29,10 +29,10 @@ class CanopenError : public std::runtime_error {
 };
 
 struct DriveSetup {
-  std::string name;                 // joint name, used in messages
-  std::uint8_t node_id = 1;         // 1..127
-  double counts_per_unit = 1000.0;  // encoder counts per joint unit (mm or rad) at the load
-  std::int32_t offset_counts = 0;   // counts at joint zero
+  std::string name;                          // joint name, used in messages
+  std::uint8_t node_id = 1;                  // 1..127
+  double counts_per_unit = 1000.0;           // encoder counts per joint unit (mm or rad) at the load
+  std::int32_t offset_counts = 0;            // counts at joint zero
   std::uint16_t heartbeat_producer_ms = 20;  // the drive's own heartbeat period (0x1017)
   // How long the drive tolerates silence from the master before quick-stopping (0x1016 / 0x6007).
   std::uint16_t master_heartbeat_timeout_ms = 100;
@@ -40,9 +40,9 @@ struct DriveSetup {
 };
 
 struct MasterSetup {
-  std::uint8_t node_id = 0x7F;                          // the master's own heartbeat id
-  std::chrono::microseconds sync_period{1000};          // SYNC / PDO cycle
-  std::chrono::milliseconds heartbeat_period{20};       // master heartbeat
+  std::uint8_t node_id = 0x7F;                             // the master's own heartbeat id
+  std::chrono::microseconds sync_period{1000};             // SYNC / PDO cycle
+  std::chrono::milliseconds heartbeat_period{20};          // master heartbeat
   std::chrono::milliseconds drive_heartbeat_timeout{100};  // consumer time for drive heartbeats
   std::chrono::milliseconds sdo_timeout{100};
   int sdo_retries = 2;
@@ -63,10 +63,10 @@ struct DriveFeedback {
   Cia402State state = Cia402State::not_ready_to_switch_on;
   NmtState nmt = NmtState::boot_up;
   std::uint16_t statusword = 0;
-  double position = 0.0;  // joint units
-  double velocity = 0.0;  // joint units / s
-  double effort = 0.0;    // torque actual, per mille of rated torque
-  bool heartbeat_alive = false;      // false once the consumer time ran out
+  double position = 0.0;         // joint units
+  double velocity = 0.0;         // joint units / s
+  double effort = 0.0;           // torque actual, per mille of rated torque
+  bool heartbeat_alive = false;  // false once the consumer time ran out
   bool booted = false;
   std::uint16_t last_emcy_code = 0;  // 0 = none since start
   std::uint8_t last_emcy_register = 0;

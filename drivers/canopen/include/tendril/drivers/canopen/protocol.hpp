@@ -13,9 +13,9 @@ inline constexpr std::uint32_t sync = 0x080;
 inline constexpr std::uint32_t emcy = 0x080;  // + node id (1..127)
 inline constexpr std::uint32_t tpdo1 = 0x180, rpdo1 = 0x200, tpdo2 = 0x280, rpdo2 = 0x300;
 inline constexpr std::uint32_t tpdo3 = 0x380, rpdo3 = 0x400, tpdo4 = 0x480, rpdo4 = 0x500;
-inline constexpr std::uint32_t sdo_tx = 0x580;  // server -> client (answers), + node id
-inline constexpr std::uint32_t sdo_rx = 0x600;  // client -> server (requests), + node id
-inline constexpr std::uint32_t heartbeat = 0x700;  // + node id
+inline constexpr std::uint32_t sdo_tx = 0x580;                  // server -> client (answers), + node id
+inline constexpr std::uint32_t sdo_rx = 0x600;                  // client -> server (requests), + node id
+inline constexpr std::uint32_t heartbeat = 0x700;               // + node id
 inline constexpr std::uint32_t pdo_invalid_bit = 0x8000'0000u;  // bit 31 of a PDO COB-ID entry
 }  // namespace cob
 

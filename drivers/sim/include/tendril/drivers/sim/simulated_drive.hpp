@@ -258,7 +258,7 @@ class SimulatedCia402Drive {
   std::int32_t position_counts_ = 0;
   double measured_counts_prev_ = 0.0;
   double velocity_estimate_ = 0.0;  // counts/s, filtered
-  teleop::Pid servo_;  // the drive's position loop (motor rad -> N m)
+  teleop::Pid servo_;               // the drive's position loop (motor rad -> N m)
   std::mt19937_64 rng_;
   std::normal_distribution<double> noise_{0.0, 1.0};
 };
