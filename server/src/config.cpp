@@ -148,9 +148,9 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
     bc.drive_heartbeat_period_ms =
         static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
     bc.drive_heartbeat_timeout_ms = static_cast<int>(
-        b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5 * bc.drive_heartbeat_period_ms));
+        b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5L * bc.drive_heartbeat_period_ms));
     bc.master_heartbeat_timeout_ms = static_cast<int>(
-        b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5 * bc.heartbeat_period_ms));
+        b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5L * bc.heartbeat_period_ms));
     if (bc.drive_heartbeat_timeout_ms <= bc.drive_heartbeat_period_ms)
       b.fail("drive_heartbeat_timeout_ms",
              "more than drive_heartbeat_period_ms (" + std::to_string(bc.drive_heartbeat_period_ms) + ")",
