@@ -140,7 +140,7 @@ std::vector<fg::Service> service_list() {
 
 }  // namespace
 
-class WsSession;
+class FrontEndWsSession;
 
 class HttpServer::Impl {
  public:
@@ -181,7 +181,7 @@ class HttpServer::Impl {
   std::mutex publish_mutex;
 
   mutable std::mutex ws_mutex;
-  std::map<std::uint64_t, std::weak_ptr<WsSession>> ws_sessions;
+  std::map<std::uint64_t, std::weak_ptr<FrontEndWsSession>> ws_sessions;
 
   // Metrics.
   std::atomic<std::uint64_t> ws_sent{0}, ws_dropped{0}, ws_bytes{0}, ws_connections_total{0},
@@ -221,7 +221,7 @@ class HttpServer::Impl {
     std::lock_guard lock(channels_mutex);
     return channels.count(id) != 0;
   }
-  std::vector<std::shared_ptr<WsSession>> live_sessions() const;
+  std::vector<std::shared_ptr<FrontEndWsSession>> live_sessions() const;
   void publish_once();
   void do_accept();
   std::string metrics() const;
@@ -230,9 +230,9 @@ class HttpServer::Impl {
 // ------------------------------------------------------------------------------------------------
 // WebSocket session: Foxglove protocol, bounded outgoing queue with newest-only data slots.
 
-class WsSession : public std::enable_shared_from_this<WsSession> {
+class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession> {
  public:
-  WsSession(tcp::socket&& socket, HttpServer::Impl& server, Identity identity, std::uint64_t id)
+  FrontEndWsSession(tcp::socket&& socket, HttpServer::Impl& server, Identity identity, std::uint64_t id)
       : ws_(std::move(socket)),
         server_(server),
         identity_(std::move(identity)),
@@ -244,7 +244,8 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
 
   void run(Request request) {
     request_ = std::move(request);
-    net::dispatch(ws_.get_executor(), beast::bind_front_handler(&WsSession::do_accept, shared_from_this()));
+    net::dispatch(ws_.get_executor(),
+                  beast::bind_front_handler(&FrontEndWsSession::do_accept, shared_from_this()));
   }
 
   // Queues a JSON message. Called from any thread. A client whose control queue overflows is not
@@ -266,9 +267,11 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     }
     if (overflow) {
       ++server_.ws_closed_for_abuse;
-      net::post(ws_.get_executor(), beast::bind_front_handler(&WsSession::hard_close, shared_from_this()));
+      net::post(ws_.get_executor(),
+                beast::bind_front_handler(&FrontEndWsSession::hard_close, shared_from_this()));
     } else if (kick) {
-      net::post(ws_.get_executor(), beast::bind_front_handler(&WsSession::do_write, shared_from_this()));
+      net::post(ws_.get_executor(),
+                beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
     }
   }
 
@@ -295,7 +298,8 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       if (!latest_.empty() && !writing_) kick = writing_ = true;
     }
     if (kick)
-      net::post(ws_.get_executor(), beast::bind_front_handler(&WsSession::do_write, shared_from_this()));
+      net::post(ws_.get_executor(),
+                beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
   }
 
   void subscribed_channels(std::set<std::uint32_t>& out) const {
@@ -347,7 +351,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       res.set(bhttp::field::sec_websocket_protocol, std::string(fg::kSubprotocol));
     }));
     ws_.read_message_max(server_.opts.max_ws_message_bytes);
-    ws_.async_accept(request_, beast::bind_front_handler(&WsSession::on_accept, shared_from_this()));
+    ws_.async_accept(request_, beast::bind_front_handler(&FrontEndWsSession::on_accept, shared_from_this()));
   }
 
   void on_accept(beast::error_code ec) {
@@ -376,7 +380,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   }
 
   void do_read() {
-    ws_.async_read(buffer_, beast::bind_front_handler(&WsSession::on_read, shared_from_this()));
+    ws_.async_read(buffer_, beast::bind_front_handler(&FrontEndWsSession::on_read, shared_from_this()));
   }
 
   void on_read(beast::error_code ec, std::size_t) {
@@ -609,7 +613,8 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       ++server_.ws_closed_for_abuse;
       hard_close();
     } else if (kick) {
-      net::post(ws_.get_executor(), beast::bind_front_handler(&WsSession::do_write, shared_from_this()));
+      net::post(ws_.get_executor(),
+                beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
     }
   }
 
@@ -627,7 +632,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       lock.unlock();
       ws_.binary(binary);
       ws_.async_write(net::buffer(current_text_),
-                      beast::bind_front_handler(&WsSession::on_write, shared_from_this()));
+                      beast::bind_front_handler(&FrontEndWsSession::on_write, shared_from_this()));
       return;
     }
     while (!latest_order_.empty()) {
@@ -641,7 +646,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       ws_.binary(true);
       const std::array<net::const_buffer, 2> buffers = {net::buffer(current_data_.header),
                                                         net::buffer(*current_data_.payload)};
-      ws_.async_write(buffers, beast::bind_front_handler(&WsSession::on_write, shared_from_this()));
+      ws_.async_write(buffers, beast::bind_front_handler(&FrontEndWsSession::on_write, shared_from_this()));
       return;
     }
     writing_ = false;
@@ -735,16 +740,16 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
 };
 
 // ------------------------------------------------------------------------------------------------
-// HTTP session: one request at a time (no pipelining), keep-alive, upgrade to WsSession on /ws.
+// HTTP session: one request at a time (no pipelining), keep-alive, upgrade to FrontEndWsSession on /ws.
 
-class HttpSession : public std::enable_shared_from_this<HttpSession> {
+class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSession> {
  public:
-  HttpSession(tcp::socket&& socket, HttpServer::Impl& server)
+  FrontEndHttpSession(tcp::socket&& socket, HttpServer::Impl& server)
       : stream_(std::move(socket)), server_(server), connection_id_(server.next_connection_id++) {}
 
   void run() {
     net::dispatch(stream_.get_executor(),
-                  beast::bind_front_handler(&HttpSession::do_read, shared_from_this()));
+                  beast::bind_front_handler(&FrontEndHttpSession::do_read, shared_from_this()));
   }
 
  private:
@@ -756,7 +761,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     parser_->header_limit(16 * 1024);
     stream_.expires_after(std::chrono::seconds(30));
     bhttp::async_read(stream_, buffer_, *parser_,
-                      beast::bind_front_handler(&HttpSession::on_read, shared_from_this()));
+                      beast::bind_front_handler(&FrontEndHttpSession::on_read, shared_from_this()));
   }
 
   void on_read(beast::error_code ec, std::size_t) {
@@ -867,7 +872,8 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
                                                "offer WebSocket subprotocol \"foxglove.websocket.v1\"")));
     }
     stream_.expires_never();
-    std::make_shared<WsSession>(stream_.release_socket(), server_, std::move(auth.identity), connection_id_)
+    std::make_shared<FrontEndWsSession>(stream_.release_socket(), server_, std::move(auth.identity),
+                                        connection_id_)
         ->run(std::move(req));
   }
 
@@ -1248,8 +1254,8 @@ ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identi
   return ApiResult::error(400, "bad_action", "lease action must be \"acquire\", \"release\" or \"status\"");
 }
 
-std::vector<std::shared_ptr<WsSession>> HttpServer::Impl::live_sessions() const {
-  std::vector<std::shared_ptr<WsSession>> result;
+std::vector<std::shared_ptr<FrontEndWsSession>> HttpServer::Impl::live_sessions() const {
+  std::vector<std::shared_ptr<FrontEndWsSession>> result;
   std::lock_guard lock(ws_mutex);
   for (const auto& [id, weak] : ws_sessions) {
     if (auto session = weak.lock()) result.push_back(std::move(session));
@@ -1266,7 +1272,7 @@ void HttpServer::Impl::refresh_channels() {
   }
   std::vector<fg::Channel> added;
   std::vector<std::uint32_t> removed;
-  std::vector<std::shared_ptr<WsSession>> sessions;
+  std::vector<std::shared_ptr<FrontEndWsSession>> sessions;
   {
     std::lock_guard lock(channels_mutex);
     if (topics == last_topics) return;
@@ -1342,7 +1348,7 @@ void HttpServer::Impl::do_accept() {
     if (!ec) {
       beast::error_code ignored;
       socket.set_option(tcp::no_delay(true), ignored);  // small state messages should not wait for Nagle
-      std::make_shared<HttpSession>(std::move(socket), *this)->run();
+      std::make_shared<FrontEndHttpSession>(std::move(socket), *this)->run();
     }
     do_accept();
   });

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -606,6 +607,8 @@ TEST_F(HttpServerTest, SlowReaderDropsOldMessagesAndStaysBounded) {
   EXPECT_LE(max_queued, 1u);
   const auto stats = server_->connection_stats().at(0);
   EXPECT_GT(stats.dropped, 0u);
+  std::printf("slow reader: 2000 publishes of 64 KiB, %llu dropped, max queued %zu\n",
+              static_cast<unsigned long long>(stats.dropped), max_queued);
   const std::string metrics = server_->metrics();
   EXPECT_EQ(metrics.find("tendril_ws_messages_dropped_total 0\n"), std::string::npos);
   EXPECT_NE(metrics.find("tendril_ws_messages_dropped_total "), std::string::npos);
