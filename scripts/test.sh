@@ -86,7 +86,7 @@ if [ "$quick" = 0 ]; then
     for target in fuzz_rest_body fuzz_ws_client_message; do
       corpus_dir=$(mktemp -d)
       cp -r tests/fuzz/corpus/"$target"/. "$corpus_dir"/ 2>/dev/null || true
-      if build-fuzz/tests/fuzz/$target -max_total_time="${TENDRIL_FUZZ_SECONDS:-60}" -rss_limit_mb=2048 \
+      if build-fuzz/tests/fuzz/$target -max_total_time="${TENDRIL_FUZZ_SECONDS:-60}" -rss_limit_mb=2048 -print_final_stats=1 \
         "$corpus_dir" >build-fuzz/$target.log 2>&1; then
         echo "$target: no crash in ${TENDRIL_FUZZ_SECONDS:-60} s ($(grep -Eo 'stat::number_of_executed_units: [0-9]+' build-fuzz/$target.log | awk '{print $2}') runs)"
         record "$target" 0 1 0
