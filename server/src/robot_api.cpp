@@ -226,21 +226,19 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
   c.state = sc;
   c.received = std::chrono::steady_clock::now();
   if (!post(r, c)) return busy_mailbox(robot);
-  auto expected = s.state;
-  switch (sc) {
-    case safety::StateCommand::kEnable:
-      expected = OS::kEnabled;
-      break;
-    case safety::StateCommand::kDisable:
-      expected = OS::kDisabled;
-      break;
-    case safety::StateCommand::kPause:
-      expected = OS::kPaused;
-      break;
-    case safety::StateCommand::kResume:
-      expected = OS::kEnabled;
-      break;
-  }
+  const OS expected = [&] {
+    switch (sc) {
+      case safety::StateCommand::kEnable:
+        return OS::kEnabled;
+      case safety::StateCommand::kDisable:
+        return OS::kDisabled;
+      case safety::StateCommand::kPause:
+        return OS::kPaused;
+      case safety::StateCommand::kResume:
+        return OS::kEnabled;
+    }
+    return s.state;  // unknown command value: report the state unchanged
+  }();
   return ApiResult::success({{"state", state_name(expected)},
                              {"mode", "joint"},
                              {"is_homed", true},

@@ -195,8 +195,13 @@ RetargetStatus QuinticInterpolator::retarget(double t_now, std::span<const doubl
   } else if ((best_ratio = ratio(min_duration_)) <= 1.0 + kTolerance) {
     chosen = min_duration_;
   } else {
+    // Integer-counted grid (CERT FLP30): 2048 steps of x1.5 reach kMaxDuration even from the smallest
+    // positive double, so the T bound below always ends the scan first.
+    constexpr int kMaxGridSteps = 2048;
     double prev = min_duration_;
-    for (double T = min_duration_ * kGrowth; T <= kMaxDuration * kGrowth; T *= kGrowth) {
+    for (int step = 1; step <= kMaxGridSteps; ++step) {
+      const double T = prev * kGrowth;
+      if (T > kMaxDuration * kGrowth) break;
       const double r = ratio(T);
       if (r < best_ratio) {
         best_ratio = r;

@@ -152,10 +152,9 @@ bool SdoClient::handle(const can::Frame& frame, can::Clock::time_point now) {
         fail(sdo_abort::invalid_command, "unexpected answer " + hex(cmd, 2) + " to a download request", true);
         return true;
       }
-      if (data_.size() <= 4 && !data_.empty()) {
+      if (data_.size() <= 4) {
+        // Expedited (1-4 bytes) or zero-length segmented download: nothing more to send.
         status_ = Status::done;
-      } else if (data_.empty()) {
-        status_ = Status::done;  // zero-length segmented download: nothing more to send
       } else {
         send_download_segment(now);
       }

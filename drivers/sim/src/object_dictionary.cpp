@@ -1,7 +1,6 @@
 #include "tendril/drivers/sim/object_dictionary.hpp"
 
 #include <algorithm>
-#include <cstring>
 #include <limits>
 
 #include "tendril/drivers/canopen/protocol.hpp"
@@ -193,7 +192,8 @@ std::uint32_t ObjectDictionary::read(std::uint16_t index, std::uint8_t sub, std:
   if (!e->readable()) return abort_code::write_only;
   if (e->type == OdType::visible_string) {
     if (e->text.size() > out_capacity) return abort_code::out_of_memory;
-    std::memcpy(out, e->text.data(), e->text.size());
+    // SDO strings carry an explicit length and no terminator, so copy the bytes only.
+    std::copy(e->text.begin(), e->text.end(), out);
     size = e->text.size();
     return 0;
   }

@@ -343,8 +343,9 @@ std::uint32_t SimulatedCia402Drive::check_write(std::uint16_t index, std::uint8_
       return count->value == 0 ? 0 : abort_code::unsupported_access;
     }
     unsigned total_bits = 0;
-    for (std::uint8_t s = 1; s <= v; ++s) {
-      const auto m = static_cast<std::uint32_t>(od_.find(index, s)->value);
+    // v is range-checked to 0..8 by the dictionary; a wide loop variable keeps that bound safe anyway.
+    for (std::int64_t s = 1; s <= v; ++s) {
+      const auto m = static_cast<std::uint32_t>(od_.find(index, static_cast<std::uint8_t>(s))->value);
       const auto* target = od_.find(static_cast<std::uint16_t>(m >> 16), static_cast<std::uint8_t>(m >> 8));
       const unsigned bits = m & 0xFF;
       if (!target || !target->pdo_mappable || bits != od_type_size(target->type) * 8)

@@ -39,10 +39,11 @@ struct HttpOptions {
   // Origins allowed for browsers. Empty = the server's own origin http://host:port (plus
   // http://localhost:port and http://127.0.0.1:port when bound to loopback, the same machine).
   std::vector<std::string> allowed_origins;
-  std::string web_root;                              // static console files; empty = none
-  std::map<std::string, std::string> static_mounts;  // URL prefix -> directory, e.g. "/vendor/three/"
-  std::size_t max_body_bytes = 64 * 1024;            // REST request bodies (413 above)
-  std::size_t max_ws_message_bytes = 64 * 1024;      // client WebSocket messages (connection closed above)
+  std::string web_root;                                 // static console files; empty = none
+  std::map<std::string, std::string> static_mounts;     // URL prefix -> directory, e.g. "/vendor/three/"
+  std::size_t max_body_bytes = std::size_t{64} * 1024;  // REST request bodies (413 above)
+  std::size_t max_ws_message_bytes =
+      std::size_t{64} * 1024;  // client WebSocket messages (connection closed above)
   int io_threads = 2;
   double publish_rate_hz = 50;  // topic publishing; <= 0 = no publisher thread (call publish_once())
   std::chrono::milliseconds lease_timeout{30000};
