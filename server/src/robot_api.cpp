@@ -9,19 +9,7 @@ namespace tendril::server {
 namespace {
 using safety::OperatingState;
 
-const char* state_name(OperatingState s) {
-  switch (s) {
-    case OperatingState::kDisabled:
-      return "DISABLED";
-    case OperatingState::kEnabled:
-      return "ENABLED";
-    case OperatingState::kPaused:
-      return "PAUSED";
-    case OperatingState::kFault:
-      return "FAULT";
-  }
-  return "FAULT";
-}
+const char* state_name(OperatingState s) { return safety::to_string(s); }  // API.md names
 
 ApiResult unknown_robot(const std::string& robot) {
   return ApiResult::error(404, "unknown_robot", "there is no robot named '" + robot + "'");

@@ -200,16 +200,7 @@ void RobotRuntime::start() {
   }
   for (auto& b : im.buses) {
     auto* bus = b.get();
-    std::function<void()> idle;
-    if (im.options.stepped) {
-      // Stepped: the simulated nodes only move when someone steps them, so step them while the
-      // master waits for SDO answers and boot-ups.
-      idle = [bus] {
-        const auto now = std::chrono::steady_clock::now();
-        for (auto& d : bus->sim_drives) d->pump(now, 0.001);
-      };
-    }
-    bus->master->start(idle);
+    bus->master->start(im.blocking_idle(*bus));
   }
   if (im.options.stepped) {
     im.stepped_now = std::chrono::steady_clock::now();
@@ -229,6 +220,16 @@ void RobotRuntime::start() {
         },
         im.options.realtime_priority);
   }
+}
+
+std::function<void()> RobotRuntime::Impl::blocking_idle(BusUnit& bus) const {
+  if (!options.stepped) return {};
+  // Stepped: the simulated nodes only move when someone steps them, so step them while the master
+  // waits in its blocking start-up and shutdown exchanges.
+  return [&bus] {
+    const auto now = std::chrono::steady_clock::now();
+    for (auto& d : bus.sim_drives) d->pump(now, 0.001);
+  };
 }
 
 void RobotRuntime::Impl::run_bus(BusUnit& b) {
@@ -281,15 +282,8 @@ void RobotRuntime::stop() {
     if (b->bus_thread.joinable()) b->bus_thread.join();
   for (auto& b : im.buses) {
     auto* bus = b.get();
-    std::function<void()> idle;
-    if (im.options.stepped) {
-      idle = [bus] {
-        const auto now = std::chrono::steady_clock::now();
-        for (auto& d : bus->sim_drives) d->pump(now, 0.001);
-      };
-    }
     try {
-      bus->master->shutdown(std::chrono::milliseconds(500), idle);
+      bus->master->shutdown(std::chrono::milliseconds(500), im.blocking_idle(*bus));
     } catch (const std::exception&) {
       // Shutdown is best effort: the drives quick-stop by themselves when the master heartbeat ends.
     }

@@ -4,6 +4,7 @@
 #include <array>
 #include <atomic>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -131,6 +132,8 @@ struct RobotRuntime::Impl : RuntimeImplBase {
   void control_robot(RobotUnit& r, double t, bool previous_overrun) noexcept;
   void apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept;
   void run_bus(BusUnit& b);
+  // What a blocking master exchange runs while it waits (steps simulated drives in stepped mode).
+  std::function<void()> blocking_idle(BusUnit& bus) const;
   void collect_events() const;
 };
 
