@@ -1,0 +1,17 @@
+#include "allocation_counter.hpp"
+
+#include <cstddef>
+#include <cstdlib>
+#include <new>
+
+namespace tendril::kinematics_testing {
+std::atomic<long> allocation_count{0};
+}  // namespace tendril::kinematics_testing
+
+void* operator new(std::size_t size) {
+  tendril::kinematics_testing::allocation_count.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
