@@ -1,0 +1,145 @@
+// Pre-operative path planner by shape-error minimisation (seed 000 §4.8, eqs. 4.16–4.20, §11.2) and
+// the Nelder–Mead design optimiser of §4.9.
+//
+// Placement convention (the seed leaves it open, §4.8 [GAP]): q1 is the inserted length of the tip
+// along the vessel. The vessel is moved so its start is the insertion point with initial tangent +z.
+// The steerable section's base sits on the centerline at arc length s_b = q1 − (L1 + L2), oriented by
+// a rotation-minimising (parallel-transport) frame started at the identity, with the passive shaft
+// assumed to conform to the vessel. While s_b < 0 the base is still outside, on the straight
+// extension (0, 0, s_b). The roll q2 is measured from that transported frame, which (unlike the
+// α/β frame of eq. 4.3) stays continuous when the tangent passes through ±z.
+//
+// Points: vessel samples s_i ≤ q1 (n = floor(q1/ds) + 1 including s = 0) on the steerable section,
+// s_i ≥ s_b, are compared with the catheter at the same arc length; samples behind the base lie on
+// the non-steerable lumen and have zero weight (eq. 4.18). Weights follow eq. 4.20 with v_k/n_k taken
+// as σ/L_k (the position along segment k), which equals v_k/n_k when the segment is fully inside.
+// Tangent residuals use the chord t̂ − t̂_c (|t̂ − t̂_c| = 2 sin(δt/2) = δt + O(δt³)) because arccos is
+// not differentiable at zero; reported tangent errors use the exact angle.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstddef>
+#include <stdexcept>
+#include <vector>
+
+#include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/vessel_centerline.hpp"
+
+namespace tendril::teleop {
+
+class PlannerOptionsError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+struct ShapeErrorPlannerOptions {
+  double insertion_step = 3.0;              // dq1 (mm)
+  double position_error_range = 10.0;       // δ_p,range (mm), eq. 4.18
+  double tangent_error_range = 1.0;         // δ_t,range (rad)
+  double tangent_to_position_ratio = 0.75;  // r_tp
+  double proximal_to_distal_ratio = 1.0;    // r_seg, eq. 4.19
+  double proximal_drive_min = -6.0;         // q3 limits (mm)
+  double proximal_drive_max = 10.0;
+  double distal_drive_min = -5.0;  // q4 limits (mm)
+  double distal_drive_max = 5.0;
+  bool warm_start = true;                  // start each step from the previous solution
+  int max_iterations = 200;                // LM trial steps per insertion step
+  double initial_damping = 1e-3;           // λ₀ (relative to diag(JᵀJ))
+  double relative_cost_tolerance = 1e-12;  // stop when an accepted step improves less than this
+  double step_tolerance = 1e-10;           // stop when |Δx|∞ is below this
+};
+
+// Nominal model of the planning study: tip-only placeholder gain k = 1.4 rad/mm, ad hoc design
+// χ = [22 mm, 18.8 mm, −0.76 rad] (§4.10, case ①).
+CatheterParameters nominal_planning_design();
+
+struct PlanStep {
+  ConstantCurvatureCatheter::JointVector q;  // [q1 (mm), q2 (rad), q3 (mm), q4 (mm)]
+  std::size_t points = 0;                    // vessel samples on the inserted steerable section
+  double position_error_mean = 0.0;          // mm
+  double position_error_max = 0.0;           // mm
+  double tangent_error_mean = 0.0;           // deg
+  double tangent_error_max = 0.0;            // deg
+  double cost = 0.0;                         // eq. 4.17 at the solution
+  int iterations = 0;                        // LM trial steps taken
+};
+
+struct PathPlan {
+  std::vector<PlanStep> steps;
+  double position_error_mean = 0.0;  // over all compared points of all steps (mm)
+  double position_error_max = 0.0;
+  double tangent_error_mean = 0.0;  // deg
+  double tangent_error_max = 0.0;
+  int total_iterations = 0;
+};
+
+class ShapeErrorPlanner {
+ public:
+  using JointVector = ConstantCurvatureCatheter::JointVector;
+
+  // Throws PlannerOptionsError when an option is not finite, not positive where it must be, or a
+  // limit interval is empty or excludes 0 (the straight catheter must be reachable).
+  ShapeErrorPlanner(const ConstantCurvatureCatheter& model, const ShapeErrorPlannerOptions& options);
+
+  const ShapeErrorPlannerOptions& options() const noexcept { return options_; }
+
+  // Plans q1 = dq1, 2·dq1, … ≤ vessel length. The vessel is aligned to the insertion frame first.
+  // The result depends only on (model, vessel, options); scratch buffers are sized once per call.
+  // Throws VesselInputError if the vessel is shorter than one insertion step.
+  PathPlan plan(const VesselCenterline& vessel);
+
+  // Point (and unit tangent) at arc length sigma ∈ [0, L1 + L2] along the steerable section, in the
+  // model's frame {0} with the base at (0, 0, q1): the same closed form as
+  // ConstantCurvatureCatheter::backbone, but at any arc length.
+  Eigen::Vector3d steerable_point(const JointVector& q, double sigma,
+                                  Eigen::Vector3d* tangent) const noexcept;
+
+ private:
+  struct Base {
+    Eigen::Matrix3d rotation;
+    Eigen::Vector3d position;
+  };
+  void build_transport_frames(const VesselCenterline& aligned);
+  Base base_frame(const VesselCenterline& aligned, double arc_length) const noexcept;
+  double evaluate(const Eigen::Vector3d& x, Eigen::VectorXd& residual) const noexcept;
+  PlanStep solve_step(const VesselCenterline& aligned, double q1, const Eigen::Vector3d& start);
+
+  ConstantCurvatureCatheter model_;
+  ShapeErrorPlannerOptions options_;
+  Eigen::Vector3d lower_, upper_;
+
+  // Per-plan scratch, sized in plan().
+  std::vector<Eigen::Matrix3d> transport_;
+  std::vector<Eigen::Vector3d> targets_, target_tangents_;
+  std::vector<double> sigmas_, weights_;
+  std::size_t active_ = 0;
+  Base base_{};
+  Eigen::VectorXd residual_, trial_residual_, plus_, minus_;
+  Eigen::MatrixXd jacobian_;
+};
+
+struct DesignOptimiserOptions {
+  int max_evaluations = 60;          // planner runs (each a full plan)
+  double initial_step_length = 4.0;  // mm, simplex size for L1 and L2
+  double initial_step_angle = 0.4;   // rad, simplex size for δ2
+  double min_length = 2.0;           // mm, lower bound for L1 and L2
+  double max_length = 60.0;
+};
+
+struct DesignResult {
+  CatheterParameters design;
+  double penalty = 0.0;          // g(χ) of §4.9
+  double initial_penalty = 0.0;  // g at the starting design
+  int evaluations = 0;
+  PathPlan plan;
+};
+
+// g(χ) = (max δp + mean δp)/δ_p,range + (max δt + mean δt)/δ_t,range over the whole plan (§4.9).
+double design_penalty(const PathPlan& plan, const ShapeErrorPlannerOptions& options);
+
+// Nelder–Mead over χ = [L1, L2, δ2] starting from `start`, each evaluation a full plan (§4.9).
+DesignResult optimise_design(const CatheterParameters& start, const VesselCenterline& vessel,
+                             const ShapeErrorPlannerOptions& planner_options,
+                             const DesignOptimiserOptions& options = {});
+
+}  // namespace tendril::teleop

@@ -1,0 +1,159 @@
+#include "tendril/teleop/shape_error_planner.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+namespace tendril::teleop {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+using JointVector = ConstantCurvatureCatheter::JointVector;
+
+CenterlinePolyline straight_line(double length) {
+  CenterlinePolyline line;
+  for (int i = 0; i <= 100; ++i) line.points.emplace_back(0.0, 0.0, length * i / 100.0);
+  return line;
+}
+
+TEST(ShapeErrorPlanner, SteerablePointMatchesKinematicModel) {
+  const ConstantCurvatureCatheter model(nominal_planning_design());
+  const ShapeErrorPlanner planner(model, {});
+  const JointVector q(12.0, 0.7, 2.5, -1.8);
+  constexpr std::size_t kPerSegment = 10;
+  std::vector<Eigen::Vector3d> backbone(model.backbone_point_count(kPerSegment));
+  ASSERT_EQ(model.backbone(q, kPerSegment, backbone), backbone.size());
+  const double L1 = model.parameters().proximal_length, L2 = model.parameters().distal_length;
+  for (std::size_t i = 0; i <= kPerSegment; ++i) {
+    const double sigma = L1 * static_cast<double>(i) / kPerSegment;
+    EXPECT_LT((planner.steerable_point(q, sigma, nullptr) - backbone[i]).norm(), 1e-12) << i;
+  }
+  for (std::size_t i = 1; i <= kPerSegment; ++i) {
+    const double sigma = L1 + L2 * static_cast<double>(i) / kPerSegment;
+    EXPECT_LT((planner.steerable_point(q, sigma, nullptr) - backbone[kPerSegment + i]).norm(), 1e-12) << i;
+  }
+  Eigen::Vector3d tangent;
+  const TipPose tip = model.tip_pose(q);
+  EXPECT_LT((planner.steerable_point(q, L1 + L2, &tangent) - tip.position).norm(), 1e-12);
+  EXPECT_LT((tangent - tip.rotation.col(2)).norm(), 1e-12);
+}
+
+TEST(ShapeErrorPlanner, StraightVesselKeepsCatheterStraight) {
+  ShapeErrorPlanner planner(ConstantCurvatureCatheter(nominal_planning_design()), {});
+  const auto vessel = VesselCenterline::from_polyline(straight_line(90.0), 0.5);
+  const PathPlan plan = planner.plan(vessel);
+  ASSERT_EQ(plan.steps.size(), 30u);
+  for (const auto& step : plan.steps) {
+    EXPECT_NEAR(step.q[2], 0.0, 1e-9);
+    EXPECT_NEAR(step.q[3], 0.0, 1e-9);
+    EXPECT_LT(step.position_error_max, 1e-9);
+    EXPECT_LT(step.tangent_error_max, 1e-6);
+  }
+  EXPECT_DOUBLE_EQ(plan.steps.back().q[0], 90.0);
+  // Only points on the inserted steerable section count: 40.8 mm at ds 0.5 once fully inside.
+  EXPECT_EQ(plan.steps[0].points, 7u);       // s = 0 … 3
+  EXPECT_EQ(plan.steps.back().points, 82u);  // s = 49.5 … 90
+}
+
+TEST(ShapeErrorPlanner, FindsAShapeTheModelCanReproduce) {
+  const ConstantCurvatureCatheter model(nominal_planning_design());
+  const JointVector truth(0.0, 0.9, 1.2, -0.9);
+  // The vessel is the catheter's own steerable shape, base at the insertion point.
+  std::vector<Eigen::Vector3d> backbone(model.backbone_point_count(4000));
+  model.backbone(truth, 4000, backbone);
+  CenterlinePolyline line;
+  line.points = backbone;
+  const auto vessel = VesselCenterline::from_polyline(line, 0.4);  // 40.8 mm = 102 samples
+  ASSERT_NEAR(vessel.length(), 40.8, 1e-9);
+  ShapeErrorPlannerOptions options;
+  options.insertion_step = 40.8 / 17.0;  // last step inserts exactly the whole steerable section
+  ShapeErrorPlanner planner(model, options);
+  const PathPlan plan = planner.plan(vessel);
+  ASSERT_EQ(plan.steps.size(), 17u);
+  const PlanStep& last = plan.steps.back();
+  EXPECT_EQ(last.points, 103u);
+  EXPECT_LT(last.position_error_max, 0.05);
+  // The vessel's finite-difference tangent is off by ~κ·ds/2 at the segment junction, where the
+  // curvature jumps; elsewhere it is exact to O(ds²).
+  EXPECT_LT(last.tangent_error_max, 1.0);
+  EXPECT_LT(last.tangent_error_mean, 0.1);
+  // (q2 + π, −q3, −q4) draws the same curve, so either configuration is the answer.
+  const bool flipped = std::abs(std::remainder(last.q[1] - truth[1], 2.0 * kPi)) > 0.5 * kPi;
+  const double sign = flipped ? -1.0 : 1.0;
+  EXPECT_NEAR(std::remainder(last.q[1] - truth[1] - (flipped ? kPi : 0.0), 2.0 * kPi), 0.0, 0.01);
+  EXPECT_NEAR(sign * last.q[2], truth[2], 0.01);
+  EXPECT_NEAR(sign * last.q[3], truth[3], 0.01);
+}
+
+TEST(ShapeErrorPlanner, PlansSyntheticIcaWithinLimits) {
+  ShapeErrorPlanner planner(ConstantCurvatureCatheter(nominal_planning_design()), {});
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(1), 0.5);
+  const PathPlan plan = planner.plan(vessel);
+  ASSERT_EQ(plan.steps.size(), 50u);
+  for (const auto& step : plan.steps) {
+    EXPECT_GE(step.q[2], -6.0);
+    EXPECT_LE(step.q[2], 10.0);
+    EXPECT_GE(step.q[3], -5.0);
+    EXPECT_LE(step.q[3], 5.0);
+    EXPECT_LE(std::abs(step.q[1]), kPi + 1e-12);
+    EXPECT_TRUE(std::isfinite(step.position_error_mean));
+  }
+  // Bending must do better than leaving the catheter straight on a tortuous path.
+  ShapeErrorPlannerOptions frozen;
+  frozen.proximal_drive_min = frozen.distal_drive_min = -1e-9;
+  frozen.proximal_drive_max = frozen.distal_drive_max = 1e-9;
+  ShapeErrorPlanner straight_only(ConstantCurvatureCatheter(nominal_planning_design()), frozen);
+  EXPECT_LT(plan.position_error_mean, 0.5 * straight_only.plan(vessel).position_error_mean);
+  // Same inputs, same plan (pure function of model, vessel and options; scratch reuse is invisible).
+  const PathPlan again = planner.plan(vessel);
+  EXPECT_EQ(again.steps.back().q, plan.steps.back().q);
+}
+
+TEST(ShapeErrorPlanner, WarmStartNeedsFewerIterations) {
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(1), 0.5);
+  ShapeErrorPlannerOptions warm, cold;
+  cold.warm_start = false;
+  const ConstantCurvatureCatheter model(nominal_planning_design());
+  const PathPlan warm_plan = ShapeErrorPlanner(model, warm).plan(vessel);
+  const PathPlan cold_plan = ShapeErrorPlanner(model, cold).plan(vessel);
+  EXPECT_LT(warm_plan.total_iterations, cold_plan.total_iterations);
+}
+
+TEST(ShapeErrorPlanner, RejectsBadOptionsAndShortVessels) {
+  const ConstantCurvatureCatheter model(nominal_planning_design());
+  auto with = [](auto change) {
+    ShapeErrorPlannerOptions o;
+    change(o);
+    return o;
+  };
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.insertion_step = 0.0; })), PlannerOptionsError);
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.insertion_step = NAN; })), PlannerOptionsError);
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.position_error_range = -1.0; })),
+               PlannerOptionsError);
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.tangent_to_position_ratio = -0.1; })),
+               PlannerOptionsError);
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.proximal_drive_min = 11.0; })),
+               PlannerOptionsError);
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.distal_drive_max = -1.0; })),
+               PlannerOptionsError);
+  EXPECT_THROW(ShapeErrorPlanner(model, with([](auto& o) { o.max_iterations = 0; })), PlannerOptionsError);
+  ShapeErrorPlanner planner(model, {});
+  EXPECT_THROW(planner.plan(VesselCenterline::from_polyline(straight_line(2.0), 0.5)), VesselInputError);
+}
+
+TEST(DesignOptimiser, ImprovesOnTheAdHocDesign) {
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(1), 0.5);
+  ShapeErrorPlannerOptions planner_options;
+  DesignOptimiserOptions options;
+  options.max_evaluations = 20;
+  const DesignResult result = optimise_design(nominal_planning_design(), vessel, planner_options, options);
+  EXPECT_LE(result.evaluations, options.max_evaluations + 5);
+  EXPECT_LT(result.penalty, result.initial_penalty);
+  EXPECT_NEAR(design_penalty(result.plan, planner_options), result.penalty, 1e-9);
+  EXPECT_THROW(optimise_design(nominal_planning_design(), vessel, planner_options, {.max_evaluations = 2}),
+               PlannerOptionsError);
+}
+
+}  // namespace
+}  // namespace tendril::teleop
