@@ -153,8 +153,6 @@ int main(int argc, char** argv) {
     if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
     std::cout << "tendril console: http://" << shown_host << ":" << http.port() << "/?token=" << token
               << std::endl;
-    const auto stats = runtime.loop_statistics();
-    (void)stats;
 
     int signal_number = 0;
     sigwait(&stop_signals, &signal_number);

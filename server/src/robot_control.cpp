@@ -20,8 +20,7 @@ void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c
 void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now,
                                        bool previous_overrun) noexcept {
   const double t = std::chrono::duration<double>(now - start_time).count();
-  const auto tick = ticks.fetch_add(1, std::memory_order_relaxed) + 1;
-  (void)tick;
+  ticks.fetch_add(1, std::memory_order_relaxed);
   for (auto& r : robots) control_robot(*r, t, previous_overrun);
 }
 
@@ -81,7 +80,6 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   // 1. Read the drives.
   std::array<canopen::DriveFeedback, kMaxJoints> fb;
   bool all_enabled = true;
-  bool all_booted = true;
   for (std::size_t i = 0; i < n; ++i) {
     const auto& b = r.bindings[i];
     fb[i] = b.bus->master->feedback(b.drive).load();
@@ -89,12 +87,12 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     s.qd[i] = fb[i].velocity;
     s.effort[i] = fb[i].effort;
     all_enabled = all_enabled && fb[i].state == Cia::operation_enabled;
-    all_booted = all_booted && fb[i].booted;
   }
   if (!s.initialised) {
     for (std::size_t i = 0; i < n; ++i) {
       s.q_des[i] = s.q[i];
       s.heartbeat_was_alive[i] = fb[i].heartbeat_alive;
+      s.nmt_was_operational[i] = fb[i].nmt == canopen::NmtState::operational;
       s.emcy_seen[i] = fb[i].emcy_count;
     }
     r.interpolator->reset({s.q_des.data(), n}, t);
@@ -110,6 +108,14 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
       sup.fault(t, safety::FaultCode::kDriveHeartbeatLost, static_cast<int>(i), detail);
     }
     s.heartbeat_was_alive[i] = fb[i].heartbeat_alive;
+    // A drive that leaves NMT operational (it reset, or someone stopped it) has lost its PDO set-up.
+    const bool operational = fb[i].nmt == canopen::NmtState::operational;
+    if (s.nmt_was_operational[i] && !operational) {
+      char detail[96];
+      text(detail, "drive '%s' left NMT operational (reset or stopped)", joint);
+      sup.fault(t, safety::FaultCode::kExternal, static_cast<int>(i), detail);
+    }
+    s.nmt_was_operational[i] = operational;
     if (fb[i].emcy_count != s.emcy_seen[i]) {
       s.emcy_seen[i] = fb[i].emcy_count;
       if (fb[i].last_emcy_code != canopen::emcy_code::no_error) {
@@ -245,7 +251,6 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   snap.estop_tick = s.estop_tick;
   snap.commands_applied = s.commands_applied;
   snap.mailbox_full = r.mailbox_full.load(std::memory_order_relaxed);
-  (void)all_booted;
   r.snapshot.store(snap);
 }
 

@@ -98,6 +98,7 @@ struct RobotUnit {
     bool enable_pending = false;
     std::array<std::uint32_t, kMaxJoints> emcy_seen{};
     std::array<bool, kMaxJoints> heartbeat_was_alive{};
+    std::array<bool, kMaxJoints> nmt_was_operational{};
     std::uint64_t estop_tick = 0;
     std::uint64_t commands_applied = 0;
     bool initialised = false;

@@ -213,6 +213,17 @@ TEST_F(RuntimeTest, DriveEmergencyFaultsTheRobot) {
   EXPECT_EQ(state(), "ENABLED");
 }
 
+TEST_F(RuntimeTest, ADriveThatResetsFaultsTheRobot) {
+  enable();
+  runtime->simulated_drive("srmc", "insertion")->power_cycle();
+  EXPECT_TRUE(step_until([&] { return state() == "FAULT"; }, 50));
+  const auto faults = runtime->faults();
+  ASSERT_FALSE(faults.empty());
+  EXPECT_EQ(faults[0]["joint"], "insertion") << faults.dump();
+  EXPECT_NE(faults[0]["message"].get<std::string>().find("left NMT operational"), std::string::npos)
+      << faults.dump();
+}
+
 TEST_F(RuntimeTest, BadRequestsChangeNothing) {
   enable();
   const auto before = runtime->setpoint_js("srmc").body["position"];
