@@ -160,6 +160,13 @@ int main(int argc, char** argv) {
               << " received: disabling the drives and stopping" << std::endl;
     http.stop();
     runtime.stop();
+    std::vector<std::string> still_on;
+    if (!runtime.drives_disabled(&still_on)) {
+      std::cerr << "tendrild: stopped, but these drives did not confirm they are disabled:";
+      for (const auto& d : still_on) std::cerr << " " << d;
+      std::cerr << " (they quick-stop by themselves when the master heartbeat ends)" << std::endl;
+      return 1;
+    }
     std::cerr << "tendrild: drives disabled, stopped cleanly" << std::endl;
     return 0;
   } catch (const ConfigError& e) {

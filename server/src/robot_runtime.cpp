@@ -291,4 +291,25 @@ void RobotRuntime::stop() {
   for (auto& b : im.buses) b->sim_thread.stop();
 }
 
+bool RobotRuntime::drives_disabled(std::vector<std::string>* not_disabled) const {
+  bool all = true;
+  for (const auto& r : impl_->robots) {
+    for (std::size_t i = 0; i < r->n; ++i) {
+      const auto& b = r->bindings[i];
+      const auto state = b.bus->master->feedback(b.drive).load().state;
+      const bool off = state == canopen::Cia402State::switch_on_disabled ||
+                       state == canopen::Cia402State::ready_to_switch_on ||
+                       state == canopen::Cia402State::not_ready_to_switch_on ||
+                       state == canopen::Cia402State::fault;
+      if (!off) {
+        all = false;
+        if (not_disabled)
+          not_disabled->push_back(r->config.name + "/" + r->config.joints[i].name + " (" +
+                                  canopen::to_string(state) + ")");
+      }
+    }
+  }
+  return all;
+}
+
 }  // namespace tendril::server

@@ -14,6 +14,8 @@ start_tendrild "${1:-${TENDRILD:-$repo_root/build/server/tendrild}}" || exit 1
 # One file at a time: the files share one server and its single robot.
 node --test --test-concurrency=1 "$here"/*.test.mjs
 status=$?
+# Last: SIGTERM must disable the drives and end the process cleanly.
+check_clean_shutdown || status=1
 if [ $status -ne 0 ]; then
   echo "--- last lines of the tendrild log ---" >&2
   tail -n 40 "$TENDRIL_LOG" >&2

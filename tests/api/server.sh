@@ -83,3 +83,19 @@ JSON
   cat "$TENDRIL_LOG" >&2
   return 1
 }
+
+# Stops tendrild with SIGTERM and checks that it disabled its drives and exited 0 (the log line
+# comes from tendrild after every drive reported its power stage off).
+check_clean_shutdown() {
+  [ -n "$tendrild_pid" ] || { echo "not ok - no tendrild to stop"; return 1; }
+  kill -TERM "$tendrild_pid"
+  local status=0
+  wait "$tendrild_pid" || status=$?
+  tendrild_pid=""
+  if [ "$status" -eq 0 ] && grep -q "drives disabled, stopped cleanly" "$TENDRIL_LOG"; then
+    echo "ok - SIGTERM: tendrild disabled the drives and exited 0"
+    return 0
+  fi
+  echo "not ok - SIGTERM: exit status $status; log tail:"; tail -n 20 "$TENDRIL_LOG"
+  return 1
+}

@@ -243,7 +243,10 @@ TEST_F(RuntimeTest, BadRequestsChangeNothing) {
 
 TEST_F(RuntimeTest, StopDisablesTheDrives) {
   enable();
+  EXPECT_FALSE(runtime->drives_disabled());
   runtime->stop();
+  std::vector<std::string> still_on;
+  EXPECT_TRUE(runtime->drives_disabled(&still_on)) << still_on.size();
   for (const char* joint : {"insertion", "roll", "proximal_bend", "distal_bend"}) {
     const auto s = runtime->simulated_drive("srmc", joint)->state();
     EXPECT_TRUE(s == canopen::Cia402State::switch_on_disabled ||

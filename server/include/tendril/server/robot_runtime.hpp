@@ -43,6 +43,9 @@ class RobotRuntime final : public ControlApi {
   void start();
   // Disables every drive cleanly, then stops all threads. Idempotent.
   void stop();
+  // After stop(): whether every drive reported its power stage off (not operation enabled, not
+  // quick stop active). Names the drives that did not in `not_disabled`.
+  bool drives_disabled(std::vector<std::string>* not_disabled = nullptr) const;
   // Stepped mode only: advance simulation, buses and control by one control period.
   void step();
   // Current control time (s since start), stepped or real.
