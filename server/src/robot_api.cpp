@@ -263,9 +263,7 @@ ApiResult RobotRuntime::move_jp(const std::string& robot, const nlohmann::json& 
     return ApiResult::error(
         409, "not_enabled",
         std::string("robot '") + robot + "' is " + state_name(s.state) + "; enable it before moving");
-  if (!s.drives_ready)
-    return ApiResult::error(409, "not_ready",
-                            "robot '" + robot + "' is still enabling its drives; try again shortly");
+  // While the drives are still enabling, the goal waits in the control thread and starts when they are.
   // Predict the duration with the same interpolator the control thread will use.
   teleop::QuinticInterpolator predict(r.n);
   predict.reset({s.setpoint.data(), r.n}, 0.0);

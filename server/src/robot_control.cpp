@@ -44,7 +44,13 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       break;
     case CommandKind::move_jp:
       // Re-checked here: the state may have changed since the network thread validated it.
-      if (sup.state() != OperatingState::kEnabled || !s.drives_ready || sup.check_goal(values)) break;
+      if (sup.state() != OperatingState::kEnabled || sup.check_goal(values)) break;
+      if (!s.drives_ready) {
+        // Enabling: the goal starts as soon as every drive reports operation enabled.
+        s.pending_goal = c.values;
+        s.goal_pending = true;
+        break;
+      }
       s.servo_active = false;
       r.interpolator->retarget(t, values, {r.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
       break;
@@ -140,6 +146,10 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
         s.enable_pending = false;
         for (std::size_t i = 0; i < n; ++i) s.q_des[i] = s.q[i];
         r.interpolator->reset({s.q_des.data(), n}, t);
+        if (s.goal_pending && state == OperatingState::kEnabled)
+          r.interpolator->retarget(t, {s.pending_goal.data(), n}, {r.max_velocity.data(), n},
+                                   {r.max_acceleration.data(), n});
+        s.goal_pending = false;
       } else if (t - s.enable_started > r.config.enable_timeout_ms / 1000.0) {
         for (std::size_t i = 0; i < n; ++i) {
           if (fb[i].state == Cia::operation_enabled) continue;
@@ -164,6 +174,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   } else {
     s.drives_ready = false;
     s.enable_pending = false;
+    s.goal_pending = false;
   }
   state = sup.state();
 
@@ -246,7 +257,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   snap.state = state;
   snap.estop = estop;
   snap.drives_ready = s.drives_ready;
-  snap.busy = s.enable_pending || s.servo_active || (s.drives_ready && !r.interpolator->done(t));
+  snap.busy =
+      s.enable_pending || s.goal_pending || s.servo_active || (s.drives_ready && !r.interpolator->done(t));
   snap.fault = sup.fault_cause();
   snap.estop_tick = s.estop_tick;
   snap.commands_applied = s.commands_applied;

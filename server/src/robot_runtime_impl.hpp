@@ -96,6 +96,8 @@ struct RobotUnit {
     bool drives_ready = false;
     double enable_started = 0.0;
     bool enable_pending = false;
+    bool goal_pending = false;  // move_jp received while the drives were still enabling
+    JointArray pending_goal{};
     std::array<std::uint32_t, kMaxJoints> emcy_seen{};
     std::array<bool, kMaxJoints> heartbeat_was_alive{};
     std::array<bool, kMaxJoints> nmt_was_operational{};

@@ -86,6 +86,16 @@ TEST_F(RuntimeTest, MovesToAGoalAndBackOverTheVirtualBus) {
   EXPECT_EQ(state(), "ENABLED");
 }
 
+TEST_F(RuntimeTest, AGoalSentWhileTheDrivesAreEnablingStartsWhenTheyAre) {
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+  steps(1);
+  ASSERT_FALSE(runtime->operating_state("srmc").body["drives_ready"].get<bool>());
+  const std::vector<double> goal{15.0, 0.0, 1.0, 0.0};
+  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", goal}}).status, 202);
+  EXPECT_TRUE(step_until([&] { return at(goal, 0.01); }, 5000)) << runtime->measured_js("srmc").body.dump();
+  EXPECT_EQ(state(), "ENABLED");
+}
+
 TEST_F(RuntimeTest, SetpointNeverJumpsWhenANewGoalArrivesMidMotion) {
   enable();
   ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {30.0, 0.0, 0.0, 0.0}}}).status, 202);
