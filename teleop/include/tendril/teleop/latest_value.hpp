@@ -46,7 +46,8 @@ class LatestValue {
     const auto* src = reinterpret_cast<const unsigned char*>(&v);
     for (std::size_t i = 0; i < sizeof(T); ++i)
       // Padding bytes of T are copied as they are, as memcpy would.
-      std::atomic_ref<unsigned char>(bytes_[i]).store(src[i], std::memory_order_relaxed);  // NOLINT(clang-analyzer-core.CallAndMessage)
+      // NOLINTNEXTLINE(clang-analyzer-core.CallAndMessage)
+      std::atomic_ref<unsigned char>(bytes_[i]).store(src[i], std::memory_order_relaxed);
   }
   void copy_out(T& v) const noexcept {
     auto* dst = reinterpret_cast<unsigned char*>(&v);
