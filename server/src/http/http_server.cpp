@@ -1228,7 +1228,7 @@ ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identi
   auto describe = [&]() {
     const auto status = lease.status(who.lease_key, now);
     json body = {{"holder", status.held ? json(status.holder_label) : json(nullptr)},
-                 {"expires_in_s", status.remaining.count() / 1000.0},
+                 {"expires_in_s", static_cast<double>(status.remaining.count()) / 1000.0},
                  {"yours", status.yours},
                  {"you", who.label}};
     return body;
