@@ -152,12 +152,12 @@ TEST(ModalCatheterKinematics, EvaluationDoesNotAllocate) {
   const ModalCatheterKinematics modal(cubic_parameters());
   std::array<Eigen::Vector3d, 21> backbone{};
   const JointVector q(4.0, 0.5, 0.6, -0.3);
-  const long before = kinematics_testing::allocation_count.load();
+  const long before = tendril::testing::allocation_count.load();
   const TipPose tip = modal.tip_pose(q);
   const auto J = modal.tip_position_jacobian(q);
   const std::size_t written = modal.backbone(q, 10, backbone);
   const double angle = modal.tip_angle(CatheterSegment::kDistal, q[3]);
-  const long after = kinematics_testing::allocation_count.load();
+  const long after = tendril::testing::allocation_count.load();
   EXPECT_EQ(after, before);
   EXPECT_EQ(written, 21u);
   EXPECT_TRUE(tip.position.allFinite() && J.allFinite() && std::isfinite(angle));
