@@ -48,7 +48,8 @@ readonly VCAN_SPEC="${TENDRIL_CAN_VM_VCAN:-vcan0:fd vcan1}"
 readonly ACCEL="${TENDRIL_CAN_VM_ACCEL:-tcg}"
 readonly MEMORY="${TENDRIL_CAN_VM_MEMORY:-1024M}"
 # Top-level modules; their dependencies are added from .modinfo.
-readonly WANTED_MODULES=(virtio_pci 9pnet_virtio 9p can_raw vcan)
+# uinput and evdev: the input-device tests create a real joystick inside the VM.
+readonly WANTED_MODULES=(virtio_pci 9pnet_virtio 9p can_raw vcan uinput evdev)
 
 log() { echo "can-vm: $*" >&2; }
 die() {
@@ -144,6 +145,11 @@ exec 9>"$CACHE_DIR/.lock"
 # Parallel runs (ctest -j) share the cache; only one prepares it.
 flock 9
 
+# A prepared kernel directory is complete when it was prepared for the current module list.
+kernel_complete() {
+  [[ -f $1/.complete && "$(cat "$1/.complete")" == "${WANTED_MODULES[*]}" ]]
+}
+
 # Prints the directory of a prepared kernel: vmlinuz, modules/*.ko, modules/load.order.
 prepare_kernel() {
   local package="${TENDRIL_CAN_VM_KERNEL_PKG:-}" deb="${TENDRIL_CAN_VM_KERNEL_DEB:-}"
@@ -152,7 +158,7 @@ prepare_kernel() {
   if [[ -z $package && -z $deb ]]; then
     # Reuse what is cached (works offline); newest version first.
     kernel_dir="$(ls -1dv "$CACHE_DIR"/kernel-*/ 2>/dev/null | while read -r d; do
-      if [[ -f $d/.complete ]]; then echo "${d%/}"; fi
+      if kernel_complete "${d%/}"; then echo "${d%/}"; fi
     done | tail -n 1 || true)"
     if [[ -n $kernel_dir ]]; then
       echo "$kernel_dir"
@@ -173,7 +179,7 @@ prepare_kernel() {
   fi
 
   kernel_dir="$CACHE_DIR/kernel-$package"
-  if [[ -f $kernel_dir/.complete ]]; then
+  if kernel_complete "$kernel_dir"; then
     echo "$kernel_dir"
     return 0
   fi
@@ -204,7 +210,7 @@ prepare_kernel() {
   cp "$vmlinuz" "$kernel_dir.new/vmlinuz"
   resolve_modules "${module_root%/}" "$kernel_dir.new/modules"
   mv "$kernel_dir.new" "$kernel_dir"
-  touch "$kernel_dir/.complete"
+  echo "${WANTED_MODULES[*]}" >"$kernel_dir/.complete"
   rm -rf "$work"
   echo "$kernel_dir"
 }

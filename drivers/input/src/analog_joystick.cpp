@@ -1,0 +1,95 @@
+#include "tendril/drivers/input/analog_joystick.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace tendril::drivers::input {
+
+std::optional<std::array<double, kAnalogJoystickChannels>> decode_analog_joystick_pdo(
+    const can::Frame& frame, std::uint8_t node_id) noexcept {
+  if (frame.extended || frame.rtr || frame.error) return std::nullopt;
+  if (frame.id != 0x180U + node_id || frame.len < 2 * kAnalogJoystickChannels) return std::nullopt;
+  std::array<double, kAnalogJoystickChannels> volts{};
+  for (std::size_t i = 0; i < kAnalogJoystickChannels; ++i) {
+    const auto millivolts = static_cast<std::uint16_t>(frame.data[2 * i] | (frame.data[2 * i + 1] << 8));
+    volts[i] = millivolts / 1000.0;
+  }
+  return volts;
+}
+
+can::Frame encode_analog_joystick_pdo(std::uint8_t node_id,
+                                      const std::array<double, kAnalogJoystickChannels>& volts) noexcept {
+  can::Frame frame;
+  frame.id = 0x180U + node_id;
+  frame.len = 2 * kAnalogJoystickChannels;
+  for (std::size_t i = 0; i < kAnalogJoystickChannels; ++i) {
+    const double mv = std::isfinite(volts[i]) ? std::clamp(std::round(volts[i] * 1000.0), 0.0, 65535.0) : 0.0;
+    const auto value = static_cast<std::uint16_t>(mv);
+    frame.data[2 * i] = static_cast<std::uint8_t>(value & 0xFFU);
+    frame.data[2 * i + 1] = static_cast<std::uint8_t>(value >> 8);
+  }
+  return frame;
+}
+
+JoystickState analog_joystick_state(const std::array<double, kAnalogJoystickChannels>& volts,
+                                    const AnalogJoystickCalibration& calibration, bool deadman,
+                                    std::int64_t stamp_ns) noexcept {
+  JoystickState state;
+  state.stamp_ns = stamp_ns;
+  const double supply = calibration.supply_volts;
+  for (double v : volts) {
+    if (!std::isfinite(v) || v < -calibration.fault_margin_volts ||
+        v > supply + calibration.fault_margin_volts) {
+      return state;  // wiring fault: not connected, zero outputs
+    }
+  }
+  state.connected = true;
+  state.deadman = deadman;
+  const AxisMapping base{"", 0, 0.0, supply, calibration.deadband_volts / (0.5 * supply), 1.0, false};
+  for (std::size_t i = 0; i < kAnalogJoystickChannels; ++i) {
+    AxisMapping axis = base;
+    axis.invert = calibration.invert[i];
+    state.outputs[i] = normalise_axis(axis, volts[i]);
+  }
+  return state;
+}
+
+AnalogJoystickReceiver::AnalogJoystickReceiver(AnalogJoystickCalibration calibration)
+    : calibration_(calibration) {
+  const auto& c = calibration_;
+  if (c.node_id < 1 || c.node_id > 127) throw JoystickConfigError("analog joystick: node_id must be 1..127");
+  if (!std::isfinite(c.supply_volts) || c.supply_volts <= 0.0) {
+    throw JoystickConfigError("analog joystick: supply_volts must be positive");
+  }
+  if (!std::isfinite(c.deadband_volts) || c.deadband_volts < 0.0 ||
+      c.deadband_volts >= 0.5 * c.supply_volts) {
+    throw JoystickConfigError("analog joystick: deadband_volts must be in [0, supply/2)");
+  }
+  if (!std::isfinite(c.fault_margin_volts) || c.fault_margin_volts < 0.0) {
+    throw JoystickConfigError("analog joystick: fault_margin_volts must not be negative");
+  }
+  if (c.stale_after_ns <= 0) throw JoystickConfigError("analog joystick: stale_after must be positive");
+}
+
+bool AnalogJoystickReceiver::handle(const can::Frame& frame, std::int64_t now_ns) noexcept {
+  const auto volts = decode_analog_joystick_pdo(frame, calibration_.node_id);
+  if (!volts) return false;
+  volts_ = *volts;
+  last_ns_ = now_ns;
+  seen_ = true;
+  ++frames_;
+  return true;
+}
+
+JoystickState AnalogJoystickReceiver::state(bool deadman, std::int64_t now_ns) const noexcept {
+  if (!seen_ || now_ns - last_ns_ > calibration_.stale_after_ns) {
+    JoystickState stale;
+    stale.stamp_ns = last_ns_;
+    return stale;
+  }
+  JoystickState state = analog_joystick_state(volts_, calibration_, deadman, last_ns_);
+  state.reports = frames_;
+  return state;
+}
+
+}  // namespace tendril::drivers::input
