@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 
 std::optional<std::array<double, kAnalogJoystickChannels>> decode_analog_joystick_pdo(
     const can::Frame& frame, std::uint8_t node_id) noexcept {
@@ -92,4 +92,4 @@ JoystickState AnalogJoystickReceiver::state(bool deadman, std::int64_t now_ns) c
   return state;
 }
 
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

@@ -12,7 +12,7 @@
 #include <filesystem>
 #include <vector>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 namespace {
 
 std::int64_t monotonic_ns() noexcept {
@@ -254,4 +254,4 @@ void EvdevJoystick::run() {
   slot_.store(decoder.state());
 }
 
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

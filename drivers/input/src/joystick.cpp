@@ -4,7 +4,7 @@
 #include <cmath>
 #include <set>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 
 void JoystickMapping::validate() const {
   if (axes.size() > kMaxJoystickOutputs) {
@@ -54,4 +54,4 @@ double normalise_axis(const AxisMapping& axis, double raw) noexcept {
   return std::clamp(x, -1.0, 1.0);
 }
 
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

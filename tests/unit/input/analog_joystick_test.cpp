@@ -5,7 +5,7 @@
 
 #include <cmath>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 namespace {
 
 TEST(AnalogJoystick, SeedMappingHalfSupplyIsZeroEndsAreFullRate) {
@@ -79,4 +79,4 @@ TEST(AnalogJoystickReceiver, RefusesImpossibleCalibration) {
 }
 
 }  // namespace
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

@@ -14,7 +14,7 @@
 #include <thread>
 #include <vector>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 namespace {
 
 JoystickMapping gamepad() {
@@ -190,4 +190,4 @@ TEST(EvdevJoystick, RefusesAnEmptyDevice) {
 }
 
 }  // namespace
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

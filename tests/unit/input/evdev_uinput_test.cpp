@@ -15,7 +15,7 @@
 
 #include "tendril/drivers/input/evdev_joystick.hpp"
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 namespace {
 
 constexpr const char* kName = "tendril test gamepad";
@@ -117,4 +117,4 @@ TEST(EvdevUinput, RealDeviceByNameWithDeviceRangeDeadmanAndHotPlug) {
 }
 
 }  // namespace
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

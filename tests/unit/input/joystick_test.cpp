@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 namespace {
 
 AxisMapping axis(double deadband = 0.1) {
@@ -62,4 +62,4 @@ TEST(JoystickMapping, RefusesMappingsThatCannotWork) {
 }
 
 }  // namespace
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

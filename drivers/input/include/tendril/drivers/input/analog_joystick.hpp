@@ -20,7 +20,7 @@
 #include "tendril/drivers/can/frame.hpp"
 #include "tendril/drivers/input/joystick.hpp"
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 
 inline constexpr std::size_t kAnalogJoystickChannels = 3;  // roll, proximal, distal
 
@@ -67,4 +67,4 @@ class AnalogJoystickReceiver {
   std::uint64_t frames_ = 0;
 };
 
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

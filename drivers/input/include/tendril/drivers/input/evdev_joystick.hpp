@@ -18,7 +18,7 @@
 #include "tendril/drivers/input/joystick.hpp"
 #include "tendril/teleop/latest_value.hpp"
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 
 class EvdevDecoder {
  public:
@@ -87,4 +87,4 @@ class EvdevJoystick {
   std::thread thread_;
 };
 
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-namespace tendril::drivers::input {
+namespace tendril::input {
 
 inline constexpr std::size_t kMaxJoystickOutputs = 8;
 
@@ -63,4 +63,4 @@ struct JoystickMapping {
 // still starts at 0 at its edge (no step), then scale, inversion and a clamp to −1..1.
 double normalise_axis(const AxisMapping& axis, double raw) noexcept;
 
-}  // namespace tendril::drivers::input
+}  // namespace tendril::input
