@@ -34,14 +34,14 @@ struct SteerableShape {
   Eigen::Vector3d p2;
   double bend1, bend2, L1, L2;
 
-  SteerableShape(const CatheterParameters& P, double roll, double q3, double q4) noexcept
+  SteerableShape(const CatheterParameters& P, double roll, double q3, double q4, double flexure) noexcept
       : L1(P.proximal_length), L2(P.distal_length) {
     bend1 = P.proximal_curvature_gain * q3;
     bend2 = P.distal_curvature_gain * q4;
     R1 = rot(roll, Eigen::Vector3d::UnitZ());
     p2 = R1 * Eigen::Vector3d(L1 * one_minus_cos_over(bend1), 0.0, L1 * sin_over(bend1));
     R2 = R1 * rot(bend1, Eigen::Vector3d::UnitY()) * rot(P.plane_offset, Eigen::Vector3d::UnitZ()) *
-         rot(P.flexure, Eigen::Vector3d::UnitX());
+         rot(flexure, Eigen::Vector3d::UnitX());
   }
 
   Eigen::Vector3d point(double sigma, Eigen::Vector3d& tangent) const noexcept {
@@ -99,15 +99,20 @@ ShapeErrorPlanner::ShapeErrorPlanner(const ConstantCurvatureCatheter& model,
   require(positive(o.initial_damping), "initial_damping must be > 0");
   require(non_negative(o.relative_cost_tolerance) && non_negative(o.step_tolerance),
           "tolerances must be >= 0");
-  // Roll is periodic and wrapped to (−π, π], so it needs no bounds.
+  require(!o.free_flexure || (std::isfinite(o.flexure_min) && std::isfinite(o.flexure_max) &&
+                              o.flexure_min <= 0.0 && o.flexure_max >= 0.0 && o.flexure_min < o.flexure_max),
+          "flexure limits must be finite with min <= 0 <= max and min < max");
+  // Roll is periodic and wrapped to (−π, π], so it needs no bounds. Without a free flexure γ is held
+  // at the design's value (its bounds collapse onto it).
   const double inf = std::numeric_limits<double>::infinity();
-  lower_ = {-inf, o.proximal_drive_min, o.distal_drive_min};
-  upper_ = {inf, o.proximal_drive_max, o.distal_drive_max};
+  const double gamma = model.parameters().flexure;
+  lower_ = {-inf, o.proximal_drive_min, o.distal_drive_min, o.free_flexure ? o.flexure_min : gamma};
+  upper_ = {inf, o.proximal_drive_max, o.distal_drive_max, o.free_flexure ? o.flexure_max : gamma};
 }
 
 Eigen::Vector3d ShapeErrorPlanner::steerable_point(const JointVector& q, double sigma,
                                                    Eigen::Vector3d* tangent) const noexcept {
-  const SteerableShape shape(model_.parameters(), q[1], q[2], q[3]);
+  const SteerableShape shape(model_.parameters(), q[1], q[2], q[3], model_.parameters().flexure);
   Eigen::Vector3d t;
   Eigen::Vector3d p = shape.point(sigma, t) + Eigen::Vector3d(0.0, 0.0, q[0]);
   if (tangent != nullptr) *tangent = t;
@@ -138,8 +143,8 @@ ShapeErrorPlanner::Base ShapeErrorPlanner::base_frame(const VesselCenterline& al
           (1.0 - u) * P[i] + u * P[i + 1]};
 }
 
-double ShapeErrorPlanner::evaluate(const Eigen::Vector3d& x, Eigen::VectorXd& residual) const noexcept {
-  const SteerableShape shape(model_.parameters(), x[0], x[1], x[2]);
+double ShapeErrorPlanner::evaluate(const Eigen::Vector4d& x, Eigen::VectorXd& residual) const noexcept {
+  const SteerableShape shape(model_.parameters(), x[0], x[1], x[2], x[3]);
   const double tangent_factor = options_.tangent_to_position_ratio / options_.tangent_error_range;
   Eigen::Vector3d t;
   for (std::size_t k = 0; k < active_; ++k) {
@@ -153,7 +158,7 @@ double ShapeErrorPlanner::evaluate(const Eigen::Vector3d& x, Eigen::VectorXd& re
 }
 
 PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q1,
-                                       const Eigen::Vector3d& start) {
+                                       const Eigen::Vector4d& start) {
   const auto& P = model_.parameters();
   const double L1 = P.proximal_length, L2 = P.distal_length;
   const double ds = aligned.spacing();
@@ -183,12 +188,12 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
 
   // Candidate starts: the warm start plus bent starts in four roll directions, because at q3 = q4 = 0
   // the roll has no effect (zero gradient) and a vessel bending out of the current plane is a saddle.
-  std::array<Eigen::Vector3d, 5> candidates;
+  std::array<Eigen::Vector4d, 5> candidates;
   std::size_t count = 0;
   if (options_.warm_start) candidates[count++] = start;
   const double bent = std::min(0.5, 0.5 * options_.proximal_drive_max);
-  for (int r = 0; r < 4; ++r) candidates[count++] = Eigen::Vector3d(r * 0.5 * kPi, bent, 0.0);
-  Eigen::Vector3d x = candidates[0];
+  for (int r = 0; r < 4; ++r) candidates[count++] = Eigen::Vector4d(r * 0.5 * kPi, bent, 0.0, start[3]);
+  Eigen::Vector4d x = candidates[0];
   double cost = evaluate(x, residual_);
   for (std::size_t c = 1; c < count; ++c) {
     const double candidate_cost = evaluate(candidates[c], trial_residual_);
@@ -204,10 +209,12 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
   double lambda = options_.initial_damping;
   int iterations = 0;
   bool converged = cost <= 0.0;
+  const int unknowns = options_.free_flexure ? 4 : 3;
   while (!converged && iterations < options_.max_iterations) {
-    for (int j = 0; j < 3; ++j) {
+    jacobian_.col(3).head(rows).setZero();
+    for (int j = 0; j < unknowns; ++j) {
       const double h = 1e-6 * std::max(1.0, std::abs(x[j]));
-      Eigen::Vector3d xp = x, xm = x;
+      Eigen::Vector4d xp = x, xm = x;
       xp[j] += h;
       xm[j] -= h;
       evaluate(xp, plus_);
@@ -215,21 +222,21 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
       jacobian_.col(j).head(rows) = (plus_.head(rows) - minus_.head(rows)) / (2.0 * h);
     }
     const auto J = jacobian_.topRows(rows);
-    const Eigen::Matrix3d A = J.transpose() * J;
-    const Eigen::Vector3d g = J.transpose() * residual_.head(rows);
-    std::array<bool, 3> fixed{};
-    for (int j = 0; j < 3; ++j)
-      fixed[j] = (x[j] <= lower_[j] && g[j] > 0.0) || (x[j] >= upper_[j] && g[j] < 0.0);
+    const Eigen::Matrix4d A = J.transpose() * J;
+    const Eigen::Vector4d g = J.transpose() * residual_.head(rows);
+    std::array<bool, 4> fixed{};
+    for (int j = 0; j < 4; ++j)
+      fixed[j] = j >= unknowns || (x[j] <= lower_[j] && g[j] > 0.0) || (x[j] >= upper_[j] && g[j] < 0.0);
     double g_free = 0.0;
-    for (int j = 0; j < 3; ++j)
+    for (int j = 0; j < 4; ++j)
       if (!fixed[j]) g_free = std::max(g_free, std::abs(g[j]));
     if (g_free < 1e-15) break;
     const double diag_floor = 1e-9 * std::max(1.0, A.diagonal().maxCoeff());
     while (iterations < options_.max_iterations) {
       ++iterations;
-      Eigen::Matrix3d M = A;
-      Eigen::Vector3d rhs = -g;
-      for (int j = 0; j < 3; ++j) {
+      Eigen::Matrix4d M = A;
+      Eigen::Vector4d rhs = -g;
+      for (int j = 0; j < 4; ++j) {
         M(j, j) += lambda * std::max(A(j, j), diag_floor);
         if (fixed[j]) {
           M.row(j).setZero();
@@ -238,8 +245,8 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
           rhs[j] = 0.0;
         }
       }
-      const Eigen::Vector3d delta = M.ldlt().solve(rhs);
-      Eigen::Vector3d candidate = (x + delta).cwiseMax(lower_).cwiseMin(upper_);
+      const Eigen::Vector4d delta = M.ldlt().solve(rhs);
+      Eigen::Vector4d candidate = (x + delta).cwiseMax(lower_).cwiseMin(upper_);
       candidate[0] = wrap_angle(candidate[0]);
       const double candidate_cost = evaluate(candidate, trial_residual_);
       if (candidate_cost < cost) {
@@ -263,9 +270,14 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
   step.q[1] = x[0];
   step.q[2] = x[1];
   step.q[3] = x[2];
+  step.flexure = x[3];
   step.cost = cost;
   step.iterations = iterations;
-  const SteerableShape shape(P, x[0], x[1], x[2]);
+  step.design = P;
+  step.design.flexure = x[3];
+  step.base_rotation = from_aligned_.transpose() * base_.rotation;
+  step.base_position = from_aligned_.transpose() * (base_.position - aligned_offset_);
+  const SteerableShape shape(P, x[0], x[1], x[2], x[3]);
   Eigen::Vector3d t;
   double position_sum = 0.0, tangent_sum = 0.0;
   for (std::size_t k = 0; k < active_; ++k) {
@@ -286,8 +298,14 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
   return step;
 }
 
-PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel) {
-  const VesselCenterline aligned = vessel.aligned_to_insertion();
+PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel) { return plan(vessel, JobControl{}); }
+
+PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel, const JobControl& job) {
+  // Same transform as VesselCenterline::aligned_to_insertion(), kept to map results back.
+  from_aligned_ = Eigen::Quaterniond::FromTwoVectors(vessel.tangents().front(), Eigen::Vector3d::UnitZ())
+                      .toRotationMatrix();
+  aligned_offset_ = -(from_aligned_ * vessel.points().front());
+  const VesselCenterline aligned = vessel.transformed(from_aligned_, aligned_offset_);
   const double dq1 = options_.insertion_step;
   if (aligned.length() + 1e-9 < dq1) {
     throw VesselInputError("ShapeErrorPlanner: vessel length " + std::to_string(aligned.length()) +
@@ -303,17 +321,20 @@ PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel) {
   target_tangents_.resize(capacity);
   for (auto* v : {&residual_, &trial_residual_, &plus_, &minus_})
     v->resize(static_cast<Eigen::Index>(6 * capacity));
-  jacobian_.resize(static_cast<Eigen::Index>(6 * capacity), 3);
+  jacobian_.resize(static_cast<Eigen::Index>(6 * capacity), 4);
 
   PathPlan plan;
+  plan.design = P;
+  plan.free_flexure = options_.free_flexure;
   const auto steps = static_cast<std::size_t>(std::floor(aligned.length() / dq1 + 1e-9));
   plan.steps.reserve(steps);
-  Eigen::Vector3d start = Eigen::Vector3d::Zero();
+  Eigen::Vector4d start(0.0, 0.0, 0.0, P.flexure);
   double position_sum = 0.0, tangent_sum = 0.0;
   std::size_t point_count = 0;
   for (std::size_t k = 1; k <= steps; ++k) {
+    job.check_cancelled();
     const PlanStep step = solve_step(aligned, dq1 * static_cast<double>(k), start);
-    start = step.q.tail<3>();
+    start = Eigen::Vector4d(step.q[1], step.q[2], step.q[3], step.flexure);
     position_sum += step.position_error_mean * static_cast<double>(step.points);
     tangent_sum += step.tangent_error_mean * static_cast<double>(step.points);
     point_count += step.points;
@@ -321,6 +342,7 @@ PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel) {
     plan.tangent_error_max = std::max(plan.tangent_error_max, step.tangent_error_max);
     plan.total_iterations += step.iterations;
     plan.steps.push_back(step);
+    job.report(static_cast<double>(k) / static_cast<double>(steps));
   }
   if (point_count > 0) {
     plan.position_error_mean = position_sum / static_cast<double>(point_count);
@@ -335,15 +357,81 @@ double design_penalty(const PathPlan& plan, const ShapeErrorPlannerOptions& opti
          kDegToRad * (plan.tangent_error_max + plan.tangent_error_mean) / options.tangent_error_range;
 }
 
+WeightSweepResult sweep_weights(const CatheterParameters& design, const VesselCenterline& vessel,
+                                const ShapeErrorPlannerOptions& planner_options,
+                                const std::vector<double>& tangent_to_position_ratios,
+                                const std::vector<double>& proximal_to_distal_ratios, const JobControl& job) {
+  auto valid = [](const std::vector<double>& values) {
+    return !values.empty() &&
+           std::all_of(values.begin(), values.end(), [](double v) { return std::isfinite(v) && v >= 0.0; });
+  };
+  if (!valid(tangent_to_position_ratios) || !valid(proximal_to_distal_ratios)) {
+    throw PlannerOptionsError("sweep_weights: r_tp and r_seg lists must be non-empty, finite and >= 0");
+  }
+  const ConstantCurvatureCatheter model(design);
+  const JobControl cancel_only{{}, job.cancel};
+  WeightSweepResult result;
+  const double total =
+      static_cast<double>(tangent_to_position_ratios.size() * proximal_to_distal_ratios.size());
+  for (const double r_tp : tangent_to_position_ratios) {
+    for (const double r_seg : proximal_to_distal_ratios) {
+      job.check_cancelled();
+      ShapeErrorPlannerOptions options = planner_options;
+      options.tangent_to_position_ratio = r_tp;
+      options.proximal_to_distal_ratio = r_seg;
+      const PathPlan plan = ShapeErrorPlanner(model, options).plan(vessel, cancel_only);
+      WeightSweepPoint point{r_tp,
+                             r_seg,
+                             design_penalty(plan, options),
+                             plan.position_error_mean,
+                             plan.position_error_max,
+                             plan.tangent_error_mean,
+                             plan.tangent_error_max};
+      if (result.grid.empty() || point.penalty < result.best.penalty) result.best = point;
+      result.grid.push_back(point);
+      job.report(static_cast<double>(result.grid.size()) / total);
+    }
+  }
+  return result;
+}
+
+std::vector<Eigen::Vector3d> planned_backbone(const PlanStep& step, double spacing) {
+  if (!(std::isfinite(spacing) && spacing >= 0.01)) {
+    throw PlannerOptionsError("planned_backbone: spacing must be at least 0.01 mm, got " +
+                              std::to_string(spacing));
+  }
+  const auto& P = step.design;
+  const SteerableShape shape(P, step.q[1], step.q[2], step.q[3], step.flexure);
+  const double length = P.proximal_length + P.distal_length;
+  const auto intervals = static_cast<std::size_t>(std::ceil(length / spacing - 1e-9));
+  std::vector<Eigen::Vector3d> points;
+  points.reserve(intervals + 1);
+  Eigen::Vector3d tangent;
+  for (std::size_t i = 0; i <= intervals; ++i) {
+    const double sigma = std::min(length, spacing * static_cast<double>(i));
+    points.push_back(step.base_rotation * shape.point(sigma, tangent) + step.base_position);
+  }
+  return points;
+}
+
 DesignResult optimise_design(const CatheterParameters& start, const VesselCenterline& vessel,
                              const ShapeErrorPlannerOptions& planner_options,
                              const DesignOptimiserOptions& options) {
+  return optimise_design(start, vessel, planner_options, options, JobControl{});
+}
+
+DesignResult optimise_design(const CatheterParameters& start, const VesselCenterline& vessel,
+                             const ShapeErrorPlannerOptions& planner_options,
+                             const DesignOptimiserOptions& options, const JobControl& job) {
   if (options.max_evaluations < 4 || !(options.min_length > 0.0 && options.max_length > options.min_length) ||
       !(options.initial_step_length > 0.0 && options.initial_step_angle > 0.0)) {
     throw PlannerOptionsError(
         "optimise_design: need max_evaluations >= 4, 0 < min_length < max_length and positive initial steps");
   }
   DesignResult result;
+  result.flexure = planner_options.free_flexure;
+  // Nested plans only check for cancellation; progress counts whole evaluations.
+  const JobControl cancel_only{{}, job.cancel};
   auto design_of = [&](const Eigen::Vector3d& chi) {
     CatheterParameters p = start;
     p.proximal_length = std::clamp(chi[0], options.min_length, options.max_length);
@@ -353,13 +441,15 @@ DesignResult optimise_design(const CatheterParameters& start, const VesselCenter
   };
   double best = std::numeric_limits<double>::infinity();
   auto penalty = [&](const Eigen::Vector3d& chi) {
+    job.check_cancelled();
     const CatheterParameters p = design_of(chi);
     ShapeErrorPlanner planner(ConstantCurvatureCatheter(p), planner_options);
-    PathPlan plan = planner.plan(vessel);
+    PathPlan plan = planner.plan(vessel, cancel_only);
     // Out-of-range lengths are clamped for the model and penalised so the simplex moves back.
     const double outside = std::abs(chi[0] - p.proximal_length) + std::abs(chi[1] - p.distal_length);
     const double g = design_penalty(plan, planner_options) + outside;
     ++result.evaluations;
+    job.report(std::min(1.0, static_cast<double>(result.evaluations) / options.max_evaluations));
     if (g < best) {
       best = g;
       result.design = p;

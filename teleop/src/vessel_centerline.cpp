@@ -184,6 +184,15 @@ VesselCenterline VesselCenterline::from_polyline(const CenterlinePolyline& polyl
                            " is below 1 mm; coordinates look like metres, but millimetres are expected "
                            "(multiply by 1000)");
   }
+  if (total > kMaximumPlausibleLengthMm) {
+    throw VesselInputError("vessel centerline: total length " + std::to_string(total) +
+                           " mm is more than 10 m; millimetres are expected (was it in micrometres?)");
+  }
+  if (total / ds > static_cast<double>(kMaximumSamples)) {
+    throw VesselInputError("vessel centerline: ds = " + std::to_string(ds) + " mm gives more than " +
+                           std::to_string(kMaximumSamples) + " samples over " + std::to_string(total) +
+                           " mm");
+  }
   const auto samples = static_cast<std::size_t>(std::floor(total / ds + 1e-4)) + 1;
   if (samples < 3) {
     throw VesselInputError("vessel centerline: length " + std::to_string(total) +
@@ -206,6 +215,17 @@ VesselCenterline VesselCenterline::from_polyline(const CenterlinePolyline& polyl
     const double t = std::clamp((s - segment_start) / segment_length, 0.0, 1.0);
     out.points_.push_back(points[segment] + t * (points[segment + 1] - points[segment]));
     if (with_radius) out.radii_.push_back(radii[segment] + t * (radii[segment + 1] - radii[segment]));
+  }
+  // A path that doubles back within two samples has no tangent there (the central difference
+  // vanishes) and is no vessel: refuse it rather than plan on it.
+  for (std::size_t k = 1; k + 1 < out.points_.size(); ++k) {
+    const Eigen::Vector3d before = out.points_[k] - out.points_[k - 1],
+                          after = out.points_[k + 1] - out.points_[k];
+    if (before.dot(after) < -0.5 * before.norm() * after.norm()) {
+      throw VesselInputError(
+          "vessel centerline: the path turns back on itself by more than 120° near arc length " +
+          std::to_string(out.arc_length(k)) + " mm (a smaller ds, or a jump to another branch?)");
+    }
   }
   out.compute_tangents_and_angles();
   return out;

@@ -1,9 +1,11 @@
 // Shape-error path planner timing (seed 000 §4.8, §4.10): full plan along the synthetic 150 mm ICA
-// with ds = 0.5 mm and dq1 = 3 mm (issue target ≤ 50 ms; MATLAB reference 14.5 s), and how the cost
-// grows with path length and sample spacing. Reports only; asserts nothing.
+// with ds = 0.5 mm and dq1 = 3 mm (issue target ≤ 50 ms; MATLAB reference 14.5 s), how the cost
+// grows with path length and sample spacing, the design optimiser (target ≤ 5 s; MATLAB 17.72 min)
+// and STL centerline extraction. Reports only; asserts nothing.
 #include <benchmark/benchmark.h>
 
 #include "tendril/teleop/shape_error_planner.hpp"
+#include "tendril/teleop/vessel_mesh.hpp"
 
 namespace {
 
@@ -11,16 +13,7 @@ using namespace tendril::teleop;
 
 constexpr std::uint32_t kSeed = 1;
 
-void run_plan(benchmark::State& state, double length, double ds) {
-  SyntheticIcaOptions ica;
-  ica.length = length;
-  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(kSeed, ica), ds);
-  ShapeErrorPlanner planner(ConstantCurvatureCatheter(nominal_planning_design()), {});
-  PathPlan plan;
-  for (auto _ : state) {
-    plan = planner.plan(vessel);
-    benchmark::DoNotOptimize(plan.steps.data());
-  }
+void report(benchmark::State& state, const PathPlan& plan) {
   state.counters["steps"] = static_cast<double>(plan.steps.size());
   state.counters["lm_iterations"] = plan.total_iterations;
   state.counters["mean_pos_err_mm"] = plan.position_error_mean;
@@ -29,24 +22,78 @@ void run_plan(benchmark::State& state, double length, double ds) {
   state.counters["max_tan_err_deg"] = plan.tangent_error_max;
 }
 
+void run_plan(benchmark::State& state, double length, double ds, bool flexure = false) {
+  SyntheticIcaOptions ica;
+  ica.length = length;
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(kSeed, ica), ds);
+  ShapeErrorPlannerOptions options;
+  options.free_flexure = flexure;
+  ShapeErrorPlanner planner(ConstantCurvatureCatheter(nominal_planning_design()), options);
+  PathPlan plan;
+  for (auto _ : state) {
+    plan = planner.plan(vessel);
+    benchmark::DoNotOptimize(plan.steps.data());
+  }
+  report(state, plan);
+}
+
 void BM_FullPlanIca150(benchmark::State& state) { run_plan(state, 150.0, 0.5); }
 BENCHMARK(BM_FullPlanIca150)->Unit(benchmark::kMillisecond);
 
+// Same with the flexure angle γ solved per step (4 unknowns instead of 3).
+void BM_FullPlanIca150Flexure(benchmark::State& state) { run_plan(state, 150.0, 0.5, true); }
+BENCHMARK(BM_FullPlanIca150Flexure)->Unit(benchmark::kMillisecond);
+
 // Arg: path length (mm), ds = 0.5 mm.
 void BM_PlanByLength(benchmark::State& state) { run_plan(state, static_cast<double>(state.range(0)), 0.5); }
-BENCHMARK(BM_PlanByLength)->Arg(50)->Arg(100)->Arg(150)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_PlanByLength)->Arg(50)->Arg(100)->Arg(150)->Arg(300)->Unit(benchmark::kMillisecond);
 
 // Arg: ds in hundredths of a millimetre, 150 mm path.
 void BM_PlanBySpacing(benchmark::State& state) {
   run_plan(state, 150.0, static_cast<double>(state.range(0)) / 100.0);
 }
-BENCHMARK(BM_PlanBySpacing)->Arg(25)->Arg(50)->Arg(100)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_PlanBySpacing)->Arg(100)->Arg(50)->Arg(25)->Unit(benchmark::kMillisecond);
 
-// Vessel preparation alone: synthetic generation + resampling + tangents/angles.
+// Nelder–Mead design optimisation (§4.6.2), 60 plans (the default cap); Arg 1 = with flexure.
+void BM_DesignOptimisation(benchmark::State& state) {
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(kSeed), 0.5);
+  ShapeErrorPlannerOptions options;
+  options.free_flexure = state.range(0) != 0;
+  DesignResult result;
+  for (auto _ : state) {
+    result = optimise_design(nominal_planning_design(), vessel, options);
+    benchmark::DoNotOptimize(result.penalty);
+  }
+  state.counters["evaluations"] = result.evaluations;
+  state.counters["penalty"] = result.penalty;
+  state.counters["initial_penalty"] = result.initial_penalty;
+  report(state, result.plan);
+}
+BENCHMARK(BM_DesignOptimisation)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(1);
+
+// Vessel preparation alone: resampling + tangents/angles.
 void BM_ResampleIca150(benchmark::State& state) {
   const auto line = make_synthetic_ica(kSeed);
   for (auto _ : state) benchmark::DoNotOptimize(VesselCenterline::from_polyline(line, 0.5).size());
 }
 BENCHMARK(BM_ResampleIca150)->Unit(benchmark::kMicrosecond);
+
+// STL: parse only, and parse + centerline extraction, for a 150 mm tube mesh with a ring of 24
+// vertices every Arg/100 mm (50 → 14 352 triangles, 25 → 28 752).
+void BM_StlParse(benchmark::State& state) {
+  const std::string stl = write_binary_stl(
+      make_tube_mesh(make_synthetic_ica(kSeed), static_cast<double>(state.range(0)) / 100.0, 24));
+  for (auto _ : state) benchmark::DoNotOptimize(parse_stl(stl).vertices.size());
+  state.counters["triangles"] = static_cast<double>((stl.size() - 84) / 50);
+}
+BENCHMARK(BM_StlParse)->Arg(50)->Arg(25)->Unit(benchmark::kMillisecond);
+
+void BM_StlCenterline(benchmark::State& state) {
+  const std::string stl = write_binary_stl(
+      make_tube_mesh(make_synthetic_ica(kSeed), static_cast<double>(state.range(0)) / 100.0, 24));
+  for (auto _ : state) benchmark::DoNotOptimize(read_stl_centerline(stl).front().points.size());
+  state.counters["triangles"] = static_cast<double>((stl.size() - 84) / 50);
+}
+BENCHMARK(BM_StlCenterline)->Arg(50)->Arg(25)->Unit(benchmark::kMillisecond);
 
 }  // namespace

@@ -96,6 +96,16 @@ TEST(VesselCenterline, RejectsBadInputWithTypedErrors) {
   EXPECT_THROW(VesselCenterline::from_csv("0,0,0\n0,0,1\n0,0,2\n", 1.5), VesselInputError);
   EXPECT_THROW(VesselCenterline::from_csv("0,0,0\n0,0,1\n0,0,2\n", 0.0), VesselInputError);
   EXPECT_NO_THROW(VesselCenterline::from_csv("0,0,0\n0,0,1\n0,0,2\n", 1.0));
+  // A path that doubles back (0 → 3 → 0 along z) has no tangent at the turn.
+  try {
+    VesselCenterline::from_csv("0,0,0\n0,0,1\n0,0,2\n0,0,3\n0,0,2\n0,0,1\n0,0,0\n", 0.5);
+    FAIL() << "reversal accepted";
+  } catch (const VesselInputError& e) {
+    EXPECT_NE(std::string(e.what()).find("turns back"), std::string::npos);
+  }
+  // Absurdly long (1e6 mm) or too many samples for ds.
+  EXPECT_THROW(VesselCenterline::from_csv("0,0,0\n0,0,5e5\n0,0,1e6\n", 0.5), VesselInputError);
+  EXPECT_THROW(VesselCenterline::from_csv("0,0,0\n0,0,500\n0,0,1000\n", 1e-4), VesselInputError);
   // Unit mismatch: a 150 mm path written in metres is 0.15 long.
   const auto ica = make_synthetic_ica(7);
   EXPECT_NO_THROW(VesselCenterline::from_csv(csv_of(ica), 0.5));

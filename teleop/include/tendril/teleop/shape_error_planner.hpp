@@ -15,6 +15,10 @@
 // as σ/L_k (the position along segment k), which equals v_k/n_k when the segment is fully inside.
 // Tangent residuals use the chord t̂ − t̂_c (|t̂ − t̂_c| = 2 sin(δt/2) = δt + O(δt³)) because arccos is
 // not differentiable at zero; reported tangent errors use the exact angle.
+//
+// Passive flexure (§4.3, §4.10 [GAP]): its stiffness is not given, so a design "with flexure" solves
+// γ per step as a fourth free variable next to [q2, q3, q4], bounded by flexure_min/max; without it γ
+// stays at the model's CatheterParameters::flexure.
 #pragma once
 
 #include <Eigen/Core>
@@ -23,6 +27,7 @@
 #include <vector>
 
 #include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/job_control.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::teleop {
@@ -47,6 +52,11 @@ struct ShapeErrorPlannerOptions {
   double initial_damping = 1e-3;           // λ₀ (relative to diag(JᵀJ))
   double relative_cost_tolerance = 1e-12;  // stop when an accepted step improves less than this
   double step_tolerance = 1e-10;           // stop when |Δx|∞ is below this
+  // Design with a passive flexure between the segments: γ is solved per step within these limits.
+  // ±60° is chosen here (the seed gives no range): beyond it the joint would kink the lumen.
+  bool free_flexure = false;
+  double flexure_min = -1.0471975511965976;  // rad
+  double flexure_max = 1.0471975511965976;
 };
 
 // Nominal model of the planning study: tip-only placeholder gain k = 1.4 rad/mm, ad hoc design
@@ -55,6 +65,7 @@ CatheterParameters nominal_planning_design();
 
 struct PlanStep {
   ConstantCurvatureCatheter::JointVector q;  // [q1 (mm), q2 (rad), q3 (mm), q4 (mm)]
+  double flexure = 0.0;                      // γ (rad): solved when free_flexure, else the design's
   std::size_t points = 0;                    // vessel samples on the inserted steerable section
   double position_error_mean = 0.0;          // mm
   double position_error_max = 0.0;           // mm
@@ -62,9 +73,17 @@ struct PlanStep {
   double tangent_error_max = 0.0;            // deg
   double cost = 0.0;                         // eq. 4.17 at the solution
   int iterations = 0;                        // LM trial steps taken
+  // Where the planned steerable section sits, in the frame of the vessel as given to plan() (not
+  // the insertion-aligned frame): base position and rotation (columns x, y, z; z = base tangent), and
+  // the design with γ = flexure. Enough for planned_backbone() without the planner.
+  Eigen::Matrix3d base_rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d base_position = Eigen::Vector3d::Zero();
+  CatheterParameters design;
 };
 
 struct PathPlan {
+  CatheterParameters design;  // the model planned with (flexure = its fixed γ when not free)
+  bool free_flexure = false;  // γ solved per step (design with passive flexure)
   std::vector<PlanStep> steps;
   double position_error_mean = 0.0;  // over all compared points of all steps (mm)
   double position_error_max = 0.0;
@@ -87,6 +106,9 @@ class ShapeErrorPlanner {
   // The result depends only on (model, vessel, options); scratch buffers are sized once per call.
   // Throws VesselInputError if the vessel is shorter than one insertion step.
   PathPlan plan(const VesselCenterline& vessel);
+  // Same, reporting progress (fraction of insertion steps done) and checking for cancellation before
+  // every step (throws OperationCancelled).
+  PathPlan plan(const VesselCenterline& vessel, const JobControl& job);
 
   // Point (and unit tangent) at arc length sigma ∈ [0, L1 + L2] along the steerable section, in the
   // model's frame {0} with the base at (0, 0, q1): the same closed form as
@@ -101,12 +123,13 @@ class ShapeErrorPlanner {
   };
   void build_transport_frames(const VesselCenterline& aligned);
   Base base_frame(const VesselCenterline& aligned, double arc_length) const noexcept;
-  double evaluate(const Eigen::Vector3d& x, Eigen::VectorXd& residual) const noexcept;
-  PlanStep solve_step(const VesselCenterline& aligned, double q1, const Eigen::Vector3d& start);
+  // x = [q2, q3, q4, γ]; γ is held fixed unless options_.free_flexure.
+  double evaluate(const Eigen::Vector4d& x, Eigen::VectorXd& residual) const noexcept;
+  PlanStep solve_step(const VesselCenterline& aligned, double q1, const Eigen::Vector4d& start);
 
   ConstantCurvatureCatheter model_;
   ShapeErrorPlannerOptions options_;
-  Eigen::Vector3d lower_, upper_;
+  Eigen::Vector4d lower_, upper_;
 
   // Per-plan scratch, sized in plan().
   std::vector<Eigen::Matrix3d> transport_;
@@ -114,25 +137,59 @@ class ShapeErrorPlanner {
   std::vector<double> sigmas_, weights_;
   std::size_t active_ = 0;
   Base base_{};
+  Eigen::Matrix3d from_aligned_ = Eigen::Matrix3d::Identity();  // vessel frame → insertion frame
+  Eigen::Vector3d aligned_offset_ = Eigen::Vector3d::Zero();
   Eigen::VectorXd residual_, trial_residual_, plus_, minus_;
   Eigen::MatrixXd jacobian_;
 };
+
+// Backbone of a planned step's steerable section (base to tip) in the vessel's frame, a point every
+// `spacing` mm of arc length plus the tip. Throws PlannerOptionsError unless 0.01 mm ≤ spacing.
+std::vector<Eigen::Vector3d> planned_backbone(const PlanStep& step, double spacing);
 
 struct DesignOptimiserOptions {
   int max_evaluations = 60;          // planner runs (each a full plan)
   double initial_step_length = 4.0;  // mm, simplex size for L1 and L2
   double initial_step_angle = 0.4;   // rad, simplex size for δ2
-  double min_length = 2.0;           // mm, lower bound for L1 and L2
+  // mm, lower bound for L1 and L2. With the passive shaft conforming to the vessel (the placement
+  // convention above), g(χ) keeps falling as the segments shorten (a short section fits any curve), so
+  // the optimum sits on this bound. 5 mm is below every design in the source (smallest 6.6 mm) and
+  // long enough for a notched NiTi segment to reach its ~80° bend.
+  double min_length = 5.0;
   double max_length = 60.0;
 };
 
 struct DesignResult {
-  CatheterParameters design;
+  CatheterParameters design;     // χ* in proximal_length, distal_length, plane_offset
+  bool flexure = false;          // planned with γ free (planner_options.free_flexure)
   double penalty = 0.0;          // g(χ) of §4.9
   double initial_penalty = 0.0;  // g at the starting design
   int evaluations = 0;
   PathPlan plan;
 };
+
+// One planner run of the §4.6.1 weight grid.
+struct WeightSweepPoint {
+  double tangent_to_position_ratio = 0.0;  // r_tp
+  double proximal_to_distal_ratio = 0.0;   // r_seg
+  double penalty = 0.0;                    // g of the resulting plan (weight-independent, comparable)
+  double position_error_mean = 0.0, position_error_max = 0.0;  // mm
+  double tangent_error_mean = 0.0, tangent_error_max = 0.0;    // deg
+};
+
+struct WeightSweepResult {
+  std::vector<WeightSweepPoint> grid;  // r_tp-major: grid[i·|r_seg| + j]
+  WeightSweepPoint best;               // lowest penalty (first on ties)
+};
+
+// Weight selection of §4.6.1: plans the vessel with every (r_tp, r_seg) pair (the source uses a 0–10
+// grid for both) and picks the pair with the lowest g. Other options come from planner_options.
+// Throws PlannerOptionsError on an empty or negative/non-finite value list; progress per plan.
+WeightSweepResult sweep_weights(const CatheterParameters& design, const VesselCenterline& vessel,
+                                const ShapeErrorPlannerOptions& planner_options,
+                                const std::vector<double>& tangent_to_position_ratios,
+                                const std::vector<double>& proximal_to_distal_ratios,
+                                const JobControl& job = {});
 
 // g(χ) = (max δp + mean δp)/δ_p,range + (max δt + mean δt)/δ_t,range over the whole plan (§4.9).
 double design_penalty(const PathPlan& plan, const ShapeErrorPlannerOptions& options);
@@ -141,5 +198,10 @@ double design_penalty(const PathPlan& plan, const ShapeErrorPlannerOptions& opti
 DesignResult optimise_design(const CatheterParameters& start, const VesselCenterline& vessel,
                              const ShapeErrorPlannerOptions& planner_options,
                              const DesignOptimiserOptions& options = {});
+// Same, reporting progress (evaluations done / max_evaluations) and checking for cancellation before
+// every evaluation and every insertion step (throws OperationCancelled).
+DesignResult optimise_design(const CatheterParameters& start, const VesselCenterline& vessel,
+                             const ShapeErrorPlannerOptions& planner_options,
+                             const DesignOptimiserOptions& options, const JobControl& job);
 
 }  // namespace tendril::teleop

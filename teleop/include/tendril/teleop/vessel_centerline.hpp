@@ -47,12 +47,17 @@ class VesselCenterline {
   // Total polyline lengths below this look like metres, not millimetres (a 150 mm ICA in metres is
   // 0.15): no catheterised vessel is shorter than 1 mm, so such input is rejected as a unit mismatch.
   static constexpr double kMinimumPlausibleLengthMm = 1.0;
+  // Upper bounds that keep memory bounded on hostile input: no vessel is 10 m long, and 10⁶ samples
+  // is 0.5 km at ds = 0.5 mm.
+  static constexpr double kMaximumPlausibleLengthMm = 10'000.0;
+  static constexpr std::size_t kMaximumSamples = 1'000'000;
 
   // Resamples the polyline every ds mm from its first point; the last sample is at floor(L/ds)·ds (a length
   // within 1e-4·ds of the next multiple counts as reaching it, so chord round-off does not lose it).
   // Consecutive duplicate points are dropped first. Throws VesselInputError if fewer than 3 distinct
-  // points remain, a value is not finite, ds is not positive, the length looks like metres, or the
-  // resampled path has fewer than 3 samples (too short for the given ds).
+  // points remain, a value is not finite, ds is not positive, the length looks like metres (or is
+  // over 10 m), the resampled path has fewer than 3 samples (too short for the given ds) or more
+  // than kMaximumSamples.
   static VesselCenterline from_polyline(const CenterlinePolyline& polyline, double ds);
 
   // parse_centerline_csv + branch by index (throws VesselInputError when out of range).
