@@ -256,11 +256,26 @@ ServerConfig load_server_config(const std::filesystem::path& file) {
   }
   sc.web_root = resolve(r.string_or("web_root", "../web"));
   sc.vendor_root = resolve(r.string_or("vendor_root", "../node_modules"));
+  sc.openapi_file = resolve(r.string_or("openapi", "../server/openapi/openapi.json"));
+  if (r.has("tls")) {
+    // Both or neither: a certificate without its key (or the reverse) is a mistake, not plain HTTP.
+    const auto& tls = r.raw("tls");
+    if (!tls.is_object() || !tls.contains("certificate") || !tls.contains("private_key") ||
+        !tls["certificate"].is_string() || !tls["private_key"].is_string() ||
+        tls["certificate"].get<std::string>().empty() || tls["private_key"].get<std::string>().empty())
+      r.fail("tls", "an object {\"certificate\": \"PEM file\", \"private_key\": \"PEM file\"}", tls);
+    sc.tls_certificate = resolve(tls["certificate"].get<std::string>());
+    sc.tls_private_key = resolve(tls["private_key"].get<std::string>());
+  }
   sc.control_rate_hz = r.positive_or("control_rate_hz", 1000.0);
   if (sc.control_rate_hz > 10'000) r.fail("control_rate_hz", "at most 10000", r.raw("control_rate_hz"));
   sc.publish_rate_hz = r.positive_or("publish_rate_hz", 50.0);
   if (sc.publish_rate_hz > 1000) r.fail("publish_rate_hz", "at most 1000", r.raw("publish_rate_hz"));
   sc.realtime_priority = r.boolean_or("realtime_priority", true);
+  if (r.has("imaging")) {
+    r.child("imaging");  // must be an object; its keys are checked by parse_imaging_config
+    sc.imaging = r.raw("imaging");
+  }
   const auto& robots = r.array("robots", true);
   std::set<std::string> names;
   for (std::size_t i = 0; i < robots.size(); ++i) {

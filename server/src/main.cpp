@@ -16,6 +16,8 @@
 #include "tendril/drivers/canopen/master.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/http/http_server.hpp"
+#include "tendril/server/imaging_worker.hpp"
+#include "tendril/server/planning_service.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/server/version.hpp"
 
@@ -146,19 +148,46 @@ int main(int argc, char** argv) {
     ho.web_root = config.web_root.string();
     ho.static_mounts["/vendor/three/"] = (config.vendor_root / "three").string();
     ho.publish_rate_hz = config.publish_rate_hz;
+    ho.openapi_file = config.openapi_file.string();
+    if (!std::filesystem::exists(config.openapi_file)) {
+      const auto in_source =
+          std::filesystem::path(TENDRIL_SOURCE_DIR) / "server" / "openapi" / "openapi.json";
+      ho.openapi_file = std::filesystem::exists(in_source) ? in_source.string() : std::string();
+      if (ho.openapi_file.empty())
+        std::cerr << "tendrild: no OpenAPI document at " << config.openapi_file.string()
+                  << "; GET /api/v1/openapi.json will answer 404" << std::endl;
+    }
+    ho.tls_certificate_file = config.tls_certificate.string();
+    ho.tls_private_key_file = config.tls_private_key.string();
+    // Simulated bi-plane fluoroscopy: its own threads read the runtime snapshot, never the RT thread.
+    std::shared_ptr<ImagingWorker> imaging;
+    if (auto ic = parse_imaging_config(config.imaging, config.file); ic.enabled) {
+      std::cerr << "tendrild: imaging: SIMULATED bi-plane fluoroscope (/imaging/ap, /imaging/lateral) "
+                << ic.fluoroscope.geometry.width << "x" << ic.fluoroscope.geometry.height << " at " << ic.fps
+                << " fps; vessel: " << ic.vessel_source << std::endl;
+      auto backbone = backbone_from(runtime, ic.robot);
+      imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
+      ho.topic_sources.push_back(imaging);
+      imaging->start();
+    }
+    // Path plans and design optimisation run on their own worker thread(s), never on the RT thread.
+    PlanningService planning(config.robots, PlanningOptions{});
+    ho.planning = &planning;
     HttpServer http(runtime, ho);
     http.start();
 
     std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
     if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
-    std::cout << "tendril console: http://" << shown_host << ":" << http.port() << "/?token=" << token
-              << std::endl;
+    std::cout << "tendril console: " << (http.tls() ? "https://" : "http://") << shown_host << ":"
+              << http.port() << "/?token=" << token << std::endl;
 
     int signal_number = 0;
     sigwait(&stop_signals, &signal_number);
     std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
               << " received: disabling the drives and stopping" << std::endl;
     http.stop();
+    planning.shutdown();
+    if (imaging) imaging->stop();
     runtime.stop();
     std::vector<std::string> still_on;
     if (!runtime.drives_disabled(&still_on)) {

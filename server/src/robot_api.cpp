@@ -62,11 +62,43 @@ nlohmann::json joint_state_json(const RobotUnit& r, const RobotSnapshot& s, doub
           {"timestamp", wall_offset + s.time}};
 }
 
+// The operating limits (tightened through parameters) are checked after the configured ones, so the
+// message names the parameter that refused the command.
+std::optional<ApiResult> operating_limit_violation(const RobotUnit& r, const OperatingLimits& limits,
+                                                   const JointArray& values, bool velocity) {
+  for (std::size_t i = 0; i < r.n; ++i) {
+    const auto& j = r.config.joints[i];
+    std::ostringstream why;
+    if (velocity && std::abs(values[i]) > limits.max_velocity[i]) {
+      why << "joint '" << j.name << "' velocity " << values[i] << " " << j.unit
+          << "/s exceeds the operating limit " << limits.max_velocity[i] << " " << j.unit << "/s (parameter /"
+          << r.config.name << "/" << j.name << "/max_velocity)";
+    } else if (!velocity && (values[i] < limits.lower[i] || values[i] > limits.upper[i])) {
+      why << "joint '" << j.name << "' goal " << values[i] << " " << j.unit
+          << " is outside the operating range [" << limits.lower[i] << ", " << limits.upper[i] << "] "
+          << j.unit << " (parameters /" << r.config.name << "/" << j.name << "/lower and /upper)";
+    } else {
+      continue;
+    }
+    return ApiResult::error(422, "out_of_limits", why.str());
+  }
+  return std::nullopt;
+}
+
+// Path following plays back plans of the shape-error planner, which models the steerable catheter.
+bool supports_path_following(const RobotUnit& r) {
+  return r.n == 4 && r.config.kinematics.value("model", std::string{}) == "constant_curvature_catheter";
+}
+
 std::vector<double> positions(const RobotUnit& r, const RobotSnapshot& s) {
   return std::vector<double>(s.position.begin(), s.position.begin() + static_cast<std::ptrdiff_t>(r.n));
 }
 
 }  // namespace
+
+const char* to_string(ControlMode mode) noexcept {
+  return mode == ControlMode::path_following ? "path_following" : "joint";
+}
 
 #define TENDRIL_FIND_ROBOT(name)                                 \
   auto found = impl_->by_name.find(name);                        \
@@ -91,13 +123,15 @@ nlohmann::json RobotRuntime::robots() const {
                                        {"interface", b->config.interface},
                                        {"simulated", b->virtual_bus != nullptr},
                                        {"load", b->load}});
-    out.push_back(nlohmann::json{{"name", r->config.name},
-                                 {"kind", r->config.kind},
-                                 {"description", r->config.description},
-                                 {"joints", joints},
-                                 {"modes", {"joint"}},
-                                 {"buses", buses},
-                                 {"command_timeout_ms", r->config.command_timeout_ms}});
+    out.push_back(
+        nlohmann::json{{"name", r->config.name},
+                       {"kind", r->config.kind},
+                       {"description", r->config.description},
+                       {"joints", joints},
+                       {"modes", supports_path_following(*r) ? nlohmann::json{"joint", "path_following"}
+                                                             : nlohmann::json{"joint"}},
+                       {"buses", buses},
+                       {"command_timeout_ms", r->config.command_timeout_ms}});
   }
   return out;
 }
@@ -140,7 +174,7 @@ ApiResult RobotRuntime::operating_state(const std::string& robot) const {
   TENDRIL_FIND_ROBOT(robot)
   const auto s = r.snapshot.load();
   nlohmann::json out = {{"state", state_name(s.state)},
-                        {"mode", "joint"},
+                        {"mode", to_string(s.mode)},
                         {"is_homed", true},
                         {"is_busy", s.busy},
                         {"estop", s.estop},
@@ -228,7 +262,7 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
     return s.state;  // unknown command value: report the state unchanged
   }();
   return ApiResult::success({{"state", state_name(expected)},
-                             {"mode", "joint"},
+                             {"mode", to_string(s.mode)},
                              {"is_homed", true},
                              {"is_busy", sc == safety::StateCommand::kEnable || s.busy},
                              {"estop", false}});
@@ -236,16 +270,41 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
 
 ApiResult RobotRuntime::mode(const std::string& robot, const nlohmann::json& body) {
   TENDRIL_FIND_ROBOT(robot)
+  const bool path = supports_path_following(r);
+  const std::string available = path ? "joint, path_following" : "joint";
   if (!body.is_object() || !body.contains("mode") || !body["mode"].is_string())
-    return ApiResult::error(400, "bad_request", "expected {\"mode\": \"joint\"}");
+    return ApiResult::error(400, "bad_request", "expected {\"mode\": \"" + available + "\"} (one of them)");
   const auto m = body["mode"].get<std::string>();
-  if (m != "joint")
-    return ApiResult::error(422, "unknown_mode",
-                            "mode '" + m + "' is not available for robot '" + robot + "' (available: joint)");
+  if (m != "joint" && !(path && m == "path_following"))
+    return ApiResult::error(
+        422, "unknown_mode",
+        "mode '" + m + "' is not available for robot '" + robot + "' (available: " + available + ")");
   const auto s = r.snapshot.load();
+  if (to_string(s.mode) == m) return ApiResult::success({{"mode", m}});
+  if (s.estop)
+    return ApiResult::error(
+        409, "estop_latched",
+        "the e-stop is latched; reset it (POST /api/v1/estop/reset) before changing mode");
+  if (s.state == OperatingState::kFault)
+    return ApiResult::error(409, "invalid_state",
+                            "robot '" + robot + "' is in fault (" + std::string(s.fault.text) +
+                                "); send disable to acknowledge it before changing mode");
   if (s.busy)
     return ApiResult::error(409, "not_holding",
                             "robot '" + robot + "' is moving; modes change only while it holds");
+  if (m == "path_following") {
+    std::lock_guard lock(r.path_mutex);
+    if (!r.path)
+      return ApiResult::error(409, "no_plan",
+                              "no plan is loaded for robot '" + robot +
+                                  "'; load one first (POST /api/v1/robots/" + robot +
+                                  "/path_following {\"plan\": \"<job id>\"})");
+  }
+  RobotCommand c;
+  c.kind = CommandKind::mode;
+  c.index = static_cast<std::int32_t>(m == "joint" ? ControlMode::joint : ControlMode::path_following);
+  c.received = std::chrono::steady_clock::now();
+  if (!post(r, c)) return busy_mailbox(robot);
   return ApiResult::success({{"mode", m}});
 }
 
@@ -257,7 +316,13 @@ ApiResult RobotRuntime::move_jp(const std::string& robot, const nlohmann::json& 
   if (auto err = read_vector(body, "goal", r.n, r.config, c.values)) return *err;
   if (auto v = r.supervisor->check_goal({c.values.data(), r.n}))
     return ApiResult::error(422, "out_of_limits", r.supervisor->describe(v));
+  const OperatingLimits limits = r.operating_limits.load();
+  if (auto why = operating_limit_violation(r, limits, c.values, false)) return *why;
   const auto s = r.snapshot.load();
+  if (s.mode != ControlMode::joint)
+    return ApiResult::error(409, "wrong_mode",
+                            std::string("robot '") + robot + "' is in " + to_string(s.mode) +
+                                " mode; switch to joint mode for joint commands");
   if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled)
     return ApiResult::error(
@@ -267,7 +332,7 @@ ApiResult RobotRuntime::move_jp(const std::string& robot, const nlohmann::json& 
   // Predict the duration with the same interpolator the control thread will use.
   teleop::QuinticInterpolator predict(r.n);
   predict.reset({s.setpoint.data(), r.n}, 0.0);
-  predict.retarget(0.0, {c.values.data(), r.n}, {r.max_velocity.data(), r.n},
+  predict.retarget(0.0, {c.values.data(), r.n}, {limits.max_velocity.data(), r.n},
                    {r.max_acceleration.data(), r.n});
   c.received = std::chrono::steady_clock::now();
   if (!post(r, c)) return busy_mailbox(robot);
@@ -282,7 +347,12 @@ ApiResult RobotRuntime::servo_jv(const std::string& robot, const nlohmann::json&
   if (auto err = read_vector(body, "velocity", r.n, r.config, c.values)) return *err;
   if (auto v = r.supervisor->check_velocity({c.values.data(), r.n}))
     return ApiResult::error(422, "out_of_limits", r.supervisor->describe(v));
+  if (auto why = operating_limit_violation(r, r.operating_limits.load(), c.values, true)) return *why;
   const auto s = r.snapshot.load();
+  if (s.mode != ControlMode::joint)
+    return ApiResult::error(409, "wrong_mode",
+                            std::string("robot '") + robot + "' is in " + to_string(s.mode) +
+                                " mode; switch to joint mode for joint commands");
   if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled || !s.drives_ready)
     return ApiResult::error(409, "not_enabled",
@@ -316,12 +386,363 @@ ApiResult RobotRuntime::estop_reset() {
   return ApiResult::success({{"estop", false}});
 }
 
+// ---- Path following -------------------------------------------------------------------------
+
+namespace {
+ApiResult no_path_following(const std::string& robot) {
+  return ApiResult::error(
+      422, "not_supported",
+      "robot '" + robot + "' has no path following (plans are made for the steerable catheter)");
+}
+
+std::optional<Eigen::Vector3d> read_point(const nlohmann::json& p) {
+  if (!p.is_array() || p.size() != 3 || !p[0].is_number() || !p[1].is_number() || !p[2].is_number())
+    return std::nullopt;
+  Eigen::Vector3d v(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
+  if (!v.allFinite()) return std::nullopt;
+  return v;
+}
+}  // namespace
+
+ApiResult RobotRuntime::load_path(const std::string& robot, const nlohmann::json& plan,
+                                  const std::string& plan_id) {
+  TENDRIL_FIND_ROBOT(robot)
+  if (!supports_path_following(r)) return no_path_following(robot);
+  constexpr std::size_t kMaxSteps = 10000;
+  if (!plan.is_object() || !plan.contains("steps") || !plan["steps"].is_array() || plan["steps"].empty())
+    return ApiResult::error(
+        400, "bad_request",
+        "expected a plan {\"steps\": [{\"q\": [insertion, roll, proximal_bend, distal_bend]}, …]}");
+  const auto& steps = plan["steps"];
+  if (steps.size() > kMaxSteps)
+    return ApiResult::error(422, "too_many_steps",
+                            "the plan has " + std::to_string(steps.size()) + " steps; at most " +
+                                std::to_string(kMaxSteps) + " are accepted");
+  auto loaded = std::make_shared<LoadedPath>();
+  loaded->plan_id = plan_id;
+  const OperatingLimits limits = r.operating_limits.load();
+  for (std::size_t k = 0; k < steps.size(); ++k) {
+    const std::string which = "step " + std::to_string(k);
+    JointArray q{};
+    if (!steps[k].is_object())
+      return ApiResult::error(400, "bad_request", which + ": expected an object with \"q\"");
+    if (auto err = read_vector(steps[k], "q", r.n, r.config, q))
+      return ApiResult::error(err->status, err->code, which + ": " + err->message);
+    if (auto v = r.supervisor->check_goal({q.data(), r.n}))
+      return ApiResult::error(422, "out_of_limits", which + ": " + r.supervisor->describe(v));
+    if (auto why = operating_limit_violation(r, limits, q, false))
+      return ApiResult::error(422, "out_of_limits", which + ": " + why->message);
+    // The control loop holds setpoints inside the soft margins, so a step beyond them would never be reached.
+    for (std::size_t i = 0; i < r.n; ++i) {
+      const auto& j = r.config.joints[i];
+      if (q[i] < j.lower + j.soft_margin || q[i] > j.upper - j.soft_margin) {
+        std::ostringstream why;
+        why << which << ": joint '" << j.name << "' " << q[i] << " " << j.unit
+            << " lies within the soft margin (" << j.soft_margin << " " << j.unit << ") of its limits ["
+            << j.lower << ", " << j.upper
+            << "]; the setpoint is held short of it, so the step could not be reached";
+        return ApiResult::error(422, "out_of_limits", why.str());
+      }
+    }
+    loaded->steps.push_back(q);
+    if (steps[k].contains("backbone") && steps[k]["backbone"].is_array() && !steps[k]["backbone"].empty())
+      if (auto tip = read_point(steps[k]["backbone"].back())) loaded->tips.push_back(*tip);
+  }
+  if (loaded->tips.size() != loaded->steps.size()) loaded->tips.clear();
+  if (plan.contains("vessel_path") && plan["vessel_path"].is_array()) {
+    // The scene shows at most ~200 points of the vessel.
+    const auto& path = plan["vessel_path"];
+    const std::size_t stride = std::max<std::size_t>(1, path.size() / 200);
+    for (std::size_t i = 0; i < path.size(); i += stride)
+      if (auto p = read_point(path[i])) loaded->vessel.push_back(*p);
+  }
+  const auto s = r.snapshot.load();
+  if (s.busy)
+    return ApiResult::error(409, "not_holding",
+                            "robot '" + robot + "' is moving; a plan is loaded only while it holds");
+  std::shared_ptr<const LoadedPath> previous;
+  {
+    std::lock_guard lock(r.path_mutex);
+    RobotCommand c;
+    c.kind = CommandKind::path_loaded;
+    c.received = std::chrono::steady_clock::now();
+    if (!post(r, c)) return busy_mailbox(robot);
+    previous = std::exchange(r.path, loaded);
+  }
+  // `previous` is freed here, on this network thread.
+  return ApiResult::success({{"steps", loaded->steps.size()},
+                             {"step", -1},
+                             {"plan", plan_id.empty() ? nlohmann::json() : nlohmann::json(plan_id)}});
+}
+
+ApiResult RobotRuntime::path_step(const std::string& robot, const nlohmann::json& body) {
+  TENDRIL_FIND_ROBOT(robot)
+  if (!supports_path_following(r)) return no_path_following(robot);
+  const bool by_index = body.is_object() && body.contains("step");
+  const bool by_advance = body.is_object() && body.contains("advance");
+  if (by_index == by_advance || (by_index && !body["step"].is_number_integer()) ||
+      (by_advance && !(body["advance"] == 1 || body["advance"] == -1)))
+    return ApiResult::error(400, "bad_request", "expected {\"step\": k} (0-based) or {\"advance\": 1 | -1}");
+  const auto s = r.snapshot.load();
+  if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
+  if (s.state != OperatingState::kEnabled || !s.drives_ready)
+    return ApiResult::error(409, "not_enabled",
+                            std::string("robot '") + robot + "' is " + state_name(s.state) +
+                                (s.drives_ready ? "" : " and its drives are not ready") +
+                                "; enable it before stepping along the plan");
+  if (s.mode != ControlMode::path_following)
+    return ApiResult::error(409, "wrong_mode",
+                            "robot '" + robot + "' is in " + to_string(s.mode) +
+                                " mode; switch to path_following (POST /api/v1/robots/" + robot +
+                                "/mode) first");
+  if (s.busy)
+    return ApiResult::error(409, "not_holding",
+                            "robot '" + robot + "' is still moving to step " + std::to_string(s.path_target) +
+                                "; wait until it holds");
+  std::lock_guard lock(r.path_mutex);
+  if (!r.path) return ApiResult::error(409, "no_plan", "no plan is loaded for robot '" + robot + "'");
+  const auto count = static_cast<std::int64_t>(r.path->steps.size());
+  const std::int64_t k =
+      by_index ? body["step"].get<std::int64_t>() : s.path_step + body["advance"].get<std::int64_t>();
+  if (k < 0 || k >= count) {
+    if (by_index)
+      return ApiResult::error(422, "out_of_range",
+                              "step " + std::to_string(k) + " does not exist; the plan has steps 0.." +
+                                  std::to_string(count - 1));
+    return ApiResult::error(409, "end_of_plan",
+                            k < 0
+                                ? "already at the first step of the plan"
+                                : "already at the last step of the plan (" + std::to_string(count - 1) + ")");
+  }
+  RobotCommand c;
+  c.kind = CommandKind::path_step;
+  c.index = static_cast<std::int32_t>(k);
+  c.count = static_cast<std::uint32_t>(r.n);
+  c.values = r.path->steps[static_cast<std::size_t>(k)];
+  // The operating limits may have been tightened since the plan was loaded.
+  const OperatingLimits limits = r.operating_limits.load();
+  if (auto why = operating_limit_violation(r, limits, c.values, false))
+    return ApiResult::error(422, "out_of_limits", "step " + std::to_string(k) + ": " + why->message);
+  teleop::QuinticInterpolator predict(r.n);
+  predict.reset({s.setpoint.data(), r.n}, 0.0);
+  predict.retarget(0.0, {c.values.data(), r.n}, {limits.max_velocity.data(), r.n},
+                   {r.max_acceleration.data(), r.n});
+  c.received = std::chrono::steady_clock::now();
+  if (!post(r, c)) return busy_mailbox(robot);
+  return ApiResult::success({{"step", k}, {"duration_s", predict.duration()}}, 202);
+}
+
+ApiResult RobotRuntime::path_following(const std::string& robot) const {
+  TENDRIL_FIND_ROBOT(robot)
+  if (!supports_path_following(r)) return no_path_following(robot);
+  const auto s = r.snapshot.load();
+  std::lock_guard lock(r.path_mutex);
+  return ApiResult::success(
+      {{"loaded", r.path != nullptr},
+       {"steps", r.path ? r.path->steps.size() : 0},
+       {"step", s.path_step},
+       {"target", s.path_target},
+       {"moving", s.busy},
+       {"mode", to_string(s.mode)},
+       {"plan", r.path && !r.path->plan_id.empty() ? nlohmann::json(r.path->plan_id) : nlohmann::json()}});
+}
+
 void RobotRuntime::operator_lost() {
   for (auto& r : impl_->robots) {
     RobotCommand c;
     c.kind = CommandKind::hold;
     post(*r, c);
   }
+}
+
+// ---- Parameters ----------------------------------------------------------------------------
+// Writable: "/{robot}/{joint}/lower|upper|max_velocity" and "/{robot}/servo_timeout_s" (operating
+// limits, within the configured ones). Read-only: the configured values ("configured_…"),
+// max_acceleration, max_tracking_error and soft_margin.
+
+namespace {
+nlohmann::json parameter(const std::string& name, double value) {
+  return {{"name", name}, {"value", value}, {"type", "float64"}};
+}
+
+void robot_parameters(const RobotUnit& r, nlohmann::json& out) {
+  const OperatingLimits limits = r.operating_limits.load();
+  const std::string prefix = "/" + r.config.name + "/";
+  for (std::size_t i = 0; i < r.n; ++i) {
+    const auto& j = r.config.joints[i];
+    const std::string jp = prefix + j.name + "/";
+    out.push_back(parameter(jp + "lower", limits.lower[i]));
+    out.push_back(parameter(jp + "upper", limits.upper[i]));
+    out.push_back(parameter(jp + "max_velocity", limits.max_velocity[i]));
+    out.push_back(parameter(jp + "configured_lower", j.lower));
+    out.push_back(parameter(jp + "configured_upper", j.upper));
+    out.push_back(parameter(jp + "configured_max_velocity", j.max_velocity));
+    out.push_back(parameter(jp + "max_acceleration", j.max_acceleration));
+    out.push_back(parameter(jp + "max_tracking_error", j.max_tracking_error));
+    out.push_back(parameter(jp + "soft_margin", j.soft_margin));
+  }
+  out.push_back(parameter(prefix + "servo_timeout_s", limits.servo_timeout_s));
+  out.push_back(parameter(prefix + "configured_servo_timeout_s", r.config.command_timeout_ms / 1000.0));
+}
+
+enum class LimitField { kLower, kUpper, kMaxVelocity, kServoTimeout };
+struct ParameterChange {
+  RobotUnit* robot = nullptr;
+  std::size_t joint = 0;
+  LimitField field = LimitField::kLower;
+  std::optional<double> value;  // nullopt: back to the configured value
+  std::string name;
+};
+}  // namespace
+
+nlohmann::json RobotRuntime::parameters() const {
+  auto out = nlohmann::json::array();
+  for (const auto& r : impl_->robots) robot_parameters(*r, out);
+  return out;
+}
+
+ApiResult RobotRuntime::set_parameters(const nlohmann::json& list) {
+  if (!list.is_array() || list.empty())
+    return ApiResult::error(400, "bad_parameter", "expected a non-empty list of {\"name\", \"value\"}");
+  std::vector<ParameterChange> changes;
+  for (const auto& item : list) {
+    if (!item.is_object() || !item.contains("name") || !item["name"].is_string())
+      return ApiResult::error(400, "bad_parameter", "every parameter needs a \"name\" string");
+    ParameterChange change;
+    change.name = item["name"].get<std::string>();
+    const auto& name = change.name;
+    const auto first = name.find('/', 1);
+    const auto last = name.rfind('/');
+    RobotUnit* r = nullptr;
+    if (!name.empty() && name[0] == '/' && first != std::string::npos) {
+      const auto found = impl_->by_name.find(name.substr(1, first - 1));
+      if (found != impl_->by_name.end()) r = found->second;
+    }
+    bool known = false;
+    if (r) {
+      const std::string leaf = name.substr(last + 1);
+      if (first == last) {
+        known = leaf == "servo_timeout_s" || leaf == "configured_servo_timeout_s";
+        change.field = LimitField::kServoTimeout;
+        if (leaf != "servo_timeout_s" && known)
+          return ApiResult::error(403, "read_only_parameter", "parameter " + name + " is read-only");
+      } else {
+        const std::string joint = name.substr(first + 1, last - first - 1);
+        for (std::size_t i = 0; i < r->n; ++i)
+          if (r->config.joints[i].name == joint) {
+            change.joint = i;
+            known = true;
+          }
+        if (known) {
+          if (leaf == "lower") {
+            change.field = LimitField::kLower;
+          } else if (leaf == "upper") {
+            change.field = LimitField::kUpper;
+          } else if (leaf == "max_velocity") {
+            change.field = LimitField::kMaxVelocity;
+          } else if (leaf == "configured_lower" || leaf == "configured_upper" ||
+                     leaf == "configured_max_velocity" || leaf == "max_acceleration" ||
+                     leaf == "max_tracking_error" || leaf == "soft_margin") {
+            return ApiResult::error(
+                403, "read_only_parameter",
+                "parameter " + name + " is read-only (it comes from " + r->config.file.string() + ")");
+          } else {
+            known = false;
+          }
+        }
+      }
+    }
+    if (!known)
+      return ApiResult::error(404, "unknown_parameter",
+                              "no parameter named \"" + name + "\" (getParameters with no names lists them)");
+    change.robot = r;
+    const auto value = item.find("value");
+    if (value != item.end() && !value->is_null()) {
+      if (!value->is_number())
+        return ApiResult::error(400, "bad_parameter", "parameter " + name + ": value must be a number");
+      change.value = value->get<double>();
+      if (!std::isfinite(*change.value))
+        return ApiResult::error(422, "not_finite", "parameter " + name + ": value is not finite");
+    }
+    changes.push_back(std::move(change));
+  }
+
+  // Per robot, all or nothing: compute the new limits, validate, then publish them in one store.
+  std::map<RobotUnit*, OperatingLimits> updated;
+  std::vector<std::unique_lock<std::mutex>> locks;
+  for (auto& r : impl_->robots) {
+    bool touched = false;
+    for (const auto& c : changes) touched = touched || c.robot == r.get();
+    if (!touched) continue;
+    locks.emplace_back(r->limits_write_mutex);
+    updated[r.get()] = r->operating_limits.load();
+  }
+  for (const auto& c : changes) {
+    auto& limits = updated[c.robot];
+    const auto& jc = c.robot->config.joints[c.joint];
+    switch (c.field) {
+      case LimitField::kLower:
+        limits.lower[c.joint] = c.value.value_or(jc.lower);
+        break;
+      case LimitField::kUpper:
+        limits.upper[c.joint] = c.value.value_or(jc.upper);
+        break;
+      case LimitField::kMaxVelocity:
+        limits.max_velocity[c.joint] = c.value.value_or(jc.max_velocity);
+        break;
+      case LimitField::kServoTimeout:
+        limits.servo_timeout_s = c.value.value_or(c.robot->config.command_timeout_ms / 1000.0);
+        break;
+    }
+  }
+  for (auto& [r, limits] : updated) {
+    const auto& rc = r->config;
+    std::ostringstream why;
+    for (std::size_t i = 0; i < r->n && why.tellp() == 0; ++i) {
+      const auto& j = rc.joints[i];
+      const std::string p = "/" + rc.name + "/" + j.name + "/";
+      if (limits.lower[i] < j.lower)
+        why << p << "lower " << limits.lower[i] << " " << j.unit << " is below the configured limit "
+            << j.lower << " " << j.unit << ": limits may only be tightened";
+      else if (limits.upper[i] > j.upper)
+        why << p << "upper " << limits.upper[i] << " " << j.unit << " is above the configured limit "
+            << j.upper << " " << j.unit << ": limits may only be tightened";
+      else if (limits.lower[i] + 2 * j.soft_margin >= limits.upper[i])
+        why << p << "lower (" << limits.lower[i] << ") must be below upper (" << limits.upper[i]
+            << ") by more than twice the soft margin (" << j.soft_margin << " " << j.unit << ")";
+      else if (!(limits.max_velocity[i] > 0) || limits.max_velocity[i] > j.max_velocity)
+        why << p << "max_velocity " << limits.max_velocity[i] << " " << j.unit
+            << "/s must be above 0 and at most the configured " << j.max_velocity << " " << j.unit << "/s";
+    }
+    const double configured_timeout = rc.command_timeout_ms / 1000.0;
+    if (why.tellp() == 0 &&
+        (!(limits.servo_timeout_s >= 0.005) || limits.servo_timeout_s > configured_timeout))
+      why << "/" << rc.name << "/servo_timeout_s " << limits.servo_timeout_s
+          << " s must be between 0.005 s and the configured " << configured_timeout << " s";
+    if (why.tellp() != 0) return ApiResult::error(422, "out_of_range", why.str());
+    // Limits change only while the robot holds inside them, so no running motion is cut short.
+    const auto s = r->snapshot.load();
+    if (s.busy)
+      return ApiResult::error(409, "not_holding",
+                              "robot '" + rc.name + "' is moving; limits change only while it holds");
+    for (std::size_t i = 0; i < r->n; ++i) {
+      if (s.setpoint[i] < limits.lower[i] || s.setpoint[i] > limits.upper[i])
+        return ApiResult::error(422, "out_of_range",
+                                "joint '" + rc.joints[i].name + "' of robot '" + rc.name + "' is at " +
+                                    std::to_string(s.setpoint[i]) + " " + rc.joints[i].unit +
+                                    ", outside the new range; move it inside first");
+    }
+  }
+  for (auto& [r, limits] : updated) r->operating_limits.store(limits);
+  auto all = parameters();
+  auto out = nlohmann::json::array();
+  for (const auto& p : all)
+    for (const auto& c : changes)
+      if (p["name"] == c.name) {
+        out.push_back(p);
+        break;
+      }
+  return ApiResult::success(out);
 }
 
 void RobotRuntime::Impl::collect_events() const {
@@ -410,6 +831,7 @@ std::vector<std::string> RobotRuntime::topics() const {
     t.push_back("/" + r->config.name + "/joint_states");
     t.push_back("/" + r->config.name + "/operating_state");
     t.push_back("/" + r->config.name + "/scene");
+    t.push_back("/" + r->config.name + "/diagnostics");
   }
   t.push_back("/safety/events");
   return t;
@@ -474,6 +896,58 @@ nlohmann::json scene_update(const RobotUnit& r, const std::vector<Eigen::Vector3
 }
 }  // namespace
 
+namespace {
+// The loaded plan in the scene: the vessel centerline and the planned tip path, in the insertion
+// frame the planner used (vessel start at the origin, initial tangent +z).
+void add_path_entities(RobotUnit& r, nlohmann::json& msg) {
+  std::shared_ptr<const LoadedPath> path;
+  {
+    std::lock_guard lock(r.path_mutex);
+    path = r.path;
+  }
+  if (!path || msg["entities"].empty()) return;
+  auto line = [&](const std::string& id, const std::vector<Eigen::Vector3d>& pts, double thickness,
+                  std::array<double, 4> c) {
+    nlohmann::json e = msg["entities"][0];  // the backbone entity: same stamp and frame
+    auto points = nlohmann::json::array();
+    for (const auto& p : pts) points.push_back(nlohmann::json{{"x", p.x()}, {"y", p.y()}, {"z", p.z()}});
+    e["id"] = r.config.name + "/" + id;
+    e["lines"][0]["points"] = std::move(points);
+    e["lines"][0]["thickness"] = thickness;
+    e["lines"][0]["color"] = {{"r", c[0]}, {"g", c[1]}, {"b", c[2]}, {"a", c[3]}};
+    msg["entities"].push_back(std::move(e));
+  };
+  if (path->vessel.size() >= 2) line("vessel", path->vessel, 4.0, {0.8, 0.25, 0.25, 0.35});
+  if (path->tips.size() >= 2) line("planned_path", path->tips, 0.5, {0.3, 0.9, 0.4, 1.0});
+}
+
+nlohmann::json diagnostics(const RobotUnit& r, const RobotSnapshot& s, const RuntimeImplBase& im) {
+  const auto ls = im.control_thread.statistics();
+  double bus_load = 0.0;
+  for (const auto& b : im.buses)
+    if (b->robot == r.config.name) bus_load = std::max(bus_load, b->load);
+  auto setpoint = nlohmann::json::array(), measured = nlohmann::json::array();
+  for (std::size_t i = 0; i < r.n; ++i) {
+    setpoint.push_back(s.setpoint[i]);
+    measured.push_back(s.position[i]);
+  }
+  const double stamp = im.wall_offset + s.time;
+  const auto sec = static_cast<std::int64_t>(stamp);
+  return {
+      {"timestamp",
+       {{"sec", sec}, {"nsec", static_cast<std::int64_t>((stamp - static_cast<double>(sec)) * 1e9)}}},
+      // LoopStatistics keeps the deviation from the nominal period (jitter), not the period itself.
+      {"nominal_period_us", im.period * 1e6},
+      {"period_us",
+       {{"p50", ls.period_error_p50_us}, {"p99", ls.period_error_p99_us}, {"max", ls.period_error_max_us}}},
+      {"work_us", {{"p50", ls.work_p50_us}, {"p99", ls.work_p99_us}, {"max", ls.work_max_us}}},
+      {"overruns", ls.overruns},
+      {"bus_load", bus_load},
+      {"setpoint", setpoint},
+      {"measured", measured}};
+}
+}  // namespace
+
 std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& topic,
                                                           std::uint64_t since_version,
                                                           std::uint64_t& version) const {
@@ -507,11 +981,16 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
   } else if (leaf == "scene") {
     const auto q = positions(r, s);
     msg = scene_update(r, r.kinematics->shape(q), r.kinematics->tip(q), im.wall_offset + s.time);
+    add_path_entities(*it->second, msg);
+  } else if (leaf == "diagnostics") {
+    msg = diagnostics(r, s, im);
   } else {
     return std::nullopt;
   }
-  // Change detection: only send what differs from the last message of this topic.
-  const auto key = leaf == "joint_states" ? std::to_string(s.tick) : msg.dump();
+  // Change detection: only send what differs from the last message of this topic; diagnostics at 10 Hz.
+  const auto key = leaf == "joint_states"  ? std::to_string(s.tick)
+                   : leaf == "diagnostics" ? std::to_string(static_cast<std::int64_t>(s.time * 10.0))
+                                           : msg.dump();
   std::lock_guard lock(im.topic_mutex);
   auto& cached = im.topic_cache[topic];
   if (cached.first != key) {

@@ -1,5 +1,6 @@
 // The control cycle: runs on the real-time thread (or from step()). No allocation, no locks, no
 // blocking: state arrives through LatestValue slots and the command mailbox, and leaves the same way.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -10,6 +11,19 @@ namespace tendril::server {
 namespace {
 using safety::OperatingState;
 using Cia = canopen::Cia402State;
+
+// True when every value lies within the operating (possibly tightened) position limits.
+bool within_operating_limits(const OperatingLimits& limits, std::span<const double> q) noexcept {
+  for (std::size_t i = 0; i < q.size(); ++i)
+    if (!(q[i] >= limits.lower[i] && q[i] <= limits.upper[i])) return false;
+  return true;
+}
+
+bool within_operating_velocity(const OperatingLimits& limits, std::span<const double> v) noexcept {
+  for (std::size_t i = 0; i < v.size(); ++i)
+    if (!(std::abs(v[i]) <= limits.max_velocity[i])) return false;
+  return true;
+}
 
 template <std::size_t N>
 void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c = 0) noexcept {
@@ -44,7 +58,9 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       break;
     case CommandKind::move_jp:
       // Re-checked here: the state may have changed since the network thread validated it.
-      if (sup.state() != OperatingState::kEnabled || sup.check_goal(values)) break;
+      if (s.mode != ControlMode::joint || sup.state() != OperatingState::kEnabled || sup.check_goal(values) ||
+          !within_operating_limits(s.limits, values))
+        break;
       if (!s.drives_ready) {
         // Enabling: the goal starts as soon as every drive reports operation enabled.
         s.pending_goal = c.values;
@@ -52,12 +68,16 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         break;
       }
       s.servo_active = false;
-      r.interpolator->retarget(t, values, {r.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
+      r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n},
+                               {r.max_acceleration.data(), r.n});
       break;
     case CommandKind::servo_jv:
-      if (sup.state() != OperatingState::kEnabled || !s.drives_ready || sup.check_velocity(values)) break;
+      if (s.mode != ControlMode::joint || sup.state() != OperatingState::kEnabled || !s.drives_ready ||
+          sup.check_velocity(values) || !within_operating_velocity(s.limits, values))
+        break;
       for (std::size_t i = 0; i < r.n; ++i) s.servo_velocity[i] = values[i];
       s.servo_active = true;
+      s.last_servo_time = t;
       sup.servo_command_received(t);
       break;
     case CommandKind::estop:
@@ -73,6 +93,31 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         s.servo_active = false;
         r.interpolator->reset({s.q_des.data(), r.n}, t);
       }
+      break;
+    case CommandKind::mode: {
+      // Only while holding (nothing moving, nothing pending); the setpoint is not touched, so the
+      // switch never makes it jump.
+      const bool holding = !s.enable_pending && !s.goal_pending && !s.servo_active && r.interpolator->done(t);
+      if (holding && (c.index == static_cast<std::int32_t>(ControlMode::joint) ||
+                      c.index == static_cast<std::int32_t>(ControlMode::path_following))) {
+        s.mode = static_cast<ControlMode>(c.index);
+        s.path_target = s.path_step;
+      }
+      break;
+    }
+    case CommandKind::path_loaded:
+      s.path_step = -1;
+      s.path_target = -1;
+      break;
+    case CommandKind::path_step:
+      if (s.mode != ControlMode::path_following || sup.state() != OperatingState::kEnabled ||
+          !s.drives_ready || s.servo_active || sup.check_goal(values) ||
+          !within_operating_limits(s.limits, values))
+        break;
+      s.path_target = c.index;
+      s.path_goal = c.values;
+      r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n},
+                               {r.max_acceleration.data(), r.n});
       break;
   }
   ++s.commands_applied;
@@ -133,7 +178,11 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     }
   }
 
-  // 3. Commands from the network threads.
+  // 3. Operating limits (parameters may have tightened them), then commands from the network threads.
+  if (const auto version = r.operating_limits.version(); version != s.limits_version) {
+    s.limits = r.operating_limits.load();
+    s.limits_version = version;
+  }
   RobotCommand command;
   while (r.mailbox.pop(command)) apply_command(r, command, t);
 
@@ -147,7 +196,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
         for (std::size_t i = 0; i < n; ++i) s.q_des[i] = s.q[i];
         r.interpolator->reset({s.q_des.data(), n}, t);
         if (s.goal_pending && state == OperatingState::kEnabled)
-          r.interpolator->retarget(t, {s.pending_goal.data(), n}, {r.max_velocity.data(), n},
+          r.interpolator->retarget(t, {s.pending_goal.data(), n}, {s.limits.max_velocity.data(), n},
                                    {r.max_acceleration.data(), n});
         s.goal_pending = false;
       } else if (t - s.enable_started > r.config.enable_timeout_ms / 1000.0) {
@@ -179,9 +228,11 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   state = sup.state();
 
   // 5. Mid-level control: joint interpolation or integrated servo velocity.
+  const JointArray setpoint_before = s.q_des;
   const std::span<double> q_des(s.q_des.data(), n), qd_des(s.qd_des.data(), n), qdd_des(s.qdd_des.data(), n);
   if (state == OperatingState::kEnabled && s.drives_ready) {
-    if (s.servo_active && sup.servo_live()) {
+    // The operating servo timeout may be shorter than the supervisor's configured one.
+    if (s.servo_active && sup.servo_live() && t - s.last_servo_time <= s.limits.servo_timeout_s) {
       for (std::size_t i = 0; i < n; ++i) {
         s.qd_des[i] = s.servo_velocity[i];
         s.q_des[i] += s.servo_velocity[i] * period;
@@ -206,7 +257,20 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     r.interpolator->reset(q_des, t);
   }
   if (state == OperatingState::kEnabled && s.drives_ready) {
-    const auto clamp = sup.clamp_setpoint(q_des, qd_des);
+    auto clamp = sup.clamp_setpoint(q_des, qd_des);
+    // Tightened operating limits: the setpoint stops at the boundary. A setpoint already outside (the
+    // robot was moved while disabled) is never pulled in with a jump: it may only move back inwards.
+    for (std::size_t i = 0; i < n; ++i) {
+      const double lo = s.limits.lower[i], hi = s.limits.upper[i], before = setpoint_before[i];
+      double bounded = q_des[i];
+      if (bounded < lo) bounded = before >= lo ? lo : std::max(bounded, before);
+      if (bounded > hi) bounded = before <= hi ? hi : std::min(bounded, before);
+      if (bounded != q_des[i]) {
+        q_des[i] = bounded;
+        qd_des[i] = 0.0;
+        ++clamp.clamped_joints;
+      }
+    }
     if (clamp.clamped_joints > 0 && !s.servo_active) {
       // The interpolator must not keep pulling against a clamped setpoint.
       r.interpolator->reset(q_des, t);
@@ -240,6 +304,15 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     slot.store(dc);
   }
 
+  // 7b. Path following: a step is reached when its move ends at the step's joint values. A move cut
+  // short (pause, clamp, fault, disable) leaves the last reached step as the current one.
+  if (s.path_target != s.path_step && r.interpolator->done(t)) {
+    bool at_goal = s.drives_ready;
+    for (std::size_t i = 0; i < n; ++i) at_goal = at_goal && std::abs(s.q_des[i] - s.path_goal[i]) <= 1e-6;
+    if (at_goal) s.path_step = s.path_target;
+    s.path_target = s.path_step;
+  }
+
   // 8. Publish.
   RobotSnapshot snap;
   snap.tick = ticks.load(std::memory_order_relaxed);
@@ -263,6 +336,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   snap.estop_tick = s.estop_tick;
   snap.commands_applied = s.commands_applied;
   snap.mailbox_full = r.mailbox_full.load(std::memory_order_relaxed);
+  snap.mode = s.mode;
+  snap.path_step = s.path_step;
+  snap.path_target = s.path_target;
   r.snapshot.store(snap);
 }
 

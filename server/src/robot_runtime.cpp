@@ -80,6 +80,14 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
     so.command_timeout = rc.command_timeout_ms / 1000.0;
     so.max_consecutive_overruns = rc.max_consecutive_overruns;
     unit->supervisor = std::make_unique<safety::SafetySupervisor>(safety::LimitSet(std::move(limits)), so);
+    OperatingLimits operating;
+    for (std::size_t i = 0; i < unit->n; ++i) {
+      operating.lower[i] = rc.joints[i].lower;
+      operating.upper[i] = rc.joints[i].upper;
+      operating.max_velocity[i] = rc.joints[i].max_velocity;
+    }
+    operating.servo_timeout_s = so.command_timeout;
+    unit->operating_limits.store(operating);
     unit->interpolator = std::make_unique<teleop::QuinticInterpolator>(unit->n);
 
     // Buses and their drives.

@@ -28,7 +28,22 @@ namespace tendril::server {
 inline constexpr std::size_t kMaxJoints = safety::kMaxJoints;
 using JointArray = std::array<double, kMaxJoints>;
 
-enum class CommandKind : std::uint8_t { state, move_jp, servo_jv, estop, estop_reset, hold };
+enum class CommandKind : std::uint8_t {
+  state,
+  move_jp,
+  servo_jv,
+  estop,
+  estop_reset,
+  hold,
+  mode,         // index = ControlMode; applied only while holding
+  path_loaded,  // a new plan was loaded: no step reached yet
+  path_step     // index = step; values = the step's joint configuration
+};
+
+// Control modes (operating_state "mode"): joint = move_jp/servo_jv; path_following = a loaded plan is
+// played back one insertion step at a time (path_step commands), joint commands are refused.
+enum class ControlMode : std::uint8_t { joint, path_following };
+const char* to_string(ControlMode mode) noexcept;
 
 // One command from the network threads to the control thread; trivially copyable, fixed size.
 struct RobotCommand {
@@ -36,7 +51,25 @@ struct RobotCommand {
   safety::StateCommand state = safety::StateCommand::kDisable;
   std::uint32_t count = 0;
   JointArray values{};
+  std::int32_t index = 0;  // mode or path step
   std::chrono::steady_clock::time_point received{};
+};
+
+// A plan loaded for path following: built and freed on network threads, never seen by the control
+// thread (each step's joint values reach it inside a fixed-size path_step command).
+struct LoadedPath {
+  std::string plan_id;                  // job id, empty for an inline plan
+  std::vector<JointArray> steps;        // joint configurations, checked against the limits at load
+  std::vector<Eigen::Vector3d> vessel;  // vessel centerline for the scene (may be empty)
+  std::vector<Eigen::Vector3d> tips;    // planned tip position of each step (from the backbones)
+};
+
+// Operating limits: the configured limits, possibly tightened at run time through parameters
+// (ControlApi::set_parameters), never wider. Written by network threads (under
+// RobotUnit::limits_write_mutex), read lock-free by the control thread through a LatestValue slot.
+struct OperatingLimits {
+  JointArray lower{}, upper{}, max_velocity{};
+  double servo_timeout_s = 0.0;
 };
 
 // What the control thread publishes every tick.
@@ -55,6 +88,9 @@ struct RobotSnapshot {
   std::uint64_t estop_tick = 0;  // tick at which the last e-stop reached the control thread
   std::uint64_t commands_applied = 0;
   std::uint64_t mailbox_full = 0;
+  ControlMode mode = ControlMode::joint;
+  std::int32_t path_step = -1;    // last plan step reached (-1: none since the plan was loaded)
+  std::int32_t path_target = -1;  // step being moved to (== path_step when not moving to one)
 };
 
 struct BusUnit {
@@ -88,6 +124,10 @@ struct RobotUnit {
   std::atomic<std::uint64_t> mailbox_full{0};
   std::size_t n = 0;
   JointArray max_velocity{}, max_acceleration{};
+  std::mutex path_mutex;                                  // network threads only
+  std::shared_ptr<const LoadedPath> path;                 // guarded by path_mutex
+  teleop::LatestValue<OperatingLimits> operating_limits;  // see OperatingLimits
+  std::mutex limits_write_mutex;                          // network threads only: read-modify-write
 
   // Control-thread state (touched only by the control thread).
   struct ControlState {
@@ -104,6 +144,12 @@ struct RobotUnit {
     std::uint64_t estop_tick = 0;
     std::uint64_t commands_applied = 0;
     bool initialised = false;
+    ControlMode mode = ControlMode::joint;
+    std::int32_t path_step = -1, path_target = -1;
+    JointArray path_goal{};
+    OperatingLimits limits{};  // copy of operating_limits, refreshed when its version changes
+    std::uint64_t limits_version = ~std::uint64_t{0};
+    double last_servo_time = 0.0;
   } rt;
 };
 

@@ -81,6 +81,33 @@ std::optional<std::vector<std::uint32_t>> get_id_array(const json& object, const
   return ids;
 }
 
+std::optional<std::vector<std::string>> get_name_array(const json& object, const char* field,
+                                                       std::string& error) {
+  const json* array = get_array(object, field, error);
+  if (!array) return std::nullopt;
+  std::vector<std::string> names;
+  for (const auto& item : *array) {
+    if (!item.is_string()) {
+      error = std::string("\"") + field + "\" must hold strings";
+      return std::nullopt;
+    }
+    names.push_back(item.get<std::string>());
+  }
+  return names;
+}
+
+// The optional request id of getParameters/setParameters.
+bool get_optional_id(const json& object, std::optional<std::string>& id, std::string& error) {
+  const auto it = object.find("id");
+  if (it == object.end() || it->is_null()) return true;
+  if (!it->is_string()) {
+    error = "field \"id\" must be a string";
+    return false;
+  }
+  id = it->get<std::string>();
+  return true;
+}
+
 }  // namespace
 
 ClientTextMessage parse_client_text(std::string_view text) {
@@ -136,13 +163,34 @@ ClientTextMessage parse_client_text(std::string_view text) {
     if (!ids) return ProtocolError{"unadvertise: " + error};
     return ClientUnadvertiseOp{std::move(*ids)};
   }
-  static constexpr const char* kKnownUnsupported[] = {"getParameters",
-                                                      "setParameters",
-                                                      "subscribeParameterUpdates",
-                                                      "unsubscribeParameterUpdates",
-                                                      "subscribeConnectionGraph",
-                                                      "unsubscribeConnectionGraph",
-                                                      "fetchAsset"};
+  if (*op == "getParameters") {
+    GetParametersOp result;
+    auto names = get_name_array(message, "parameterNames", error);
+    if (!names || !get_optional_id(message, result.id, error))
+      return ProtocolError{"getParameters: " + error};
+    result.names = std::move(*names);
+    return result;
+  }
+  if (*op == "setParameters") {
+    SetParametersOp result;
+    const json* parameters = get_array(message, "parameters", error);
+    if (!parameters || !get_optional_id(message, result.id, error))
+      return ProtocolError{"setParameters: " + error};
+    for (const auto& item : *parameters) {
+      if (!item.is_object() || !item.contains("name") || !item["name"].is_string())
+        return ProtocolError{"setParameters: each parameter must be an object with a \"name\" string"};
+    }
+    result.parameters = *parameters;
+    return result;
+  }
+  if (*op == "subscribeParameterUpdates" || *op == "unsubscribeParameterUpdates") {
+    auto names = get_name_array(message, "parameterNames", error);
+    if (!names) return ProtocolError{*op + ": " + error};
+    if (*op == "subscribeParameterUpdates") return SubscribeParameterUpdatesOp{std::move(*names)};
+    return UnsubscribeParameterUpdatesOp{std::move(*names)};
+  }
+  static constexpr const char* kKnownUnsupported[] = {"subscribeConnectionGraph",
+                                                      "unsubscribeConnectionGraph", "fetchAsset"};
   for (const char* known : kKnownUnsupported) {
     if (*op == known) return UnsupportedOp{*op};
   }
@@ -323,6 +371,25 @@ Channel channel_for_topic(std::uint32_t id, const std::string& topic) {
   } else if (topic == "/tf") {
     channel.schema_name = "foxglove.FrameTransforms";
     schema = frame_transforms_schema();
+  } else if (ends_with(topic, "/diagnostics")) {
+    // Control-loop health at 10 Hz (robot_api.cpp diagnostics()).
+    const json numbers = {{"type", "array"}, {"items", {{"type", "number"}}}};
+    const json quantiles = {
+        {"type", "object"},
+        {"properties",
+         {{"p50", {{"type", "number"}}}, {"p99", {{"type", "number"}}}, {"max", {{"type", "number"}}}}}};
+    channel.schema_name = "tendril.LoopDiagnostics";
+    schema = {{"title", "tendril.LoopDiagnostics"},
+              {"type", "object"},
+              {"properties",
+               {{"timestamp", {{"type", "object"}}},
+                {"nominal_period_us", {{"type", "number"}}},
+                {"period_us", quantiles},
+                {"work_us", quantiles},
+                {"overruns", {{"type", "integer"}}},
+                {"bus_load", {{"type", "number"}}},
+                {"setpoint", numbers},
+                {"measured", numbers}}}};
   } else {
     channel.schema_name = "tendril.Json";
     schema = {{"title", "tendril.Json"}, {"type", "object"}};
@@ -379,8 +446,20 @@ json advertise_services(const std::vector<Service>& services) {
   return {{"op", "advertiseServices"}, {"services", std::move(list)}};
 }
 
-json status(StatusLevel level, const std::string& message) {
-  return {{"op", "status"}, {"level", static_cast<int>(level)}, {"message", message}};
+json status(StatusLevel level, const std::string& message, const std::string& id) {
+  json out = {{"op", "status"}, {"level", static_cast<int>(level)}, {"message", message}};
+  if (!id.empty()) out["id"] = id;
+  return out;
+}
+
+json remove_status(const std::vector<std::string>& ids) {
+  return {{"op", "removeStatus"}, {"statusIds", ids}};
+}
+
+json parameter_values(const json& parameters, const std::optional<std::string>& id) {
+  json out = {{"op", "parameterValues"}, {"parameters", parameters}};
+  if (id) out["id"] = *id;
+  return out;
 }
 
 json service_call_failure(std::uint32_t service_id, std::uint32_t call_id, const std::string& message) {

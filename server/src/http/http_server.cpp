@@ -8,6 +8,7 @@
 #include <condition_variable>
 #include <deque>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <optional>
 #include <random>
@@ -15,14 +16,18 @@
 #include <sstream>
 #include <thread>
 #include <unordered_map>
+#include <variant>
 
 #include <boost/asio.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
 #include <boost/beast/websocket.hpp>
+#include <boost/beast/websocket/ssl.hpp>
 
 #include "tendril/server/http/foxglove_protocol.hpp"
 #include "tendril/server/http/lease.hpp"
+#include "tendril/server/http/planning_routes.hpp"
 #include "tendril/server/http/request_codec.hpp"
 #include "tendril/server/version.hpp"
 
@@ -40,6 +45,11 @@ namespace fg = tendril::server::http::foxglove;
 namespace {
 
 using Request = bhttp::request<bhttp::string_body>;
+// A connection is plain TCP, or TLS when the server has a certificate (same code for both).
+using TlsStream = beast::ssl_stream<beast::tcp_stream>;
+using ByteStream = std::variant<beast::tcp_stream, TlsStream>;
+using PlainWs = websocket::stream<beast::tcp_stream>;
+using TlsWs = websocket::stream<TlsStream>;
 using SteadyClock = std::chrono::steady_clock;
 
 constexpr std::string_view kCookieName = "tendril_session";
@@ -53,7 +63,18 @@ struct Identity {
   std::string label;      // public name shown as lease holder
 };
 
-enum class Command { kStateCommand, kMode, kMoveJp, kServoJv, kMoveConfiguration, kEstop, kEstopReset };
+// kAuthorizeOnly: the role and lease checks of a robot command, for routes dispatched elsewhere
+// (planning_routes.cpp); answers 200 {} when they pass.
+enum class Command {
+  kStateCommand,
+  kMode,
+  kMoveJp,
+  kServoJv,
+  kMoveConfiguration,
+  kEstop,
+  kEstopReset,
+  kAuthorizeOnly
+};
 
 std::string random_hex(std::size_t bytes) {
   static thread_local std::random_device device;
@@ -104,6 +125,26 @@ constexpr ServiceDef kServices[] = {
     {7, "lease", std::nullopt, false},
 };
 
+// REST commands and getters under /api/v1/robots/{robot}/...
+using Getter = ApiResult (ControlApi::*)(const std::string&) const;
+const std::map<std::string, Getter>& robot_getters() {
+  static const std::map<std::string, Getter> getters = {{"measured_js", &ControlApi::measured_js},
+                                                        {"setpoint_js", &ControlApi::setpoint_js},
+                                                        {"measured_cp", &ControlApi::measured_cp},
+                                                        {"shape", &ControlApi::shape},
+                                                        {"operating_state", &ControlApi::operating_state}};
+  return getters;
+}
+const std::map<std::string, Command>& robot_commands() {
+  static const std::map<std::string, Command> commands = {
+      {"state_command", Command::kStateCommand},
+      {"mode", Command::kMode},
+      {"move_jp", Command::kMoveJp},
+      {"servo_jv", Command::kServoJv},
+      {"move_configuration", Command::kMoveConfiguration}};
+  return commands;
+}
+
 std::vector<fg::Service> service_list() {
   const json robot = {{"type", "string"}};
   const json numbers = {{"type", "array"}, {"items", {{"type", "number"}}}};
@@ -145,7 +186,15 @@ class FrontEndWsSession;
 class HttpServer::Impl {
  public:
   Impl(ControlApi& api_in, HttpOptions options_in)
-      : api(api_in), opts(std::move(options_in)), lease(opts.lease_timeout), services(service_list()) {}
+      : api(api_in), opts(std::move(options_in)), lease(opts.lease_timeout), services(service_list()) {
+    for (const auto& source : opts.topic_sources) {
+      if (!source) continue;
+      for (auto& info : source->topics()) {
+        const std::string topic = info.topic;
+        source_topics[topic] = {source.get(), std::move(info)};
+      }
+    }
+  }
 
   ControlApi& api;
   HttpOptions opts;
@@ -155,6 +204,8 @@ class HttpServer::Impl {
   const SteadyClock::time_point started_at = SteadyClock::now();
   std::vector<std::string> allowed_origins;
   unsigned short bound_port = 0;
+  std::string openapi_document;                    // served at GET /api/v1/openapi.json; read at start()
+  std::unique_ptr<net::ssl::context> tls_context;  // set when a certificate and key are configured
 
   // Cookie sessions: random id -> role and public label. Bounded; the oldest is forgotten first.
   struct CookieSession {
@@ -172,7 +223,11 @@ class HttpServer::Impl {
     std::uint64_t version = 0;
     std::shared_ptr<const std::string> last_payload;
     std::uint64_t last_time_ns = 0;
+    TopicSource* source = nullptr;  // null: the topic comes from ControlApi
   };
+  // Topics of opts.topic_sources (fixed at construction: a source's topics are stable).
+  std::map<std::string, std::pair<TopicSource*, TopicInfo>> source_topics;
+  bool sources_ready = false;         // a source has a new message; guarded by lifecycle_mutex
   mutable std::mutex channels_mutex;  // lock order: channels_mutex, then ws_mutex
   std::map<std::uint32_t, ChannelState> channels;
   std::map<std::string, std::uint32_t> topic_ids;
@@ -214,7 +269,35 @@ class HttpServer::Impl {
                            bool accept_query_token, bool create_cookie_session, const char* connection_kind);
 
   ApiResult execute(Command command, const std::string& robot, const json& body, const Identity& who);
-  ApiResult lease_action(const std::string& action, const Identity& who);
+  // action: "acquire" (with an optional takeover token), "release" or "status".
+  ApiResult lease_action(const std::string& action, const Identity& who,
+                         const std::string& takeover_token = {});
+  json lease_description(const Identity& who, SteadyClock::time_point now) const;
+  // Sets parameters for `who` (operator with the lease) and pushes the new values to subscribers.
+  ApiResult set_parameters(const json& parameters, const Identity& who);
+  void publish_parameter_updates(const json& changed);
+
+  // Servo streaming, for the takeover rule: a holder who sent a servo command within the longest
+  // command timeout of any robot is streaming and cannot be displaced.
+  std::mutex servo_mutex;
+  std::string last_servo_key;
+  SteadyClock::time_point last_servo_time{};
+  std::chrono::milliseconds servo_window{150};
+  void note_servo(const std::string& key, SteadyClock::time_point now) {
+    std::lock_guard lock(servo_mutex);
+    last_servo_key = key;
+    last_servo_time = now;
+  }
+  bool servo_streaming(const std::string& key, SteadyClock::time_point now) {
+    std::lock_guard lock(servo_mutex);
+    return !last_servo_key.empty() && last_servo_key == key && now - last_servo_time <= servo_window;
+  }
+
+  // Status messages to WebSocket clients: to all, or only to the sockets of one lease identity.
+  void broadcast_status(const json& status, const std::string& only_lease_key = {});
+  // Faults and e-stops seen in ControlApi::faults() become status messages (newest seen so far).
+  std::optional<std::string> newest_event_seen;
+  void report_new_safety_events();
 
   void refresh_channels();
   bool channel_exists(std::uint32_t id) const {
@@ -222,7 +305,9 @@ class HttpServer::Impl {
     return channels.count(id) != 0;
   }
   std::vector<std::shared_ptr<FrontEndWsSession>> live_sessions() const;
-  void publish_once();
+  // only_sources: publish the topic sources' new messages only (a source said one is ready), so that
+  // robot topics keep their publish_rate_hz.
+  void publish_once(bool only_sources = false);
   void do_accept();
   std::string metrics() const;
 };
@@ -232,8 +317,9 @@ class HttpServer::Impl {
 
 class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession> {
  public:
-  FrontEndWsSession(tcp::socket&& socket, HttpServer::Impl& server, Identity identity, std::uint64_t id)
-      : ws_(std::move(socket)),
+  FrontEndWsSession(ByteStream&& stream, HttpServer::Impl& server, Identity identity, std::uint64_t id)
+      : ws_(make_ws(std::move(stream))),
+        executor_(std::visit([](auto& ws) { return net::any_io_executor(ws.get_executor()); }, ws_)),
         server_(server),
         identity_(std::move(identity)),
         id_(id),
@@ -241,11 +327,24 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
         last_refill_(SteadyClock::now()) {}
 
   std::uint64_t id() const { return id_; }
+  const Identity& identity() const { return identity_; }
+
+  // Sends the subset of `changed` parameters this connection subscribed to (parametersSubscribe).
+  void offer_parameter_updates(const json& changed) {
+    json mine = json::array();
+    {
+      std::lock_guard lock(out_mutex_);
+      for (const auto& p : changed) {
+        if (p.contains("name") && parameter_subscriptions_.count(p["name"].get<std::string>()))
+          mine.push_back(p);
+      }
+    }
+    if (!mine.empty()) send_text(fg::parameter_values(mine, std::nullopt));
+  }
 
   void run(Request request) {
     request_ = std::move(request);
-    net::dispatch(ws_.get_executor(),
-                  beast::bind_front_handler(&FrontEndWsSession::do_accept, shared_from_this()));
+    net::dispatch(executor_, beast::bind_front_handler(&FrontEndWsSession::do_accept, shared_from_this()));
   }
 
   // Queues a JSON message. Called from any thread. A client whose control queue overflows is not
@@ -267,11 +366,9 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
     }
     if (overflow) {
       ++server_.ws_closed_for_abuse;
-      net::post(ws_.get_executor(),
-                beast::bind_front_handler(&FrontEndWsSession::hard_close, shared_from_this()));
+      net::post(executor_, beast::bind_front_handler(&FrontEndWsSession::hard_close, shared_from_this()));
     } else if (kick) {
-      net::post(ws_.get_executor(),
-                beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
+      net::post(executor_, beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
     }
   }
 
@@ -298,8 +395,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       if (!latest_.empty() && !writing_) kick = writing_ = true;
     }
     if (kick)
-      net::post(ws_.get_executor(),
-                beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
+      net::post(executor_, beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
   }
 
   void subscribed_channels(std::set<std::uint32_t>& out) const {
@@ -334,8 +430,10 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       latest_order_.clear();
     }
     beast::error_code ignored;
-    beast::get_lowest_layer(ws_).socket().shutdown(tcp::socket::shutdown_both, ignored);
-    beast::get_lowest_layer(ws_).socket().close(ignored);
+    auto& socket =
+        std::visit([](auto& ws) -> tcp::socket& { return beast::get_lowest_layer(ws).socket(); }, ws_);
+    socket.shutdown(tcp::socket::shutdown_both, ignored);
+    socket.close(ignored);
   }
 
  private:
@@ -345,13 +443,18 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
   };
 
   void do_accept() {
-    ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
-    ws_.set_option(websocket::stream_base::decorator([](websocket::response_type& res) {
-      res.set(bhttp::field::server, "tendril");
-      res.set(bhttp::field::sec_websocket_protocol, std::string(fg::kSubprotocol));
-    }));
-    ws_.read_message_max(server_.opts.max_ws_message_bytes);
-    ws_.async_accept(request_, beast::bind_front_handler(&FrontEndWsSession::on_accept, shared_from_this()));
+    std::visit(
+        [this](auto& ws) {
+          ws.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+          ws.set_option(websocket::stream_base::decorator([](websocket::response_type& res) {
+            res.set(bhttp::field::server, "tendril");
+            res.set(bhttp::field::sec_websocket_protocol, std::string(fg::kSubprotocol));
+          }));
+          ws.read_message_max(server_.opts.max_ws_message_bytes);
+          ws.async_accept(request_,
+                          beast::bind_front_handler(&FrontEndWsSession::on_accept, shared_from_this()));
+        },
+        ws_);
   }
 
   void on_accept(beast::error_code ec) {
@@ -367,7 +470,8 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       }
       for (const auto& [id, state] : server_.channels) channels.push_back(state.channel);
     }
-    std::vector<std::string> capabilities = {"services"};
+    // Parameters are readable by everyone; setting them needs the operator role and the lease.
+    std::vector<std::string> capabilities = {"services", "parameters", "parametersSubscribe"};
     // Client publishing (joystick streams) is a command path: operators only.
     if (identity_.role == Role::kOperator) capabilities.insert(capabilities.begin(), "clientPublish");
     const json metadata = {{"tendril_version", version()},
@@ -380,7 +484,11 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
   }
 
   void do_read() {
-    ws_.async_read(buffer_, beast::bind_front_handler(&FrontEndWsSession::on_read, shared_from_this()));
+    std::visit(
+        [this](auto& ws) {
+          ws.async_read(buffer_, beast::bind_front_handler(&FrontEndWsSession::on_read, shared_from_this()));
+        },
+        ws_);
   }
 
   void on_read(beast::error_code ec, std::size_t) {
@@ -388,7 +496,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       on_closed();
       return;
     }
-    const bool is_text = ws_.got_text();
+    const bool is_text = std::visit([](auto& ws) { return ws.got_text(); }, ws_);
     const std::string message = beast::buffers_to_string(buffer_.data());
     buffer_.consume(buffer_.size());
     ++server_.ws_client_messages;
@@ -449,6 +557,51 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       handle_client_advertise(*advertise);
     } else if (auto* unadvertise = std::get_if<fg::ClientUnadvertiseOp>(&parsed)) {
       for (const auto id : unadvertise->channel_ids) client_channels_.erase(id);
+    } else if (auto* get = std::get_if<fg::GetParametersOp>(&parsed)) {
+      send_text(fg::parameter_values(select_parameters(get->names), get->id));
+    } else if (auto* set = std::get_if<fg::SetParametersOp>(&parsed)) {
+      handle_set_parameters(*set);
+    } else if (auto* sub = std::get_if<fg::SubscribeParameterUpdatesOp>(&parsed)) {
+      // Empty = every parameter known now (spec); subscribing twice to one name is a no-op.
+      std::vector<std::string> names = sub->names;
+      if (names.empty()) {
+        for (const auto& p : server_.api.parameters()) names.push_back(p.value("name", std::string()));
+      }
+      std::lock_guard lock(out_mutex_);
+      for (auto& name : names) {
+        if (parameter_subscriptions_.size() >= 4096) break;
+        parameter_subscriptions_.insert(std::move(name));
+      }
+    } else if (auto* unsub = std::get_if<fg::UnsubscribeParameterUpdatesOp>(&parsed)) {
+      std::lock_guard lock(out_mutex_);
+      if (unsub->names.empty()) parameter_subscriptions_.clear();
+      for (const auto& name : unsub->names) parameter_subscriptions_.erase(name);
+    }
+  }
+
+  // Current values of `names` (all when empty); unknown names are left out, as the spec allows.
+  json select_parameters(const std::vector<std::string>& names) const {
+    const json all = server_.api.parameters();
+    if (names.empty()) return all;
+    json selected = json::array();
+    for (const auto& p : all) {
+      if (std::find(names.begin(), names.end(), p.value("name", std::string())) != names.end())
+        selected.push_back(p);
+    }
+    return selected;
+  }
+
+  void handle_set_parameters(const fg::SetParametersOp& set) {
+    const ApiResult result = server_.set_parameters(set.parameters, identity_);
+    if (!result.ok()) {
+      send_text(fg::status(fg::StatusLevel::kError, "setParameters: " + result.code + ": " + result.message,
+                           "setParameters"));
+    }
+    // With an id the client expects an answer: the values now in force (unchanged after a refusal).
+    if (set.id) {
+      std::vector<std::string> names;
+      for (const auto& p : set.parameters) names.push_back(p["name"].get<std::string>());
+      send_text(fg::parameter_values(select_parameters(names), set.id));
     }
   }
 
@@ -578,9 +731,10 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
           result = server_.execute(*def->command, robot, body, identity_);
         } else {
           const auto action = body.find("action");
+          const auto token = body.find("takeover_token");
           result = server_.lease_action(
-              action != body.end() && action->is_string() ? action->get<std::string>() : "acquire",
-              identity_);
+              action != body.end() && action->is_string() ? action->get<std::string>() : "acquire", identity_,
+              token != body.end() && token->is_string() ? token->get<std::string>() : std::string());
         }
       }
     }
@@ -588,7 +742,10 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
     if (result.ok()) {
       response["body"] = result.body;
     } else {
-      response["error"] = {{"code", result.code}, {"message", result.message}};
+      response["error"] = result.error_json()["error"];
+      // The refusal also shows in Foxglove's problems panel, not only in the response payload.
+      send_text(fg::status(fg::StatusLevel::kWarning,
+                           std::string(def->name) + ": " + result.code + ": " + result.message));
     }
     send_binary(fg::encode_service_call_response(call.service_id, call.call_id, "json", dump(response)));
   }
@@ -613,8 +770,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       ++server_.ws_closed_for_abuse;
       hard_close();
     } else if (kick) {
-      net::post(ws_.get_executor(),
-                beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
+      net::post(executor_, beast::bind_front_handler(&FrontEndWsSession::do_write, shared_from_this()));
     }
   }
 
@@ -630,9 +786,13 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       const bool binary = binary_control_.erase(control_popped_) != 0;
       ++control_popped_;
       lock.unlock();
-      ws_.binary(binary);
-      ws_.async_write(net::buffer(current_text_),
-                      beast::bind_front_handler(&FrontEndWsSession::on_write, shared_from_this()));
+      std::visit(
+          [this, binary](auto& ws) {
+            ws.binary(binary);
+            ws.async_write(net::buffer(current_text_),
+                           beast::bind_front_handler(&FrontEndWsSession::on_write, shared_from_this()));
+          },
+          ws_);
       return;
     }
     while (!latest_order_.empty()) {
@@ -643,10 +803,15 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       current_data_ = std::move(it->second);
       latest_.erase(it);
       lock.unlock();
-      ws_.binary(true);
       const std::array<net::const_buffer, 2> buffers = {net::buffer(current_data_.header),
                                                         net::buffer(*current_data_.payload)};
-      ws_.async_write(buffers, beast::bind_front_handler(&FrontEndWsSession::on_write, shared_from_this()));
+      std::visit(
+          [this, &buffers](auto& ws) {
+            ws.binary(true);
+            ws.async_write(buffers,
+                           beast::bind_front_handler(&FrontEndWsSession::on_write, shared_from_this()));
+          },
+          ws_);
       return;
     }
     writing_ = false;
@@ -686,7 +851,11 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       closed_ = true;
     }
     // Reading stopped when the close began, so the close completion is where the connection ends.
-    ws_.async_close(close_code_, [self = shared_from_this()](beast::error_code) { self->on_closed(); });
+    std::visit(
+        [this](auto& ws) {
+          ws.async_close(close_code_, [self = shared_from_this()](beast::error_code) { self->on_closed(); });
+        },
+        ws_);
   }
 
   void on_closed() {
@@ -707,7 +876,15 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
     if (server_.lease.holder(SteadyClock::now()) == identity_.lease_key) server_.api.operator_lost();
   }
 
-  websocket::stream<beast::tcp_stream> ws_;
+  static std::variant<PlainWs, TlsWs> make_ws(ByteStream&& stream) {
+    if (auto* tls = std::get_if<TlsStream>(&stream))
+      return std::variant<PlainWs, TlsWs>(std::in_place_type<TlsWs>, std::move(*tls));
+    return std::variant<PlainWs, TlsWs>(std::in_place_type<PlainWs>,
+                                        std::move(std::get<beast::tcp_stream>(stream)));
+  }
+
+  std::variant<PlainWs, TlsWs> ws_;
+  net::any_io_executor executor_;
   beast::flat_buffer buffer_;
   HttpServer::Impl& server_;
   const Identity identity_;
@@ -733,6 +910,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
   std::unordered_map<std::uint32_t, PendingData> latest_;  // subscription id -> newest unsent message
   std::deque<std::uint32_t> latest_order_;                 // fair order of subscriptions with data
   std::map<std::uint32_t, std::uint32_t> subscriptions_;   // subscription id -> channel id
+  std::set<std::string> parameter_subscriptions_;          // parametersSubscribe names
   bool writing_ = false;
   bool closed_ = false;
   bool close_pending_ = false;
@@ -745,10 +923,22 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
 class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSession> {
  public:
   FrontEndHttpSession(tcp::socket&& socket, HttpServer::Impl& server)
-      : stream_(std::move(socket)), server_(server), connection_id_(server.next_connection_id++) {}
+      : stream_(make_stream(std::move(socket), server)),
+        server_(server),
+        connection_id_(server.next_connection_id++) {}
 
   void run() {
-    net::dispatch(stream_.get_executor(),
+    if (auto* tls = std::get_if<TlsStream>(&stream_)) {
+      // TLS first; a client that does not complete the handshake in time is dropped.
+      net::dispatch(lowest().get_executor(), [self = shared_from_this(), tls] {
+        self->lowest().expires_after(std::chrono::seconds(30));
+        tls->async_handshake(net::ssl::stream_base::server, [self](beast::error_code ec) {
+          if (!ec) self->do_read();
+        });
+      });
+      return;
+    }
+    net::dispatch(lowest().get_executor(),
                   beast::bind_front_handler(&FrontEndHttpSession::do_read, shared_from_this()));
   }
 
@@ -759,9 +949,32 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
     parser_.emplace();
     parser_->body_limit(server_.opts.max_body_bytes);
     parser_->header_limit(16 * 1024);
-    stream_.expires_after(std::chrono::seconds(30));
-    bhttp::async_read(stream_, buffer_, *parser_,
-                      beast::bind_front_handler(&FrontEndHttpSession::on_read, shared_from_this()));
+    lowest().expires_after(std::chrono::seconds(30));
+    body_limit_ = server_.opts.max_body_bytes;
+    // Headers first: vessel files and plans may be larger than other bodies (planning_routes.hpp).
+    std::visit(
+        [this](auto& stream) {
+          bhttp::async_read_header(
+              stream, buffer_, *parser_,
+              beast::bind_front_handler(&FrontEndHttpSession::on_header, shared_from_this()));
+        },
+        stream_);
+  }
+
+  void on_header(beast::error_code ec, std::size_t bytes) {
+    if (ec) return on_read(ec, bytes);
+    const auto& header = parser_->get();
+    if (server_.opts.planning != nullptr &&
+        takes_large_body(header.method_string(), parse_target(header.target()).path)) {
+      body_limit_ = std::max(body_limit_, server_.opts.planning->max_vessel_bytes());
+      parser_->body_limit(body_limit_);
+    }
+    std::visit(
+        [this](auto& stream) {
+          bhttp::async_read(stream, buffer_, *parser_,
+                            beast::bind_front_handler(&FrontEndHttpSession::on_read, shared_from_this()));
+        },
+        stream_);
   }
 
   void on_read(beast::error_code ec, std::size_t) {
@@ -770,10 +983,9 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
       Request partial;
       partial.version(parser_->get().version());
       partial.keep_alive(false);
-      return send(error_response(
-          partial, ApiResult::error(413, "body_too_large",
-                                    "request body exceeds the limit of " +
-                                        std::to_string(server_.opts.max_body_bytes) + " bytes")));
+      return send(error_response(partial, ApiResult::error(413, "body_too_large",
+                                                           "request body exceeds the limit of " +
+                                                               std::to_string(body_limit_) + " bytes")));
     }
     if (ec == bhttp::error::header_limit) {
       Request partial;
@@ -829,7 +1041,12 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
   void send(bhttp::response<Body>&& response) {
     server_.count_status(response.result_int());
     auto shared = std::make_shared<bhttp::response<Body>>(std::move(response));
-    bhttp::async_write(stream_, *shared,
+    std::visit([&](auto& stream) { write_response(stream, shared); }, stream_);
+  }
+
+  template <class Stream, class Message>
+  void write_response(Stream& stream, const std::shared_ptr<Message>& shared) {
+    bhttp::async_write(stream, *shared,
                        [self = shared_from_this(), shared](beast::error_code ec, std::size_t) {
                          self->on_write(ec, shared->need_eof());
                        });
@@ -843,7 +1060,12 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
 
   void do_close() {
     beast::error_code ignored;
-    stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
+    if (auto* tls = std::get_if<TlsStream>(&stream_)) {
+      // TLS close_notify, then the socket goes with the session.
+      tls->async_shutdown([self = shared_from_this()](beast::error_code) {});
+      return;
+    }
+    lowest().socket().shutdown(tcp::socket::shutdown_send, ignored);
   }
 
   bool origin_refused(const Request& req) const {
@@ -871,9 +1093,8 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
           error_response(req, ApiResult::error(400, "subprotocol_required",
                                                "offer WebSocket subprotocol \"foxglove.websocket.v1\"")));
     }
-    stream_.expires_never();
-    std::make_shared<FrontEndWsSession>(stream_.release_socket(), server_, std::move(auth.identity),
-                                        connection_id_)
+    lowest().expires_never();
+    std::make_shared<FrontEndWsSession>(std::move(stream_), server_, std::move(auth.identity), connection_id_)
         ->run(std::move(req));
   }
 
@@ -924,6 +1145,25 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
       const double uptime = std::chrono::duration<double>(SteadyClock::now() - server_.started_at).count();
       return send(json_response(req, 200, {{"status", "ok"}, {"version", version()}, {"uptime_s", uptime}}));
     }
+    // Public like /health: it documents the interface (the same file is in the repository) and
+    // reveals no state, so API tools can read it before they have a token.
+    if (route == std::vector<std::string>{"openapi.json"}) {
+      if (method != bhttp::verb::get) return send(method_not_allowed(req, "GET"));
+      if (server_.openapi_document.empty()) {
+        return send(
+            error_response(req, ApiResult::error(404, "not_found",
+                                                 "the OpenAPI document is not installed with this server "
+                                                 "(server/openapi/openapi.json)")));
+      }
+      StringResponse res{bhttp::status::ok, req.version()};
+      res.set(bhttp::field::server, "tendril");
+      res.set(bhttp::field::content_type, "application/json");
+      res.set(bhttp::field::cache_control, "no-cache");
+      res.keep_alive(req.keep_alive());
+      res.body() = server_.openapi_document;
+      res.prepare_payload();
+      return send(std::move(res));
+    }
     // A browser page from another origin must not drive the robot with a stolen cookie or token.
     if (origin_refused(req)) {
       return send(error_response(req, ApiResult::error(403, "origin_not_allowed",
@@ -955,8 +1195,20 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
     }
     if (route == std::vector<std::string>{"lease"}) {
       if (method == bhttp::verb::get) return send(result_response(req, server_.lease_action("status", who)));
-      if (method == bhttp::verb::post)
-        return send(result_response(req, server_.lease_action("acquire", who)));
+      if (method == bhttp::verb::post) {
+        const ApiResult body = parse_json_body(req.body(), server_.opts.max_body_bytes);
+        if (!body.ok()) return send(error_response(req, body));
+        std::string takeover_token;
+        if (const auto it = body.body.find("takeover_token"); it != body.body.end()) {
+          if (!it->is_string()) {
+            return send(error_response(
+                req, ApiResult::error(400, "bad_request",
+                                      "\"takeover_token\" must be the string from the 409 answer")));
+          }
+          takeover_token = it->get<std::string>();
+        }
+        return send(result_response(req, server_.lease_action("acquire", who, takeover_token)));
+      }
       if (method == bhttp::verb::delete_)
         return send(result_response(req, server_.lease_action("release", who)));
       return send(method_not_allowed(req, "GET, POST, DELETE"));
@@ -974,19 +1226,8 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
     if (route.size() == 3 && route[0] == "robots") {
       const std::string& robot = route[1];
       const std::string& verb = route[2];
-      using Getter = ApiResult (ControlApi::*)(const std::string&) const;
-      static const std::map<std::string, Getter> kGetters = {
-          {"measured_js", &ControlApi::measured_js},
-          {"setpoint_js", &ControlApi::setpoint_js},
-          {"measured_cp", &ControlApi::measured_cp},
-          {"shape", &ControlApi::shape},
-          {"operating_state", &ControlApi::operating_state}};
-      static const std::map<std::string, Command> kCommands = {
-          {"state_command", Command::kStateCommand},
-          {"mode", Command::kMode},
-          {"move_jp", Command::kMoveJp},
-          {"servo_jv", Command::kServoJv},
-          {"move_configuration", Command::kMoveConfiguration}};
+      const auto& kGetters = robot_getters();
+      const auto& kCommands = robot_commands();
       if (const auto getter = kGetters.find(verb); getter != kGetters.end()) {
         if (method != bhttp::verb::get) return send(method_not_allowed(req, "GET"));
         if (!api.has_robot(robot)) return send(error_response(req, unknown_robot(robot)));
@@ -999,6 +1240,24 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
         if (!body.ok()) return send(error_response(req, body));
         return send(result_response(req, server_.execute(command->second, robot, body.body, who)));
       }
+    }
+    const PlanningCall planning_call{req.method_string(),
+                                     route,
+                                     target.query,
+                                     req[bhttp::field::content_type],
+                                     req.body(),
+                                     server_.opts.max_body_bytes,
+                                     who.role == Role::kOperator,
+                                     [&](const std::string& robot) -> std::optional<ApiResult> {
+                                       auto allowed =
+                                           server_.execute(Command::kAuthorizeOnly, robot, {}, who);
+                                       return allowed.ok() ? std::nullopt : std::optional<ApiResult>(allowed);
+                                     }};
+    if (auto planned = route_planning(server_.opts.planning, api, planning_call)) {
+      auto res = result_response(req, planned->result);
+      if (!planned->location.empty()) res.set(bhttp::field::location, planned->location);
+      if (!planned->allow.empty()) res.set(bhttp::field::allow, planned->allow);
+      return send(std::move(res));
     }
     send(error_response(
         req, ApiResult::error(404, "not_found",
@@ -1068,9 +1327,20 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
     send(std::move(res));
   }
 
-  beast::tcp_stream stream_;
+  static ByteStream make_stream(tcp::socket&& socket, HttpServer::Impl& server) {
+    if (server.tls_context)
+      return ByteStream(std::in_place_type<TlsStream>, std::move(socket), *server.tls_context);
+    return ByteStream(std::in_place_type<beast::tcp_stream>, std::move(socket));
+  }
+  beast::tcp_stream& lowest() {
+    return std::visit([](auto& stream) -> beast::tcp_stream& { return beast::get_lowest_layer(stream); },
+                      stream_);
+  }
+
+  ByteStream stream_;
   beast::flat_buffer buffer_;
   std::optional<bhttp::request_parser<bhttp::string_body>> parser_;
+  std::size_t body_limit_ = 0;  // of the request being read
   HttpServer::Impl& server_;
   const std::uint64_t connection_id_;
 };
@@ -1206,14 +1476,19 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
         return api.mode(robot, body);
       case Command::kMoveJp:
         return api.move_jp(robot, body);
-      case Command::kServoJv:
-        return api.servo_jv(robot, body);
+      case Command::kServoJv: {
+        ApiResult result = api.servo_jv(robot, body);
+        if (result.ok()) note_servo(who.lease_key, SteadyClock::now());
+        return result;
+      }
       case Command::kEstopReset:
         return api.estop_reset();
       case Command::kMoveConfiguration:
         return ApiResult::error(
             501, "not_implemented",
             "move_configuration is not available: ControlApi has no configuration-space move yet");
+      case Command::kAuthorizeOnly:
+        return ApiResult::success(json::object());
       case Command::kEstop:
         break;
     }
@@ -1223,24 +1498,76 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
   return ApiResult::error(500, "internal_error", "unhandled command");
 }
 
-ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identity& who) {
+json HttpServer::Impl::lease_description(const Identity& who, SteadyClock::time_point now) const {
+  const auto status = lease.status(who.lease_key, now);
+  const double remaining = static_cast<double>(status.remaining.count()) / 1000.0;
+  // "held/holder/mine/expires_s" is the contract; "yours/expires_in_s/you" stay for older clients.
+  return {{"held", status.held},   {"holder", status.held ? json(status.holder_label) : json(nullptr)},
+          {"mine", status.yours},  {"expires_s", remaining},
+          {"yours", status.yours}, {"expires_in_s", remaining},
+          {"you", who.label}};
+}
+
+ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identity& who,
+                                         const std::string& takeover_token) {
   const auto now = SteadyClock::now();
-  auto describe = [&]() {
-    const auto status = lease.status(who.lease_key, now);
-    json body = {{"holder", status.held ? json(status.holder_label) : json(nullptr)},
-                 {"expires_in_s", static_cast<double>(status.remaining.count()) / 1000.0},
-                 {"yours", status.yours},
-                 {"you", who.label}};
-    return body;
-  };
-  if (action == "status") return ApiResult::success(describe());
+  if (action == "status") return ApiResult::success(lease_description(who, now));
   if (who.role != Role::kOperator) {
     return ApiResult::error(403, "forbidden_role", "viewers cannot take or release the operator lease");
   }
   if (action == "acquire") {
-    if (lease.acquire(who.lease_key, who.label, now)) return ApiResult::success(describe());
-    return ApiResult::error(409, "lease_held",
-                            "the operator lease is held by " + lease.status(who.lease_key, now).holder_label);
+    const bool had_it = lease.status(who.lease_key, now).yours;
+    if (lease.acquire(who.lease_key, who.label, now)) {
+      if (!had_it) {
+        broadcast_status(
+            fg::status(fg::StatusLevel::kInfo, who.label + " holds the operator lease", "lease"));
+      }
+      return ApiResult::success(lease_description(who, now));
+    }
+    const auto held = lease.status(who.lease_key, now);
+    const auto holder_key = lease.holder(now);
+    if (!takeover_token.empty()) {
+      // Confirmation of a takeover. Never while the holder streams servo commands: the stream would
+      // stop in mid-motion under someone else's control.
+      if (holder_key && servo_streaming(*holder_key, now)) {
+        ApiResult refused = ApiResult::error(
+            409, "servo_active",
+            held.holder_label +
+                " is streaming servo commands; the lease cannot be taken over while the robot is servoing. "
+                "Ask them to stop, or retry when the stream has ended (the takeover token stays valid for "
+                "15 s)");
+        refused.error_details = {{"holder", held.holder_label}};
+        return refused;
+      }
+      std::string previous_key;
+      if (lease.take_over(who.lease_key, who.label, takeover_token, now, previous_key) ==
+          LeaseManager::TakeoverResult::kBadToken) {
+        return ApiResult::error(409, "bad_takeover_token",
+                                "the takeover token is unknown, expired (it lasts 15 s) or was issued to "
+                                "another client; POST /api/v1/lease without it to get a new one");
+      }
+      if (!previous_key.empty()) {
+        broadcast_status(fg::status(fg::StatusLevel::kWarning,
+                                    "the operator lease was taken over by " + who.label +
+                                        "; your commands are refused until you take it back",
+                                    "lease"),
+                         previous_key);
+      }
+      broadcast_status(fg::status(fg::StatusLevel::kInfo,
+                                  who.label + " took over the operator lease from " + held.holder_label,
+                                  "lease"));
+      return ApiResult::success(lease_description(who, now));
+    }
+    // Refused: offer a takeover, to be confirmed by POSTing the token back within 15 s.
+    const std::string token = random_hex(16);
+    lease.issue_takeover_token(who.lease_key, token, now);
+    ApiResult refused =
+        ApiResult::error(409, "lease_held",
+                         "the operator lease is held by " + held.holder_label +
+                             "; to take it over, confirm with POST /api/v1/lease {\"takeover_token\": \"" +
+                             token + "\"} within 15 s");
+    refused.error_details = {{"holder", held.holder_label}, {"takeover_token", token}};
+    return refused;
   }
   if (action == "release") {
     const auto status = lease.status(who.lease_key, now);
@@ -1248,10 +1575,44 @@ ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identi
       return ApiResult::error(409, "lease_held",
                               "the operator lease is held by " + status.holder_label + ", not you");
     }
-    lease.release(who.lease_key, now);
-    return ApiResult::success(describe());
+    if (lease.release(who.lease_key, now)) {
+      broadcast_status(
+          fg::status(fg::StatusLevel::kInfo, who.label + " released the operator lease", "lease"));
+    }
+    return ApiResult::success(lease_description(who, now));
   }
   return ApiResult::error(400, "bad_action", "lease action must be \"acquire\", \"release\" or \"status\"");
+}
+
+ApiResult HttpServer::Impl::set_parameters(const json& parameters, const Identity& who) {
+  if (who.role != Role::kOperator) {
+    return ApiResult::error(403, "forbidden_role",
+                            "this session is a viewer (read-only); only operators set parameters");
+  }
+  const auto now = SteadyClock::now();
+  if (!lease.use(who.lease_key, now)) {
+    const auto status = lease.status(who.lease_key, now);
+    return ApiResult::error(409, "lease_held",
+                            status.held ? "the operator lease is held by " + status.holder_label +
+                                              "; setting parameters needs the lease"
+                                        : "take the operator lease first (POST /api/v1/lease)");
+  }
+  ApiResult result;
+  try {
+    result = api.set_parameters(parameters);
+  } catch (const std::exception& e) {
+    return ApiResult::error(500, "internal_error", e.what());
+  }
+  if (result.ok()) {
+    publish_parameter_updates(result.body);
+    std::string names;
+    for (const auto& p : result.body) {
+      names += (names.empty() ? "" : ", ") + p.value("name", std::string()) + " = " +
+               dump(p.value("value", json()));
+    }
+    broadcast_status(fg::status(fg::StatusLevel::kInfo, who.label + " set " + names, "parameters"));
+  }
+  return result;
 }
 
 std::vector<std::shared_ptr<FrontEndWsSession>> HttpServer::Impl::live_sessions() const {
@@ -1263,6 +1624,49 @@ std::vector<std::shared_ptr<FrontEndWsSession>> HttpServer::Impl::live_sessions(
   return result;
 }
 
+void HttpServer::Impl::broadcast_status(const json& status, const std::string& only_lease_key) {
+  for (const auto& session : live_sessions()) {
+    if (only_lease_key.empty() || session->identity().lease_key == only_lease_key) session->send_text(status);
+  }
+}
+
+void HttpServer::Impl::publish_parameter_updates(const json& changed) {
+  for (const auto& session : live_sessions()) session->offer_parameter_updates(changed);
+}
+
+void HttpServer::Impl::report_new_safety_events() {
+  json events;
+  try {
+    events = api.faults(16);
+  } catch (const std::exception&) {
+    return;
+  }
+  if (!events.is_array() || events.empty()) {
+    if (!newest_event_seen) newest_event_seen = std::string();  // an empty log: every later event is new
+    return;
+  }
+  const std::string newest = dump(events.front());
+  const bool first_look = !newest_event_seen.has_value();
+  if (newest_event_seen == newest) return;
+  // Walk from the newest back to the last one already reported (events arrive newest first).
+  std::vector<const json*> fresh;
+  for (const auto& event : events) {
+    if (first_look || dump(event) == *newest_event_seen) break;
+    fresh.push_back(&event);
+  }
+  newest_event_seen = newest;
+  for (auto it = fresh.rbegin(); it != fresh.rend(); ++it) {
+    const json& event = **it;
+    const std::string kind = event.value("kind", std::string());
+    if (kind != "fault" && kind != "estop" && kind != "estop_reset") continue;
+    const std::string robot = event.value("robot", std::string());
+    const auto level = kind == "estop_reset" ? fg::StatusLevel::kInfo : fg::StatusLevel::kError;
+    const std::string what = kind == "estop" ? "e-stop" : kind == "estop_reset" ? "e-stop reset" : "fault";
+    broadcast_status(fg::status(level, robot + " " + what + ": " + event.value("message", std::string()),
+                                "safety/" + robot));
+  }
+}
+
 void HttpServer::Impl::refresh_channels() {
   std::vector<std::string> topics;
   try {
@@ -1270,6 +1674,7 @@ void HttpServer::Impl::refresh_channels() {
   } catch (const std::exception&) {
     return;  // keep the current channels; the next cycle asks again
   }
+  for (const auto& [topic, source] : source_topics) topics.push_back(topic);
   std::vector<fg::Channel> added;
   std::vector<std::uint32_t> removed;
   std::vector<std::shared_ptr<FrontEndWsSession>> sessions;
@@ -1280,7 +1685,16 @@ void HttpServer::Impl::refresh_channels() {
       if (topic_ids.count(topic)) continue;
       const std::uint32_t id = next_channel_id++;
       topic_ids[topic] = id;
-      channels[id].channel = fg::channel_for_topic(id, topic);
+      if (const auto source = source_topics.find(topic); source != source_topics.end()) {
+        auto& channel = channels[id].channel;
+        channel.id = id;
+        channel.topic = topic;
+        channel.schema_name = source->second.second.schema_name;
+        channel.schema = source->second.second.schema;
+        channels[id].source = source->second.first;
+      } else {
+        channels[id].channel = fg::channel_for_topic(id, topic);
+      }
       added.push_back(channels[id].channel);
     }
     for (auto it = topic_ids.begin(); it != topic_ids.end();) {
@@ -1304,22 +1718,46 @@ void HttpServer::Impl::refresh_channels() {
   }
 }
 
-void HttpServer::Impl::publish_once() {
+void HttpServer::Impl::publish_once(bool only_sources) {
   std::lock_guard publish_lock(publish_mutex);
   refresh_channels();
   const auto sessions = live_sessions();
+  report_new_safety_events();
   std::set<std::uint32_t> wanted;
   for (const auto& session : sessions) session->subscribed_channels(wanted);
   for (const std::uint32_t channel_id : wanted) {
     std::string topic;
     std::uint64_t since = 0;
+    TopicSource* source = nullptr;
     {
       std::lock_guard lock(channels_mutex);
       const auto it = channels.find(channel_id);
       if (it == channels.end()) continue;
       topic = it->second.channel.topic;
       since = it->second.version;
+      source = it->second.source;
     }
+    if (source) {
+      // Serialised once by the source; every connection shares the same payload.
+      std::optional<TopicPayload> latest;
+      try {
+        latest = source->latest(topic, since);
+      } catch (const std::exception&) {
+        continue;
+      }
+      if (!latest || !latest->payload) continue;
+      {
+        std::lock_guard lock(channels_mutex);
+        const auto it = channels.find(channel_id);
+        if (it == channels.end()) continue;
+        it->second.version = latest->version;
+        it->second.last_payload = latest->payload;
+        it->second.last_time_ns = latest->log_time_ns;
+      }
+      for (const auto& session : sessions) session->offer(channel_id, latest->payload, latest->log_time_ns);
+      continue;
+    }
+    if (only_sources) continue;
     std::uint64_t version = since;
     std::optional<json> message;
     try {
@@ -1397,6 +1835,8 @@ std::string HttpServer::Impl::metrics() const {
   const auto lease_status = lease.status({}, SteadyClock::now());
   metric("tendril_lease_held", "gauge", "1 when an operator holds the command lease.",
          lease_status.held ? 1 : 0);
+  for (const auto& source : opts.topic_sources)
+    if (source) out << source->metrics();
   return out.str();
 }
 
@@ -1445,16 +1885,80 @@ void HttpServer::start() {
   s.allowed_origins = s.opts.allowed_origins;
   if (s.allowed_origins.empty()) {
     const std::string port = std::to_string(s.bound_port);
-    s.allowed_origins.push_back("http://" + s.opts.host + ":" + port);
+    const std::string scheme = s.opts.tls_certificate_file.empty() ? "http://" : "https://";
+    s.allowed_origins.push_back(scheme + s.opts.host + ":" + port);
     // Same machine: a browser may say localhost or 127.0.0.1 (also when bound to all interfaces).
     if (address.is_loopback() || address.is_unspecified()) {
-      s.allowed_origins.push_back("http://localhost:" + port);
-      s.allowed_origins.push_back("http://127.0.0.1:" + port);
+      s.allowed_origins.push_back(scheme + "localhost:" + port);
+      s.allowed_origins.push_back(scheme + "127.0.0.1:" + port);
     }
+  }
+  if (!s.opts.openapi_file.empty()) {
+    std::ifstream file(s.opts.openapi_file, std::ios::binary);
+    std::ostringstream text;
+    text << file.rdbuf();
+    if (!file || json::parse(text.str(), nullptr, false).is_discarded()) {
+      s.acceptor.reset();
+      s.ioc.reset();
+      throw HttpServerError("cannot read the OpenAPI document " + s.opts.openapi_file +
+                            " (missing or not JSON); it is server/openapi/openapi.json in the source tree");
+    }
+    s.openapi_document = text.str();
+  }
+  if (!s.opts.tls_certificate_file.empty() || !s.opts.tls_private_key_file.empty()) {
+    if (s.opts.tls_certificate_file.empty() || s.opts.tls_private_key_file.empty()) {
+      s.acceptor.reset();
+      s.ioc.reset();
+      throw HttpServerError("TLS needs both a certificate and a private key (server.json \"tls\")");
+    }
+    auto context = std::make_unique<net::ssl::context>(net::ssl::context::tls_server);
+    context->set_options(net::ssl::context::default_workarounds | net::ssl::context::no_sslv2 |
+                         net::ssl::context::no_sslv3 | net::ssl::context::no_tlsv1 |
+                         net::ssl::context::no_tlsv1_1);
+    const auto load = [&](const std::string& what, const std::string& file, auto&& use) {
+      beast::error_code tls_ec;
+      use(file, tls_ec);
+      if (tls_ec) {
+        s.acceptor.reset();
+        s.ioc.reset();
+        throw HttpServerError("cannot use the TLS " + what + " " + file + ": " + tls_ec.message() +
+                              " (expected a PEM file)");
+      }
+    };
+    load("certificate", s.opts.tls_certificate_file, [&](const std::string& file, beast::error_code& e) {
+      context->use_certificate_chain_file(file, e);
+    });
+    load("private key", s.opts.tls_private_key_file, [&](const std::string& file, beast::error_code& e) {
+      context->use_private_key_file(file, net::ssl::context::pem, e);
+    });
+    s.tls_context = std::move(context);
+  }
+  // The takeover rule needs the longest servo command timeout of any robot.
+  try {
+    for (const auto& robot : s.api.robots()) {
+      const auto timeout = robot.find("command_timeout_ms");
+      if (timeout != robot.end() && timeout->is_number() && timeout->get<double>() > 0) {
+        s.servo_window = std::max(s.servo_window, std::chrono::milliseconds(timeout->get<std::int64_t>()));
+      }
+    }
+  } catch (const std::exception&) {
+    // Keep the default window; robots() failing here shows up again on GET /robots.
   }
   s.refresh_channels();
   s.do_accept();
   s.stopping = false;
+  // Registered under lifecycle_mutex; no source holds a callback yet (stop() clears them), so the
+  // source's lock (taken around its callback, which then takes lifecycle_mutex) cannot be waiting here.
+  for (const auto& source : s.opts.topic_sources) {
+    if (!source) continue;
+    source->set_ready_callback([&s] {
+      {
+        std::lock_guard lock(s.lifecycle_mutex);
+        s.sources_ready = true;
+      }
+      s.publisher_wake.notify_all();
+    });
+  }
   for (int i = 0; i < s.opts.io_threads; ++i) s.io_threads.emplace_back([&s] { s.ioc->run(); });
   if (s.opts.publish_rate_hz > 0) {
     s.publisher = std::thread([&s] {
@@ -1462,11 +1966,17 @@ void HttpServer::start() {
           std::chrono::duration<double>(1.0 / s.opts.publish_rate_hz));
       auto next = SteadyClock::now();
       while (true) {
+        bool only_sources = false;
         {
           std::unique_lock lock(s.lifecycle_mutex);
-          if (s.publisher_wake.wait_until(lock, next, [&s] { return s.stopping; })) return;
+          s.publisher_wake.wait_until(lock, next, [&s] { return s.stopping || s.sources_ready; });
+          if (s.stopping) return;
+          // A source's new message (an image) goes out now; robot topics wait for their tick.
+          only_sources = s.sources_ready && SteadyClock::now() < next;
+          s.sources_ready = false;
         }
-        s.publish_once();
+        s.publish_once(only_sources);
+        if (only_sources) continue;
         next += period;
         const auto now = SteadyClock::now();
         if (next < now) next = now;  // after a stall, do not burst to catch up
@@ -1484,6 +1994,8 @@ void HttpServer::stop() {
     s.running = false;
     s.stopping = true;
   }
+  for (const auto& source : s.opts.topic_sources)
+    if (source) source->set_ready_callback(nullptr);
   s.publisher_wake.notify_all();
   if (s.publisher.joinable()) s.publisher.join();
   net::post(s.acceptor->get_executor(), [&s] {
@@ -1505,6 +2017,22 @@ void HttpServer::stop() {
 }
 
 unsigned short HttpServer::port() const { return impl_->bound_port; }
+bool HttpServer::tls() const { return !impl_->opts.tls_certificate_file.empty(); }
+
+std::vector<HttpServer::Route> HttpServer::api_routes() {
+  // What handle_api dispatches itself (the planning routes are added by planning_routes.cpp).
+  std::vector<Route> routes = {
+      {"GET", "/api/v1/health"},   {"GET", "/api/v1/openapi.json"}, {"GET", "/api/v1/robots"},
+      {"GET", "/api/v1/faults"},   {"GET", "/api/v1/lease"},        {"POST", "/api/v1/lease"},
+      {"DELETE", "/api/v1/lease"}, {"POST", "/api/v1/estop"},       {"POST", "/api/v1/estop/reset"},
+  };
+  for (const auto& [verb, getter] : robot_getters())
+    routes.push_back({"GET", "/api/v1/robots/{robot}/" + verb});
+  for (const auto& [verb, command] : robot_commands())
+    routes.push_back({"POST", "/api/v1/robots/{robot}/" + verb});
+  for (const auto& [verb, path] : planning_route_list()) routes.push_back({verb, path});
+  return routes;
+}
 std::string HttpServer::metrics() const { return impl_->metrics(); }
 void HttpServer::publish_once() { impl_->publish_once(); }
 

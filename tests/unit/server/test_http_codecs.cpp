@@ -95,7 +95,7 @@ TEST(FoxgloveCodec, MalformedClientTextIsAProtocolErrorWithAMessage) {
     EXPECT_FALSE(error->message.empty()) << text;
   }
   EXPECT_TRUE(std::holds_alternative<fg::ProtocolError>(fg::parse_client_text(std::string(10000, '['))));
-  EXPECT_TRUE(std::holds_alternative<fg::UnsupportedOp>(fg::parse_client_text(R"({"op":"getParameters"})")));
+  EXPECT_TRUE(std::holds_alternative<fg::UnsupportedOp>(fg::parse_client_text(R"({"op":"fetchAsset"})")));
 }
 
 TEST(FoxgloveCodec, ServerMessagesFollowTheSpecShapes) {

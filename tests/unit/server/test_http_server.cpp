@@ -2,6 +2,7 @@
 // runtime defined here. Publishing is stepped by calling publish_once() (publish_rate_hz = 0).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdio>
 #include <filesystem>
@@ -13,10 +14,13 @@
 #include <boost/asio.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
 #include <boost/beast/websocket.hpp>
+#include <boost/beast/websocket/ssl.hpp>
 
 #include "tendril/server/http/foxglove_protocol.hpp"
 #include "tendril/server/http/http_server.hpp"
+#include "tendril/server/http/lease.hpp"
 
 namespace {
 
@@ -77,7 +81,32 @@ class FakeControlApi : public tendril::server::ControlApi {
     ++estop_resets;
     return ApiResult::success({{"estop", false}});
   }
-  json faults(std::size_t) const override { return json::array(); }
+  json faults(std::size_t) const override {
+    std::lock_guard lock(mutex);
+    return fault_events;
+  }
+  // One writable parameter "/srmc/j1/upper" in [0, 10] (configured 10) and one read-only.
+  json parameters() const override {
+    std::lock_guard lock(mutex);
+    return json::array({{{"name", "/srmc/j1/upper"}, {"value", upper}, {"type", "float64"}},
+                        {{"name", "/srmc/j1/configured_upper"}, {"value", 10.0}, {"type", "float64"}}});
+  }
+  ApiResult set_parameters(const json& list) override {
+    std::lock_guard lock(mutex);
+    if (!list.is_array() || list.size() != 1 || list[0]["name"] != "/srmc/j1/upper")
+      return ApiResult::error(404, "unknown_parameter", "only /srmc/j1/upper is writable here");
+    const double value = list[0].value("value", 10.0);
+    if (value > 10.0 || value <= 0.0)
+      return ApiResult::error(422, "out_of_range", "upper must be in (0, 10]");
+    upper = value;
+    ++parameter_sets;
+    return ApiResult::success(
+        json::array({{{"name", "/srmc/j1/upper"}, {"value", upper}, {"type", "float64"}}}));
+  }
+  mutable std::mutex mutex;
+  json fault_events = json::array();  // newest first, as RobotRuntime::faults
+  double upper = 10.0;
+  std::atomic<int> parameter_sets{0};
   std::string metrics() const override { return "fake_control_loop_overruns_total 0\n"; }
   std::vector<std::string> topics() const override { return {"/srmc/joint_states", "/srmc/operating_state"}; }
   std::optional<json> topic_message(const std::string& topic, std::uint64_t since,
@@ -647,6 +676,298 @@ TEST_F(HttpServerTest, PortInUseIsAClearError) {
   HttpOptions no_token = options_;
   no_token.token.clear();
   EXPECT_THROW(HttpServer(api_, no_token), tendril::server::HttpServerError);
+}
+
+// Reads JSON messages until `pick` accepts one (skipping others); null when the connection ends.
+template <class Pick>
+json read_until(WsClient& client, Pick pick, int max_messages = 50) {
+  for (int i = 0; i < max_messages; ++i) {
+    const json message = client.read_json();
+    if (message.is_null()) return nullptr;
+    if (pick(message)) return message;
+  }
+  return nullptr;
+}
+
+TEST_F(HttpServerTest, LeaseTakeoverNeedsConfirmationAndNeverInterruptsServo) {
+  start();
+  WsClient old_holder;
+  ASSERT_EQ(old_holder.connect(port_, ws_target(), {{"X-Tendril-Client", "a"}}), 101);
+  old_holder.read_greeting();
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a")).status, 200);
+
+  // Refusal names the holder and offers a takeover token.
+  const Reply refused = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("b"));
+  expect_error_shape(refused, 409, "lease_held");
+  EXPECT_EQ(refused.body()["error"]["holder"], "client:a");
+  const std::string token = refused.body()["error"]["takeover_token"].get<std::string>();
+  EXPECT_GE(token.size(), 16u);
+  // A token is bound to who asked for it, and a made-up one does nothing.
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease",
+                                  json{{"takeover_token", token}}.dump(), bearer("c")),
+                     409, "bad_takeover_token");
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease",
+                                  R"({"takeover_token":"0123456789abcdef"})", bearer("b")),
+                     409, "bad_takeover_token");
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/lease", R"({"takeover_token":5})", bearer("b")), 400,
+      "bad_request");
+
+  // While the holder streams servo commands the takeover is refused (and the token stays usable).
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/servo_jv", R"({"velocity":[0.1]})",
+                         bearer("a"))
+                .status,
+            200);
+  const Reply servo = http_request(port_, bhttp::verb::post, "/api/v1/lease",
+                                   json{{"takeover_token", token}}.dump(), bearer("b"));
+  expect_error_shape(servo, 409, "servo_active");
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("a")).body()["mine"], true);
+
+  // After the command timeout (150 ms by default) the stream has ended: the confirmed takeover succeeds.
+  std::this_thread::sleep_for(std::chrono::milliseconds(250));
+  const Reply taken = http_request(port_, bhttp::verb::post, "/api/v1/lease",
+                                   json{{"takeover_token", token}}.dump(), bearer("b"));
+  ASSERT_EQ(taken.status, 200) << taken.raw.body();
+  EXPECT_EQ(taken.body()["holder"], "client:b");
+  EXPECT_EQ(taken.body()["mine"], true);
+  EXPECT_EQ(taken.body()["held"], true);
+  EXPECT_GT(taken.body()["expires_s"].get<double>(), 0.0);
+  // The token was used up.
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a")), 409,
+                     "lease_held");
+
+  // The old holder's socket is told, with a warning.
+  const json warning =
+      read_until(old_holder, [](const json& m) { return m["op"] == "status" && m["level"] == 1; });
+  ASSERT_TRUE(warning.is_object());
+  EXPECT_NE(warning["message"].get<std::string>().find("taken over by client:b"), std::string::npos)
+      << warning.dump();
+  const Reply status_a = http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("a"));
+  EXPECT_EQ(status_a.body()["held"], true);
+  EXPECT_EQ(status_a.body()["mine"], false);
+  EXPECT_EQ(status_a.body()["holder"], "client:b");
+  // The old holder's commands are refused now.
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command",
+                                  R"({"command":"enable"})", bearer("a")),
+                     409, "lease_held");
+}
+
+TEST(LeaseManagerTakeover, TokensExpireAfterFifteenSecondsAndAreSingleUse) {
+  using tendril::server::http::LeaseManager;
+  LeaseManager lease(std::chrono::milliseconds(30000));
+  const auto t0 = LeaseManager::Clock::time_point{} + std::chrono::hours(1);
+  ASSERT_TRUE(lease.acquire("a", "A", t0));
+  lease.issue_takeover_token("b", "tok1", t0);
+  std::string previous;
+  EXPECT_EQ(lease.take_over("b", "B", "tok1", t0 + std::chrono::seconds(16), previous),
+            LeaseManager::TakeoverResult::kBadToken);
+  lease.issue_takeover_token("b", "tok2", t0);
+  EXPECT_EQ(lease.take_over("b", "B", "tok2", t0 + std::chrono::seconds(14), previous),
+            LeaseManager::TakeoverResult::kTaken);
+  EXPECT_EQ(previous, "a");
+  EXPECT_EQ(lease.holder(t0 + std::chrono::seconds(14)), "b");
+  EXPECT_EQ(lease.take_over("b", "B", "tok2", t0 + std::chrono::seconds(14), previous),
+            LeaseManager::TakeoverResult::kBadToken);
+}
+
+TEST_F(HttpServerTest, ParametersAreReadableByAllAndWritableByTheHolderOnly) {
+  start();
+  WsClient viewer;
+  ASSERT_EQ(viewer.connect(port_, ws_target() + "&role=viewer"), 101);
+  const auto greeting = viewer.read_greeting();
+  const auto& capabilities = greeting[0]["capabilities"];
+  EXPECT_NE(std::find(capabilities.begin(), capabilities.end(), "parameters"), capabilities.end());
+  EXPECT_NE(std::find(capabilities.begin(), capabilities.end(), "parametersSubscribe"), capabilities.end());
+
+  viewer.send_text(R"({"op":"getParameters","parameterNames":[],"id":"all"})");
+  const json all = viewer.read_op("parameterValues");
+  EXPECT_EQ(all["id"], "all");
+  EXPECT_EQ(all["parameters"].size(), 2u);
+  viewer.send_text(R"({"op":"getParameters","parameterNames":["/srmc/j1/upper","/nope"],"id":"one"})");
+  const json one = viewer.read_op("parameterValues");
+  ASSERT_EQ(one["parameters"].size(), 1u);
+  EXPECT_EQ(one["parameters"][0]["value"], 10.0);
+  viewer.send_text(R"({"op":"subscribeParameterUpdates","parameterNames":["/srmc/j1/upper"]})");
+
+  // A viewer may not set; the refusal is a status, and the answer carries the unchanged value.
+  viewer.send_text(R"({"op":"setParameters","parameters":[{"name":"/srmc/j1/upper","value":5}],"id":"v"})");
+  const json viewer_refusal = viewer.read_op("status");
+  EXPECT_EQ(viewer_refusal["level"], 2);
+  EXPECT_NE(viewer_refusal["message"].get<std::string>().find("forbidden_role"), std::string::npos);
+  EXPECT_EQ(viewer.read_op("parameterValues")["parameters"][0]["value"], 10.0);
+
+  WsClient operator_client;
+  ASSERT_EQ(operator_client.connect(port_, ws_target(), {{"X-Tendril-Client", "op"}}), 101);
+  operator_client.read_greeting();
+  operator_client.send_text(
+      R"({"op":"setParameters","parameters":[{"name":"/srmc/j1/upper","value":5}],"id":"x"})");
+  EXPECT_NE(operator_client.read_op("status")["message"].get<std::string>().find("lease_held"),
+            std::string::npos);
+  EXPECT_EQ(api_.parameter_sets, 0);
+
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("op")).status, 200);
+  operator_client.send_text(
+      R"({"op":"setParameters","parameters":[{"name":"/srmc/j1/upper","value":12}],"id":"y"})");
+  const json wide =
+      read_until(operator_client, [](const json& m) { return m["op"] == "status" && m["level"] == 2; });
+  EXPECT_NE(wide["message"].get<std::string>().find("out_of_range"), std::string::npos) << wide.dump();
+  operator_client.send_text(
+      R"({"op":"setParameters","parameters":[{"name":"/srmc/j1/upper","value":5}],"id":"z"})");
+  const json answer = read_until(
+      operator_client, [](const json& m) { return m["op"] == "parameterValues" && m["id"] == "z"; });
+  ASSERT_TRUE(answer.is_object());
+  EXPECT_EQ(answer["parameters"][0]["value"], 5.0);
+  EXPECT_EQ(api_.parameter_sets, 1);
+  // The subscriber is told, without an id.
+  const json update =
+      read_until(viewer, [](const json& m) { return m["op"] == "parameterValues" && !m.contains("id"); });
+  ASSERT_TRUE(update.is_object());
+  EXPECT_EQ(update["parameters"][0]["name"], "/srmc/j1/upper");
+  EXPECT_EQ(update["parameters"][0]["value"], 5.0);
+  // Malformed parameter ops are protocol errors, not crashes.
+  operator_client.send_text(R"({"op":"getParameters","parameterNames":"all"})");
+  EXPECT_EQ(read_until(operator_client,
+                       [](const json& m) { return m["op"] == "status" && m["level"] == 2; })["message"]
+                .get<std::string>()
+                .find("getParameters"),
+            0u);
+}
+
+TEST_F(HttpServerTest, FaultsAndRefusedServiceCallsBecomeStatusMessages) {
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  const auto greeting = client.read_greeting();
+  server_->publish_once();  // the server notes what is already in the log (nothing)
+  {
+    std::lock_guard lock(api_.mutex);
+    api_.fault_events = json::array({{{"robot", "srmc"},
+                                      {"kind", "fault"},
+                                      {"message", "drive 'roll' stopped sending heartbeats"},
+                                      {"time", 1.0}}});
+  }
+  server_->publish_once();
+  const json fault = read_until(client, [](const json& m) { return m["op"] == "status"; });
+  ASSERT_TRUE(fault.is_object());
+  EXPECT_EQ(fault["level"], 2);
+  EXPECT_EQ(fault["id"], "safety/srmc");
+  EXPECT_NE(fault["message"].get<std::string>().find("heartbeats"), std::string::npos);
+  server_->publish_once();  // reported once only
+
+  std::uint32_t state_command_id = 0;
+  for (const auto& service : greeting[2]["services"])
+    if (service["name"] == "state_command") state_command_id = service["id"];
+  client.send_binary(
+      fg::encode_service_call_request(state_command_id, 9, "json", R"({"robot":"srmc","command":"enable"})"));
+  const json refusal = read_until(client, [](const json& m) { return m["op"] == "status"; });
+  ASSERT_TRUE(refusal.is_object());
+  EXPECT_EQ(refusal["level"], 1);
+  EXPECT_NE(refusal["message"].get<std::string>().find("state_command: lease_held"), std::string::npos)
+      << refusal.dump();
+}
+
+TEST_F(HttpServerTest, EveryDispatchedRouteIsInTheOpenApiDocument) {
+  options_.openapi_file = std::string(TENDRIL_SOURCE_DIR) + "/server/openapi/openapi.json";
+  start();
+  const Reply reply = http_request(port_, bhttp::verb::get, "/api/v1/openapi.json");  // public, no token
+  ASSERT_EQ(reply.status, 200);
+  const json doc = reply.body();
+  EXPECT_EQ(doc["openapi"].get<std::string>().rfind("3.1", 0), 0u);
+  ASSERT_EQ(doc["servers"][0]["url"], "/api/v1");
+  for (const auto& route : HttpServer::api_routes()) {
+    ASSERT_EQ(route.path.rfind("/api/v1", 0), 0u) << route.path;
+    const std::string path = route.path.substr(7);
+    std::string method = route.method;
+    std::transform(method.begin(), method.end(), method.begin(),
+                   [](unsigned char c) { return std::tolower(c); });
+    EXPECT_TRUE(doc["paths"].contains(path) && doc["paths"][path].contains(method))
+        << route.method << " " << route.path << " is served but not documented";
+  }
+}
+
+TEST_F(HttpServerTest, TlsServesHttpsAndWssOnTheSamePort) {
+  // A self-signed certificate made for this test with the openssl command-line tool.
+  const auto cert = dir_ / "cert.pem";
+  const auto key = dir_ / "key.pem";
+  const std::string make_cert =
+      "openssl req -x509 -newkey rsa:2048 -nodes -days 1 -subj /CN=127.0.0.1 -keyout '" + key.string() +
+      "' -out '" + cert.string() + "' >/dev/null 2>&1";
+  ASSERT_EQ(std::system(make_cert.c_str()), 0) << "openssl req failed (is the openssl tool installed?)";
+  options_.tls_certificate_file = cert.string();
+  options_.tls_private_key_file = key.string();
+  start();
+  EXPECT_TRUE(server_->tls());
+
+  net::io_context ioc;
+  net::ssl::context client_tls(net::ssl::context::tls_client);
+  client_tls.load_verify_file(cert.string());  // trust exactly this certificate
+  client_tls.set_verify_mode(net::ssl::verify_peer);
+  {
+    beast::ssl_stream<beast::tcp_stream> stream(ioc, client_tls);
+    beast::get_lowest_layer(stream).connect({net::ip::make_address("127.0.0.1"), port_});
+    stream.handshake(net::ssl::stream_base::client);
+    bhttp::request<bhttp::string_body> req{bhttp::verb::get, "/api/v1/robots", 11};
+    req.set(bhttp::field::host, "127.0.0.1");
+    req.set(bhttp::field::authorization, std::string("Bearer ") + kToken);
+    bhttp::write(stream, req);
+    beast::flat_buffer buffer;
+    bhttp::response<bhttp::string_body> res;
+    bhttp::read(stream, buffer, res);
+    EXPECT_EQ(res.result_int(), 200);
+    EXPECT_EQ(json::parse(res.body())[0]["name"], "srmc");
+  }
+  {
+    websocket::stream<beast::ssl_stream<beast::tcp_stream>> ws(ioc, client_tls);
+    beast::get_lowest_layer(ws).connect({net::ip::make_address("127.0.0.1"), port_});
+    ws.next_layer().handshake(net::ssl::stream_base::client);
+    ws.set_option(websocket::stream_base::decorator([](websocket::request_type& req) {
+      req.set(bhttp::field::sec_websocket_protocol, "foxglove.websocket.v1");
+      // A browser on the console's https origin is allowed by default.
+      req.set(bhttp::field::origin, "https://127.0.0.1:" + std::to_string(0));
+    }));
+    beast::error_code ec;
+    websocket::response_type response;
+    ws.handshake(response, "127.0.0.1", ws_target(), ec);
+    EXPECT_TRUE(ec) << "an origin of another port must be refused";
+  }
+  {
+    websocket::stream<beast::ssl_stream<beast::tcp_stream>> ws(ioc, client_tls);
+    beast::get_lowest_layer(ws).connect({net::ip::make_address("127.0.0.1"), port_});
+    ws.next_layer().handshake(net::ssl::stream_base::client);
+    const std::string origin = "https://127.0.0.1:" + std::to_string(port_);
+    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& req) {
+      req.set(bhttp::field::sec_websocket_protocol, "foxglove.websocket.v1");
+      req.set(bhttp::field::origin, origin);
+    }));
+    ws.handshake("127.0.0.1", ws_target());
+    beast::flat_buffer buffer;
+    ws.read(buffer);
+    const json info = json::parse(beast::buffers_to_string(buffer.data()));
+    EXPECT_EQ(info["op"], "serverInfo");
+    beast::error_code ignored;
+    ws.close(websocket::close_code::normal, ignored);
+  }
+  // Plain HTTP on the TLS port gets no answer.
+  tcp::socket plain(ioc);
+  plain.connect({net::ip::make_address("127.0.0.1"), port_});
+  const std::string request = "GET /api/v1/health HTTP/1.1\r\nHost: x\r\n\r\n";
+  net::write(plain, net::buffer(request));
+  char reply[16];
+  beast::error_code ec;
+  const std::size_t n = plain.read_some(net::buffer(reply), ec);
+  EXPECT_TRUE(ec || std::string(reply, n).rfind("HTTP/1.1 200", 0) != 0);
+}
+
+TEST_F(HttpServerTest, TlsNeedsReadableCertificateAndKey) {
+  options_.tls_certificate_file = (dir_ / "missing.pem").string();
+  options_.tls_private_key_file = (dir_ / "missing-key.pem").string();
+  HttpServer server(api_, options_);
+  try {
+    server.start();
+    FAIL() << "a missing certificate must be a start-up error";
+  } catch (const tendril::server::HttpServerError& e) {
+    EXPECT_NE(std::string(e.what()).find("missing.pem"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

@@ -73,12 +73,16 @@ struct ServerConfig {
   std::string token;  // empty: generated at start-up
   std::vector<std::string> allowed_origins;
   std::filesystem::path web_root;
-  std::filesystem::path vendor_root;  // node_modules, for three.js
+  std::filesystem::path vendor_root;   // node_modules, for three.js
+  std::filesystem::path openapi_file;  // served at GET /api/v1/openapi.json
+  // HTTPS/WSS on the same port when both are set ("tls": {"certificate", "private_key"}, PEM files).
+  std::filesystem::path tls_certificate, tls_private_key;
   double control_rate_hz = 1000.0;
   double publish_rate_hz = 50.0;
   bool realtime_priority = true;  // ask for SCHED_FIFO + mlockall; runs without if refused
   std::vector<std::filesystem::path> robot_files;
   std::vector<RobotConfig> robots;
+  nlohmann::json imaging;  // the "imaging" object (null if absent); read by parse_imaging_config
 };
 
 // Parses a robot file. Throws ConfigError("config/robots/srmc.json: joints[2].upper: expected a

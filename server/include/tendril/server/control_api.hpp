@@ -18,15 +18,26 @@ struct ApiResult {
   std::string code;     // snake_case error code; empty on success
   std::string message;  // for a person; empty on success
   nlohmann::json body;  // success body (ignored on error)
+  // Extra members of the error object next to code and message (e.g. the lease "holder" and
+  // "takeover_token"); null when there are none.
+  nlohmann::json error_details;
 
   bool ok() const noexcept { return status < 400; }
   static ApiResult success(nlohmann::json body, int status = 200) {
-    return {status, {}, {}, std::move(body)};
+    return {status, {}, {}, std::move(body), nullptr};
   }
   static ApiResult error(int status, std::string code, std::string message) {
-    return {status, std::move(code), std::move(message), nullptr};
+    return {status, std::move(code), std::move(message), nullptr, nullptr};
   }
-  nlohmann::json error_json() const { return {{"error", {{"code", code}, {"message", message}}}}; }
+  nlohmann::json error_json() const {
+    nlohmann::json error = {{"code", code}, {"message", message}};
+    if (error_details.is_object()) {
+      for (const auto& [key, value] : error_details.items()) {
+        if (key != "code" && key != "message") error[key] = value;
+      }
+    }
+    return {{"error", std::move(error)}};
+  }
 };
 
 class ControlApi {
@@ -67,6 +78,41 @@ class ControlApi {
   // Called when the lease holder's connection goes away while it was streaming servo commands:
   // the robot holds (servo stops at once rather than waiting for the command timeout).
   virtual void operator_lost() = 0;
+
+  // Path following (runtime mode "path_following"): a plan is loaded, then played back one insertion
+  // step at a time with joint-space moves. `plan` = {"steps":[{"q":[…], "backbone":[[x,y,z],…]?},…],
+  // "vessel_path":[[x,y,z],…]?}; every step is checked against the joint limits (422 names the step).
+  // `plan_id` names the plan job it came from (empty for an inline plan). 409 while moving.
+  virtual ApiResult load_path(const std::string& robot, const nlohmann::json& plan,
+                              const std::string& plan_id) {
+    (void)plan;
+    (void)plan_id;
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no path following");
+  }
+  // {"step": k} or {"advance": 1 | -1}: moves to that step (202 {"step","duration_s"}); needs the
+  // robot enabled, holding and in path_following mode.
+  virtual ApiResult path_step(const std::string& robot, const nlohmann::json& body) {
+    (void)body;
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no path following");
+  }
+  // {"loaded","steps","step","target","moving","mode","plan"}.
+  virtual ApiResult path_following(const std::string& robot) const {
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no path following");
+  }
+
+  // Run-time parameters (Foxglove "parameters" capability), e.g. "/srmc/insertion/upper",
+  // "/srmc/insertion/max_velocity", "/srmc/servo_timeout_s": [{"name","value","type"}], every one
+  // readable. Writable ones may only be set within the configured (safe) range: tightening, or going
+  // back to the configured value, never beyond it.
+  virtual nlohmann::json parameters() const { return nlohmann::json::array(); }
+  // `parameters` = [{"name","value"}] (value null/absent = back to the configured value). All or
+  // nothing: 404 unknown_parameter, 403 read_only_parameter, 400 bad_parameter, 422 out_of_range,
+  // 409 not_holding. Success body: the new values of the parameters set, as parameters() lists them.
+  // The caller has already checked the role and the lease.
+  virtual ApiResult set_parameters(const nlohmann::json& parameters) {
+    (void)parameters;
+    return ApiResult::error(501, "not_implemented", "this server has no writable parameters");
+  }
 };
 
 }  // namespace tendril::server

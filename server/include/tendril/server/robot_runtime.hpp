@@ -81,6 +81,12 @@ class RobotRuntime final : public ControlApi {
   std::optional<nlohmann::json> topic_message(const std::string& topic, std::uint64_t since_version,
                                               std::uint64_t& version) const override;
   void operator_lost() override;
+  ApiResult load_path(const std::string& robot, const nlohmann::json& plan,
+                      const std::string& plan_id) override;
+  ApiResult path_step(const std::string& robot, const nlohmann::json& body) override;
+  ApiResult path_following(const std::string& robot) const override;
+  nlohmann::json parameters() const override;
+  ApiResult set_parameters(const nlohmann::json& parameters) override;
 
   struct Impl;
 

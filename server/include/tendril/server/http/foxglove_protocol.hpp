@@ -46,7 +46,22 @@ struct ClientAdvertiseOp {
 struct ClientUnadvertiseOp {
   std::vector<std::uint32_t> channel_ids;
 };
-// A well-formed op this server does not implement (getParameters, fetchAsset, ...): not abuse.
+// Parameters (capabilities "parameters" and "parametersSubscribe"). Empty name lists mean "all".
+struct GetParametersOp {
+  std::vector<std::string> names;
+  std::optional<std::string> id;  // echoed in the parameterValues answer
+};
+struct SetParametersOp {
+  nlohmann::json parameters;  // array of {"name", "value"?, "type"?}, shape checked
+  std::optional<std::string> id;
+};
+struct SubscribeParameterUpdatesOp {
+  std::vector<std::string> names;
+};
+struct UnsubscribeParameterUpdatesOp {
+  std::vector<std::string> names;
+};
+// A well-formed op this server does not implement (fetchAsset, connection graph): not abuse.
 struct UnsupportedOp {
   std::string op;
 };
@@ -56,7 +71,8 @@ struct ProtocolError {
 };
 
 using ClientTextMessage = std::variant<SubscribeOp, UnsubscribeOp, ClientAdvertiseOp, ClientUnadvertiseOp,
-                                       UnsupportedOp, ProtocolError>;
+                                       GetParametersOp, SetParametersOp, SubscribeParameterUpdatesOp,
+                                       UnsubscribeParameterUpdatesOp, UnsupportedOp, ProtocolError>;
 
 // Never throws; anything unexpected becomes ProtocolError. Nesting deeper than kMaxJsonDepth is refused.
 ClientTextMessage parse_client_text(std::string_view text);
@@ -120,7 +136,11 @@ nlohmann::json server_info(const std::string& name, const std::vector<std::strin
 nlohmann::json advertise(const std::vector<Channel>& channels);
 nlohmann::json unadvertise(const std::vector<std::uint32_t>& channel_ids);
 nlohmann::json advertise_services(const std::vector<Service>& services);
-nlohmann::json status(StatusLevel level, const std::string& message);
+// `id` (optional in the spec) lets a later status with the same id replace it and removeStatus clear it.
+nlohmann::json status(StatusLevel level, const std::string& message, const std::string& id = {});
+nlohmann::json remove_status(const std::vector<std::string>& ids);
+// parameterValues: `parameters` is an array of {"name","value","type"?}; `id` answers a request.
+nlohmann::json parameter_values(const nlohmann::json& parameters, const std::optional<std::string>& id);
 nlohmann::json service_call_failure(std::uint32_t service_id, std::uint32_t call_id,
                                     const std::string& message);
 

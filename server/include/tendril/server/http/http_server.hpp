@@ -29,8 +29,11 @@
 #include <vector>
 
 #include "tendril/server/control_api.hpp"
+#include "tendril/server/topic_source.hpp"
 
 namespace tendril::server {
+
+class PlanningApi;
 
 struct HttpOptions {
   std::string host = "127.0.0.1";
@@ -39,7 +42,11 @@ struct HttpOptions {
   // Origins allowed for browsers. Empty = the server's own origin http://host:port (plus
   // http://localhost:port and http://127.0.0.1:port when bound to loopback, the same machine).
   std::vector<std::string> allowed_origins;
-  std::string web_root;                                 // static console files; empty = none
+  std::string web_root;      // static console files; empty = none
+  std::string openapi_file;  // served at GET /api/v1/openapi.json; empty = not served (404)
+  // HTTPS and WSS on the same port when both are set (PEM files); plain HTTP otherwise.
+  std::string tls_certificate_file;
+  std::string tls_private_key_file;
   std::map<std::string, std::string> static_mounts;     // URL prefix -> directory, e.g. "/vendor/three/"
   std::size_t max_body_bytes = std::size_t{64} * 1024;  // REST request bodies (413 above)
   std::size_t max_ws_message_bytes =
@@ -55,6 +62,12 @@ struct HttpOptions {
   std::size_t ws_max_control_queue = 256;  // queued JSON messages per connection before it is closed
   std::size_t ws_max_subscriptions = 256;
   std::size_t max_sessions = 1024;  // cookie sessions kept; the oldest is forgotten first
+  // Planning, jobs and vessel uploads (planning_routes.hpp); null = those routes answer 503. Vessel
+  // files may be up to PlanningApi::max_vessel_bytes() (413 above).
+  PlanningApi* planning = nullptr;
+  // Topics from outside ControlApi (imaging, maps), advertised and published next to the robots'
+  // with the same newest-only backpressure; a source's ready callback publishes its topics at once.
+  std::vector<std::shared_ptr<TopicSource>> topic_sources;
 };
 
 // Set-up failure (port taken, bad address, missing token). The message is written for a person.
@@ -85,12 +98,22 @@ class HttpServer {
   void stop();
   // Bound port (useful with port 0). Valid after start().
   unsigned short port() const;
+  // True when serving HTTPS/WSS (a certificate and key were configured).
+  bool tls() const;
   // Prometheus text of the front end: clients, WS messages sent/dropped, HTTP responses by status.
   std::string metrics() const;
   // Asks ControlApi for every subscribed topic's message once and queues it to subscribers. The
   // publisher thread calls this at publish_rate_hz; tests call it directly to step time.
   void publish_once();
   std::vector<ConnectionStats> connection_stats() const;
+
+  // The REST routes this front end dispatches (method, path template with {robot}), for the test
+  // that holds the OpenAPI document to what is served.
+  struct Route {
+    std::string method;
+    std::string path;
+  };
+  static std::vector<Route> api_routes();
 
   class Impl;  // implementation detail (declared public so the connection classes can name it)
 

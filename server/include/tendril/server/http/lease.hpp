@@ -1,8 +1,13 @@
 // The operator lease: at most one client may command at a time. A lease lasts `timeout` after it was
 // taken or last used, so a vanished console cannot keep it forever. Time is passed in, so tests step it.
+//
+// Takeover: another operator who is refused gets a takeover token (issue_takeover_token); presenting it
+// within `kTakeoverTokenLifetime` (take_over) is the confirmation that moves the lease. Whether the
+// holder may be displaced at all (not while it streams servo commands) is the caller's decision.
 #pragma once
 
 #include <chrono>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -12,6 +17,7 @@ namespace tendril::server::http {
 class LeaseManager {
  public:
   using Clock = std::chrono::steady_clock;
+  static constexpr std::chrono::seconds kTakeoverTokenLifetime{15};
 
   struct Status {
     bool held = false;
@@ -33,6 +39,15 @@ class LeaseManager {
   std::optional<std::string> holder(Clock::time_point now) const;
   std::chrono::milliseconds timeout() const noexcept { return timeout_; }
 
+  // A one-time token that lets `key` take the lease over from its current holder within
+  // kTakeoverTokenLifetime. `random` is the token text (the caller makes it unguessable).
+  void issue_takeover_token(const std::string& key, const std::string& random, Clock::time_point now);
+  enum class TakeoverResult { kTaken, kBadToken };
+  // Takes the lease for `key` when `token` was issued to `key` and has not expired; consumes the token.
+  // `previous_key` receives the displaced holder (empty when the lease was free).
+  TakeoverResult take_over(const std::string& key, const std::string& label, const std::string& token,
+                           Clock::time_point now, std::string& previous_key);
+
  private:
   bool held_by_locked(const std::string& key, Clock::time_point now) const;
 
@@ -41,6 +56,11 @@ class LeaseManager {
   std::string holder_key_;
   std::string holder_label_;
   Clock::time_point expires_{};
+  struct PendingTakeover {
+    std::string key;
+    Clock::time_point expires;
+  };
+  std::map<std::string, PendingTakeover> takeover_tokens_;  // token -> who may use it, until when
 };
 
 }  // namespace tendril::server::http

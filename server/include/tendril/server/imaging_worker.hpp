@@ -1,0 +1,102 @@
+// ImagingWorker: the SIMULATED bi-plane fluoroscope of tendrild, published as WebSocket topics.
+//
+// Two threads (one per plane, AP and lateral) expose on a common schedule at `fps`: each reads the
+// robot's backbone through ControlApi::shape (the runtime snapshot; never the RT thread), renders it
+// with sim::SimulatedFluoroscope, JPEG-encodes it and puts the serialised foxglove.CompressedImage
+// into a latest-value slot that the front end shares with every subscriber:
+//   /imaging/ap, /imaging/lateral  foxglove.CompressedImage (JSON, data base64), frame_id imaging_ap|lateral
+//   /maps/vessel                   foxglove.PointCloud of the vessel wall (float32 x,y,z), frame "world"
+// The message's timestamp is the capture time: the wall-clock instant the exposure started, i.e. when
+// the backbone was sampled. The WebSocket message header carries the log time: when the encoded
+// frame was ready to send (their difference is the render + encode time).
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "tendril/drivers/sim/simulated_fluoroscope.hpp"
+#include "tendril/server/control_api.hpp"
+#include "tendril/server/topic_source.hpp"
+
+namespace tendril::server {
+
+struct ImagingConfig {
+  bool enabled = false;
+  std::string robot;  // whose backbone is imaged; empty = the first robot
+  double fps = 15.0;
+  int jpeg_quality = 80;
+  sim::FluoroscopeOptions
+      fluoroscope;  // geometry (width, height, SID, SOD, pixel spacing, isocentre), physics
+  std::vector<sim::VesselTube> vessels;  // contrast-filled branches, world frame (mm)
+  std::string vessel_source;             // where the vessel came from, for the start-up message
+};
+
+// Reads the "imaging" object of the server file (`imaging` may be null: imaging off). Relative paths
+// resolve against the server file's folder. Without a "vessel" key the vessel is
+// <config>/vessels/synthetic_ica.csv when that file exists, else teleop::make_synthetic_ica(1)
+// generated here; "vessel": false means none. Throws ConfigError naming the file and key.
+ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::filesystem::path& server_file);
+
+// Fills `out` with the imaged robot's backbone (world mm, base to tip); false when unavailable.
+// Called from the imaging threads.
+using BackboneReader = std::function<bool(std::vector<Eigen::Vector3d>& out)>;
+
+// The backbone of `robot` (empty: the first robot) through ControlApi::shape, i.e. the runtime's
+// latest snapshot. Throws ConfigError for an unknown robot.
+BackboneReader backbone_from(const ControlApi& api, std::string robot);
+
+class ImagingWorker final : public TopicSource {
+ public:
+  // Throws sim::FluoroscopeError for an unusable geometry.
+  ImagingWorker(BackboneReader read_backbone, ImagingConfig config);
+  ~ImagingWorker() override;
+  ImagingWorker(const ImagingWorker&) = delete;
+  ImagingWorker& operator=(const ImagingWorker&) = delete;
+
+  void start();
+  void stop();  // joins the threads; safe to call twice
+
+  std::vector<TopicInfo> topics() const override;
+  std::optional<TopicPayload> latest(const std::string& topic, std::uint64_t since_version) const override;
+  void set_ready_callback(std::function<void()> ready) override;
+  std::string metrics() const override;
+
+  // Renders and publishes one frame of each plane now (tests; the threads need not run).
+  void capture_once();
+
+ private:
+  struct Plane;
+  void capture(Plane& plane, std::uint64_t capture_ns);
+  void announce();
+
+  BackboneReader read_backbone_;
+  ImagingConfig config_;
+  std::array<std::unique_ptr<Plane>, 2> planes_;
+  std::shared_ptr<const std::string> vessel_cloud_;
+  std::uint64_t vessel_time_ns_ = 0;
+
+  mutable std::mutex ready_mutex_;  // held while calling ready_ (see HttpServer::start)
+  std::function<void()> ready_;
+
+  std::mutex run_mutex_;
+  std::condition_variable run_wake_;
+  bool stopping_ = false;
+  std::vector<std::thread> threads_;
+};
+
+// Standard base64 (RFC 4648, with padding), appended to `out`.
+void append_base64(const std::uint8_t* data, std::size_t size, std::string& out);
+
+}  // namespace tendril::server

@@ -1,0 +1,486 @@
+#include "tendril/server/imaging_worker.hpp"
+
+#include <pthread.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "tendril/server/config.hpp"
+#include "tendril/teleop/vessel_centerline.hpp"
+
+namespace tendril::server {
+
+namespace {
+
+using SteadyClock = std::chrono::steady_clock;
+constexpr std::size_t kTimingWindow = 256;  // recent frames kept for the timing quantiles
+constexpr double kDefaultVesselRadiusMm = 2.0;
+
+std::uint64_t wall_ns() {
+  return static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        std::chrono::system_clock::now().time_since_epoch())
+                                        .count());
+}
+
+void append_timestamp(std::uint64_t ns, std::string& out) {
+  out += "{\"sec\":";
+  out += std::to_string(ns / 1'000'000'000ULL);
+  out += ",\"nsec\":";
+  out += std::to_string(ns % 1'000'000'000ULL);
+  out += '}';
+}
+
+const nlohmann::json kTimeSchema = {
+    {"type", "object"},
+    {"properties",
+     {{"sec", {{"type", "integer"}, {"minimum", 0}}},
+      {"nsec", {{"type", "integer"}, {"minimum", 0}, {"maximum", 999999999}}}}}};
+
+std::string compressed_image_schema() {
+  return nlohmann::json{{"title", "foxglove.CompressedImage"},
+                        {"description", "A compressed image"},
+                        {"type", "object"},
+                        {"properties",
+                         {{"timestamp", kTimeSchema},
+                          {"frame_id", {{"type", "string"}}},
+                          {"data", {{"type", "string"}, {"contentEncoding", "base64"}}},
+                          {"format", {{"type", "string"}}}}}}
+      .dump();
+}
+
+std::string point_cloud_schema() {
+  const nlohmann::json vector3 = {
+      {"type", "object"},
+      {"properties",
+       {{"x", {{"type", "number"}}}, {"y", {{"type", "number"}}}, {"z", {{"type", "number"}}}}}};
+  const nlohmann::json quaternion = {{"type", "object"},
+                                     {"properties",
+                                      {{"x", {{"type", "number"}}},
+                                       {"y", {{"type", "number"}}},
+                                       {"z", {{"type", "number"}}},
+                                       {"w", {{"type", "number"}}}}}};
+  return nlohmann::json{
+      {"title", "foxglove.PointCloud"},
+      {"description", "A collection of N-dimensional points"},
+      {"type", "object"},
+      {"properties",
+       {{"timestamp", kTimeSchema},
+        {"frame_id", {{"type", "string"}}},
+        {"pose", {{"type", "object"}, {"properties", {{"position", vector3}, {"orientation", quaternion}}}}},
+        {"point_stride", {{"type", "integer"}, {"minimum", 0}}},
+        {"fields",
+         {{"type", "array"},
+          {"items",
+           {{"type", "object"},
+            {"properties",
+             {{"name", {{"type", "string"}}},
+              {"offset", {{"type", "integer"}, {"minimum", 0}}},
+              {"type", {{"type", "integer"}}}}}}}}},
+        {"data", {{"type", "string"}, {"contentEncoding", "base64"}}}}}}
+      .dump();
+}
+
+// foxglove.PointCloud of float32 x, y, z (NumericType FLOAT32 = 7).
+std::string vessel_cloud_message(const std::vector<Eigen::Vector3f>& points, std::uint64_t time_ns) {
+  std::string out = "{\"timestamp\":";
+  append_timestamp(time_ns, out);
+  out +=
+      ",\"frame_id\":\"world\",\"pose\":{\"position\":{\"x\":0,\"y\":0,\"z\":0},"
+      "\"orientation\":{\"x\":0,\"y\":0,\"z\":0,\"w\":1}},\"point_stride\":12,\"fields\":["
+      "{\"name\":\"x\",\"offset\":0,\"type\":7},{\"name\":\"y\",\"offset\":4,\"type\":7},"
+      "{\"name\":\"z\",\"offset\":8,\"type\":7}],\"data\":\"";
+  std::vector<std::uint8_t> bytes(points.size() * 12);
+  for (std::size_t i = 0; i < points.size(); ++i) std::memcpy(&bytes[i * 12], points[i].data(), 12);
+  append_base64(bytes.data(), bytes.size(), out);
+  out += "\"}";
+  return out;
+}
+
+// Reads the imaging keys with the same kind of messages as the rest of the configuration.
+struct KeyReader {
+  const nlohmann::json& j;
+  std::string file;
+  [[noreturn]] void fail(const std::string& key, const std::string& expected) const {
+    std::string got = j.contains(key) ? j.at(key).dump() : "nothing";
+    if (got.size() > 60) got = got.substr(0, 57) + "...";
+    throw ConfigError(file + ": imaging." + key + ": expected " + expected + ", got " + got);
+  }
+  double number(const std::string& key, double fallback, double lo, double hi) const {
+    if (!j.contains(key)) return fallback;
+    const auto& v = j.at(key);
+    if (!v.is_number() || !std::isfinite(v.get<double>()) || v.get<double>() < lo || v.get<double>() > hi)
+      fail(key, "a number from " + std::to_string(lo) + " to " + std::to_string(hi));
+    return v.get<double>();
+  }
+  int integer(const std::string& key, int fallback, int lo, int hi) const {
+    if (!j.contains(key)) return fallback;
+    const auto& v = j.at(key);
+    if (!v.is_number_integer() || v.get<long>() < lo || v.get<long>() > hi)
+      fail(key, "an integer from " + std::to_string(lo) + " to " + std::to_string(hi));
+    return static_cast<int>(v.get<long>());
+  }
+  bool boolean(const std::string& key, bool fallback) const {
+    if (!j.contains(key)) return fallback;
+    if (!j.at(key).is_boolean()) fail(key, "true or false");
+    return j.at(key).get<bool>();
+  }
+};
+
+std::vector<sim::VesselTube> tubes_from(const std::vector<teleop::CenterlinePolyline>& branches) {
+  std::vector<sim::VesselTube> tubes;
+  for (const auto& branch : branches) {
+    sim::VesselTube tube;
+    tube.centerline = branch.points;
+    tube.radius_mm = branch.radii.size() == branch.points.size()
+                         ? branch.radii
+                         : std::vector<double>(branch.points.size(), kDefaultVesselRadiusMm);
+    tubes.push_back(std::move(tube));
+  }
+  return tubes;
+}
+
+}  // namespace
+
+void append_base64(const std::uint8_t* data, std::size_t size, std::string& out) {
+  static constexpr char kAlphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  const std::size_t start = out.size();
+  out.resize(start + (size + 2) / 3 * 4);
+  char* p = out.data() + start;
+  std::size_t i = 0;
+  for (; i + 3 <= size; i += 3) {
+    const std::uint32_t v = (std::uint32_t{data[i]} << 16) | (std::uint32_t{data[i + 1]} << 8) | data[i + 2];
+    *p++ = kAlphabet[(v >> 18) & 63];
+    *p++ = kAlphabet[(v >> 12) & 63];
+    *p++ = kAlphabet[(v >> 6) & 63];
+    *p++ = kAlphabet[v & 63];
+  }
+  if (i < size) {
+    std::uint32_t v = std::uint32_t{data[i]} << 16;
+    if (i + 1 < size) v |= std::uint32_t{data[i + 1]} << 8;
+    *p++ = kAlphabet[(v >> 18) & 63];
+    *p++ = kAlphabet[(v >> 12) & 63];
+    *p++ = i + 1 < size ? kAlphabet[(v >> 6) & 63] : '=';
+    *p++ = '=';
+  }
+}
+
+ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::filesystem::path& server_file) {
+  ImagingConfig c;
+  if (imaging.is_null()) return c;
+  const std::string file = server_file.string();
+  if (!imaging.is_object()) throw ConfigError(file + ": imaging: expected an object, got " + imaging.dump());
+  const KeyReader r{imaging, file};
+  c.enabled = r.boolean("enabled", true);
+  if (imaging.contains("robot")) {
+    if (!imaging.at("robot").is_string()) r.fail("robot", "a robot name");
+    c.robot = imaging.at("robot").get<std::string>();
+  }
+  c.fps = r.number("fps", 15.0, 0.1, 60.0);
+  c.jpeg_quality = r.integer("jpeg_quality", 80, 1, 100);
+  auto& f = c.fluoroscope;
+  auto& g = f.geometry;
+  g.width = r.integer("width", 512, 16, 2048);
+  g.height = r.integer("height", 512, 16, 2048);
+  g.sid_mm = r.number("sid_mm", 1000.0, 1.0, 5000.0);
+  g.sod_mm = r.number("sod_mm", 750.0, 1.0, 5000.0);
+  if (g.sod_mm >= g.sid_mm)
+    r.fail("sod_mm", "less than sid_mm (the object lies between source and detector)");
+  // Without an explicit pitch the field of view stays the same at every resolution.
+  const double detector_mm = r.number("detector_mm", 160.0, 1.0, 1000.0);
+  g.pixel_spacing_mm = r.number("pixel_spacing_mm", detector_mm / std::max(g.width, g.height), 1e-3, 10.0);
+  if (imaging.contains("isocentre_mm")) {
+    const auto& v = imaging.at("isocentre_mm");
+    if (!v.is_array() || v.size() != 3 || !std::all_of(v.begin(), v.end(), [](const auto& x) {
+          return x.is_number() && std::isfinite(x.template get<double>());
+        }))
+      r.fail("isocentre_mm", "[x, y, z] in mm");
+    g.isocentre = {v[0].get<double>(), v[1].get<double>(), v[2].get<double>()};
+  } else {
+    g.isocentre = {0.0, 0.0, 50.0};
+  }
+  f.photons_per_pixel = r.number("photons_per_pixel", f.photons_per_pixel, 1.0, 1e7);
+  f.blur_sigma_px = r.number("blur_sigma_px", f.blur_sigma_px, 0.0, 20.0);
+  f.catheter_diameter_mm = r.number("catheter_diameter_mm", f.catheter_diameter_mm, 0.05, 20.0);
+  f.contrast_attenuation_per_mm =
+      r.number("contrast_attenuation_per_mm", f.contrast_attenuation_per_mm, 0, 10);
+  f.anatomy = r.boolean("anatomy", true);
+
+  const auto dir = server_file.parent_path();
+  std::filesystem::path vessel_file;
+  bool generate = false;
+  if (imaging.contains("vessel")) {
+    const auto& v = imaging.at("vessel");
+    if (v.is_boolean() && !v.get<bool>()) {
+      c.vessel_source = "none";
+      return c;
+    }
+    if (!v.is_string() || v.get<std::string>().empty())
+      r.fail("vessel", "a CSV file (x,y,z[,r] mm) or false");
+    vessel_file = v.get<std::string>();
+    if (vessel_file.is_relative()) vessel_file = (dir / vessel_file).lexically_normal();
+    if (!std::filesystem::exists(vessel_file))
+      r.fail("vessel", "an existing file (" + vessel_file.string() + ")");
+  } else {
+    vessel_file = (dir / "vessels" / "synthetic_ica.csv").lexically_normal();
+    generate = !std::filesystem::exists(vessel_file);
+  }
+  if (generate) {
+    c.vessels = tubes_from({teleop::make_synthetic_ica(1)});
+    c.vessel_source = "synthetic ICA generated at start-up (teleop::make_synthetic_ica, seed 1; " +
+                      vessel_file.string() + " not found)";
+    return c;
+  }
+  std::ifstream in(vessel_file);
+  std::stringstream text;
+  text << in.rdbuf();
+  if (!in) r.fail("vessel", "a readable file (" + vessel_file.string() + ")");
+  try {
+    c.vessels = tubes_from(teleop::parse_centerline_csv(text.str()));
+  } catch (const teleop::VesselInputError& e) {
+    throw ConfigError(file + ": imaging.vessel: " + vessel_file.string() + ": " + e.what());
+  }
+  c.vessel_source = vessel_file.string();
+  return c;
+}
+
+struct ImagingWorker::Plane {
+  Plane(sim::FluoroView v, const sim::FluoroscopeOptions& options,
+        const std::vector<sim::VesselTube>& vessels)
+      : view(v),
+        topic(std::string("/imaging/") + sim::view_name(v)),
+        frame_id(std::string("imaging_") + sim::view_name(v)),
+        fluoroscope(v, options, vessels) {}
+
+  const sim::FluoroView view;
+  const std::string topic;
+  const std::string frame_id;
+  sim::SimulatedFluoroscope fluoroscope;  // the plane's thread only
+  std::vector<std::uint8_t> jpeg;
+  std::vector<Eigen::Vector3d> backbone;
+
+  mutable std::mutex slot_mutex;  // the latest-value slot the front end reads
+  std::shared_ptr<const std::string> payload;
+  std::uint64_t version = 0;
+  std::uint64_t ready_ns = 0;  // when the message was ready: its log time (the capture time is inside)
+
+  mutable std::mutex stats_mutex;
+  std::array<double, kTimingWindow> render_s{}, encode_s{};
+  std::uint64_t frames = 0, skipped = 0, shape_errors = 0;
+  std::size_t jpeg_bytes = 0;
+};
+
+BackboneReader backbone_from(const ControlApi& api, std::string robot) {
+  if (robot.empty()) {
+    const auto robots = api.robots();
+    if (robots.is_array() && !robots.empty()) robot = robots[0].value("name", "");
+  }
+  if (!api.has_robot(robot)) throw ConfigError("imaging.robot: no robot named '" + robot + "' is configured");
+  return [&api, robot](std::vector<Eigen::Vector3d>& out) {
+    const ApiResult shape = api.shape(robot);
+    if (!shape.ok() || !shape.body.contains("points")) return false;
+    for (const auto& point : shape.body.at("points"))
+      out.emplace_back(point.at(0).get<double>(), point.at(1).get<double>(), point.at(2).get<double>());
+    return true;
+  };
+}
+
+ImagingWorker::ImagingWorker(BackboneReader read_backbone, ImagingConfig config)
+    : read_backbone_(std::move(read_backbone)), config_(std::move(config)) {
+  if (!(config_.fps > 0)) throw sim::FluoroscopeError("imaging: fps must be greater than 0");
+  if (config_.jpeg_quality < 1 || config_.jpeg_quality > 100)
+    throw sim::FluoroscopeError("imaging: jpeg_quality must be 1..100");
+  planes_[0] = std::make_unique<Plane>(sim::FluoroView::kAp, config_.fluoroscope, config_.vessels);
+  planes_[1] = std::make_unique<Plane>(sim::FluoroView::kLateral, config_.fluoroscope, config_.vessels);
+  if (!config_.vessels.empty()) {
+    std::vector<Eigen::Vector3f> wall;
+    for (const auto& tube : config_.vessels) {
+      const auto ring = sim::vessel_wall_points(tube, 0.5, 16);
+      wall.insert(wall.end(), ring.begin(), ring.end());
+    }
+    vessel_time_ns_ = wall_ns();
+    vessel_cloud_ = std::make_shared<const std::string>(vessel_cloud_message(wall, vessel_time_ns_));
+  }
+}
+
+ImagingWorker::~ImagingWorker() { stop(); }
+
+void ImagingWorker::start() {
+  std::lock_guard lock(run_mutex_);
+  if (!threads_.empty()) return;
+  stopping_ = false;
+  const auto first = SteadyClock::now();
+  for (auto& plane : planes_) {
+    threads_.emplace_back([this, &plane, first] {
+      Plane& p = *plane;
+      // Named so that tools (and the image_stream_bench) can tell imaging CPU from serving CPU.
+      pthread_setname_np(pthread_self(), p.view == sim::FluoroView::kAp ? "imaging-ap" : "imaging-lateral");
+      const auto period =
+          std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(1.0 / config_.fps));
+      auto next = first;  // both planes expose on the same schedule
+      while (true) {
+        {
+          std::unique_lock wait(run_mutex_);
+          if (run_wake_.wait_until(wait, next, [this] { return stopping_; })) return;
+        }
+        capture(p, wall_ns());
+        next += period;
+        const auto now = SteadyClock::now();
+        if (next < now) {
+          // Rendering fell behind: skip the missed exposures rather than bursting to catch up.
+          const auto missed = (now - next) / period + 1;
+          next += missed * period;
+          std::lock_guard stats(p.stats_mutex);
+          p.skipped += static_cast<std::uint64_t>(missed);
+        }
+      }
+    });
+  }
+}
+
+void ImagingWorker::stop() {
+  {
+    std::lock_guard lock(run_mutex_);
+    stopping_ = true;
+  }
+  run_wake_.notify_all();
+  for (auto& t : threads_) t.join();
+  threads_.clear();
+}
+
+void ImagingWorker::capture_once() {
+  const auto now = wall_ns();
+  for (auto& plane : planes_) capture(*plane, now);
+}
+
+void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
+  // The exposure: the backbone as the runtime snapshot has it now.
+  p.backbone.clear();
+  bool shape_ok = false;
+  try {
+    shape_ok = read_backbone_(p.backbone);
+  } catch (const std::exception&) {
+    shape_ok = false;  // counted below; the frame shows no catheter rather than a stale one
+  }
+  if (!shape_ok) p.backbone.clear();
+  const auto t0 = SteadyClock::now();
+  p.fluoroscope.render(p.backbone);
+  const auto t1 = SteadyClock::now();
+  p.fluoroscope.encode_jpeg(config_.jpeg_quality, p.jpeg);
+  auto message = std::make_shared<std::string>();
+  message->reserve(p.jpeg.size() * 4 / 3 + 160);
+  *message += "{\"timestamp\":";
+  append_timestamp(capture_ns, *message);
+  *message += ",\"frame_id\":\"" + p.frame_id + "\",\"format\":\"jpeg\",\"data\":\"";
+  append_base64(p.jpeg.data(), p.jpeg.size(), *message);
+  *message += "\"}";
+  const auto t2 = SteadyClock::now();
+  {
+    std::lock_guard lock(p.slot_mutex);
+    p.payload = std::move(message);
+    ++p.version;
+    p.ready_ns = wall_ns();
+  }
+  {
+    std::lock_guard lock(p.stats_mutex);
+    const std::size_t slot = p.frames % kTimingWindow;
+    p.render_s[slot] = std::chrono::duration<double>(t1 - t0).count();
+    p.encode_s[slot] = std::chrono::duration<double>(t2 - t1).count();
+    ++p.frames;
+    if (!shape_ok) ++p.shape_errors;
+    p.jpeg_bytes = p.jpeg.size();
+  }
+  announce();
+}
+
+void ImagingWorker::announce() {
+  std::lock_guard lock(ready_mutex_);
+  if (ready_) ready_();
+}
+
+void ImagingWorker::set_ready_callback(std::function<void()> ready) {
+  std::lock_guard lock(ready_mutex_);
+  ready_ = std::move(ready);
+}
+
+std::vector<TopicInfo> ImagingWorker::topics() const {
+  std::vector<TopicInfo> out;
+  const std::string image_schema = compressed_image_schema();
+  for (const auto& plane : planes_) out.push_back({plane->topic, "foxglove.CompressedImage", image_schema});
+  if (vessel_cloud_) out.push_back({"/maps/vessel", "foxglove.PointCloud", point_cloud_schema()});
+  return out;
+}
+
+std::optional<TopicPayload> ImagingWorker::latest(const std::string& topic,
+                                                  std::uint64_t since_version) const {
+  if (topic == "/maps/vessel") {
+    if (!vessel_cloud_ || since_version >= 1) return std::nullopt;
+    return TopicPayload{vessel_cloud_, 1, vessel_time_ns_};
+  }
+  for (const auto& plane : planes_) {
+    if (plane->topic != topic) continue;
+    std::lock_guard lock(plane->slot_mutex);
+    if (!plane->payload || plane->version <= since_version) return std::nullopt;
+    return TopicPayload{plane->payload, plane->version, plane->ready_ns};
+  }
+  return std::nullopt;
+}
+
+std::string ImagingWorker::metrics() const {
+  std::ostringstream out;
+  auto quantile = [](std::array<double, kTimingWindow> values, std::size_t n, double q) {
+    n = std::min(n, kTimingWindow);
+    if (n == 0) return 0.0;
+    auto end = values.begin() + static_cast<std::ptrdiff_t>(n);
+    auto at = values.begin() + static_cast<std::ptrdiff_t>(std::min(n - 1, static_cast<std::size_t>(q * n)));
+    std::nth_element(values.begin(), at, end);
+    return *at;
+  };
+  out << "# HELP tendril_imaging_frames_total Simulated fluoroscopy frames rendered and published, by "
+         "plane.\n"
+         "# TYPE tendril_imaging_frames_total counter\n";
+  for (const auto& p : planes_) {
+    std::lock_guard lock(p->stats_mutex);
+    out << "tendril_imaging_frames_total{view=\"" << sim::view_name(p->view) << "\"} " << p->frames << '\n';
+  }
+  out << "# HELP tendril_imaging_skipped_frames_total Exposures skipped because rendering fell behind fps.\n"
+         "# TYPE tendril_imaging_skipped_frames_total counter\n";
+  for (const auto& p : planes_) {
+    std::lock_guard lock(p->stats_mutex);
+    out << "tendril_imaging_skipped_frames_total{view=\"" << sim::view_name(p->view) << "\"} " << p->skipped
+        << '\n';
+  }
+  out << "# HELP tendril_imaging_shape_errors_total Frames rendered without a backbone (shape unavailable).\n"
+         "# TYPE tendril_imaging_shape_errors_total counter\n";
+  for (const auto& p : planes_) {
+    std::lock_guard lock(p->stats_mutex);
+    out << "tendril_imaging_shape_errors_total{view=\"" << sim::view_name(p->view) << "\"} "
+        << p->shape_errors << '\n';
+  }
+  out << "# HELP tendril_imaging_jpeg_bytes Size of the last JPEG, by plane.\n"
+         "# TYPE tendril_imaging_jpeg_bytes gauge\n";
+  for (const auto& p : planes_) {
+    std::lock_guard lock(p->stats_mutex);
+    out << "tendril_imaging_jpeg_bytes{view=\"" << sim::view_name(p->view) << "\"} " << p->jpeg_bytes << '\n';
+  }
+  for (const auto& [name, help, field] :
+       {std::tuple{"tendril_imaging_render_seconds", "Time to render one frame (projection, blur, noise)",
+                   &Plane::render_s},
+        std::tuple{"tendril_imaging_encode_seconds", "Time to JPEG-encode and serialise one frame",
+                   &Plane::encode_s}}) {
+    out << "# HELP " << name << ' ' << help << ", over the last " << kTimingWindow << " frames.\n# TYPE "
+        << name << " summary\n";
+    for (const auto& p : planes_) {
+      std::lock_guard lock(p->stats_mutex);
+      for (double q : {0.5, 0.95})
+        out << name << "{view=\"" << sim::view_name(p->view) << "\",quantile=\"" << q << "\"} "
+            << quantile((*p).*field, p->frames, q) << '\n';
+    }
+  }
+  return out.str();
+}
+
+}  // namespace tendril::server

@@ -1,0 +1,231 @@
+// Planning and path following over REST (API.md "Planning"): vessel upload, plan jobs with
+// progress, cancellation, bad input, loading a plan into path following, mode switches and steps.
+// Runs in order against the shared server; leaves the robot disabled, in joint mode, lease released.
+import {test, after} from 'node:test';
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import path from 'node:path';
+import {API, TOKEN, CLIENT_ID, REPO_ROOT, ROBOT, get, post, call, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
+
+const R = `/robots/${ROBOT}`;
+const icaCsv = fs.readFileSync(path.join(REPO_ROOT, 'config/vessels/synthetic_ica.csv'));
+
+// A request whose body is a file (not JSON).
+async function upload(urlPath, body, contentType, {client = CLIENT_ID, headers = {}} = {}) {
+  const h = {Authorization: `Bearer ${TOKEN}`, 'X-Tendril-Client': client, 'Content-Type': contentType, ...headers};
+  const response = await fetch(API + urlPath, {method: 'POST', headers: h, body});
+  const text = await response.text();
+  let json = null;
+  try {
+    json = text ? JSON.parse(text) : null;
+  } catch {
+    json = null;
+  }
+  return {status: response.status, json, text, headers: response.headers};
+}
+
+async function waitForJob(id, polls = 1200) {
+  const seen = new Set();
+  const last = await pollUntil(async () => {
+    const res = await get(`/jobs/${id}`);
+    assert.equal(res.status, 200, res.text);
+    seen.add(res.json.state);
+    return {done: !['queued', 'running'].includes(res.json.state), job: res.json};
+  }, {polls, intervalMs: 100});
+  return {job: last.job, seen};
+}
+
+function inlinePlan() {
+  const steps = [];
+  for (let k = 0; k < 4; k++) steps.push({q: [10 + 2 * k, 0.05 * k, 0.4 * k, -0.2 * k]});
+  return {steps};
+}
+
+after(async () => {
+  await post(`${R}/state_command`, {command: 'disable'});
+  await sleep(100);
+  await post(`${R}/mode`, {mode: 'joint'});
+  await call('DELETE', '/lease');
+});
+
+let vesselId;
+let planJob;
+
+test('POST /vessels stores a CSV centerline and lists its branches', async () => {
+  const res = await upload('/vessels?name=ica', icaCsv, 'text/csv');
+  assert.equal(res.status, 201, res.text);
+  assert.match(res.json.id, /^v\d+$/);
+  assert.equal(res.json.name, 'ica');
+  assert.equal(res.json.source, 'csv');
+  assert.equal(res.json.branches.length, 1);
+  assert.ok(Math.abs(res.json.branches[0].length_mm - 150) < 2, `length ${res.json.branches[0].length_mm}`);
+  assert.equal(res.headers.get('location'), `/api/v1/vessels/${res.json.id}`);
+  vesselId = res.json.id;
+  const list = await get('/vessels');
+  assert.ok(list.json.some((v) => v.id === vesselId));
+  const one = await get(`/vessels/${vesselId}?branch=0&ds=1`);
+  assert.equal(one.status, 200, one.text);
+  assert.ok(one.json.points.length > 140 && one.json.points.length < 160, `${one.json.points.length} points`);
+  assert.equal(one.json.radius.length, one.json.points.length);
+});
+
+test('bad vessel files get 400/415 with a clear message', async () => {
+  let res = await upload('/vessels', '', 'text/csv');
+  assertErrorShape(res, 400, 'bad_vessel');
+  assert.match(res.json.error.message, /empty/);
+  res = await upload('/vessels', '0,0,0\n0,0,0.0001\n0,0,0.0002\n0,0,0.0003\n', 'text/csv');
+  assertErrorShape(res, 400, 'bad_vessel');
+  assert.match(res.json.error.message, /metres|mm/);
+  res = await upload('/vessels', '1,2,nan\n', 'text/csv');
+  assertErrorShape(res, 400, 'bad_vessel');
+  res = await upload('/vessels', 'hello', 'application/pdf');
+  assertErrorShape(res, 415, 'unsupported_media_type');
+  assertErrorShape(await get('/vessels/v999'), 404, 'unknown_vessel');
+});
+
+test('a viewer may list vessels and jobs but not upload or plan', async () => {
+  const viewer = {headers: {'X-Tendril-Role': 'viewer'}};
+  assert.equal((await get('/vessels', viewer)).status, 200);
+  assert.equal((await get('/jobs', viewer)).status, 200);
+  assertErrorShape(await upload('/vessels', icaCsv, 'text/csv', viewer), 403, 'forbidden_role');
+  assertErrorShape(await post('/plans', {vessel: vesselId}, viewer), 403, 'forbidden_role');
+});
+
+test('POST /plans with the CSV as body runs a job from queued/running to succeeded', async () => {
+  const started = Date.now();
+  const res = await upload(`/plans?robot=${ROBOT}&branch=0&ds=0.5&dq1=3`, icaCsv, 'text/csv');
+  assert.equal(res.status, 202, res.text);
+  assert.equal(res.json.kind, 'plan');
+  assert.ok(['queued', 'running'].includes(res.json.state), res.text);
+  assert.equal(res.headers.get('location'), `/api/v1/jobs/${res.json.id}`);
+  const {job, seen} = await waitForJob(res.json.id);
+  const elapsed = (Date.now() - started) / 1000;
+  assert.equal(job.state, 'succeeded', JSON.stringify({state: job.state, message: job.message}));
+  assert.equal(job.progress, 1);
+  assert.ok(seen.has('succeeded'));
+  const result = job.result;
+  assert.equal(result.robot, ROBOT);
+  assert.ok(result.steps.length >= 30, `${result.steps.length} steps`);
+  const step = result.steps[3];
+  assert.equal(step.q.length, 4);
+  for (const key of ['insertion', 'roll', 'theta_proximal', 'theta_distal']) assert.equal(typeof step.configuration[key], 'number');
+  assert.ok(step.backbone.length > 2);
+  assert.equal(typeof result.summary.mean_position_error_mm, 'number');
+  assert.equal(typeof result.design.L1, 'number');
+  console.log(`# plan job (synthetic ICA, ds 0.5, dq1 3) through REST: ${elapsed.toFixed(2)} s wall, compute ${result.summary.compute_s.toFixed(2)} s, ${result.steps.length} steps, mean error ${result.summary.mean_position_error_mm.toFixed(2)} mm`);
+  planJob = job;
+  const list = await get('/jobs');
+  assert.ok(list.json.some((j) => j.id === job.id));
+});
+
+test('POST /plans with JSON naming an uploaded vessel; bad parameters are 400/404/422', async () => {
+  assertErrorShape(await post('/plans', {vessel: 'v999'}), 404, 'unknown_vessel');
+  assertErrorShape(await post('/plans', {vessel: vesselId, ds: 'fine'}), 400, 'bad_request');
+  assertErrorShape(await post('/plans', {vessel: vesselId, dq1: -1}), 422, 'out_of_range');
+  assertErrorShape(await post('/plans', {vessel: vesselId, branch: 3}), 422, 'unknown_branch');
+  assertErrorShape(await post('/plans', {vessel: vesselId, robot: 'nope'}), 404, 'unknown_robot');
+  assertErrorShape(await post('/plans', {vessel: vesselId, design: 'best'}), 400, 'bad_request');
+  assertErrorShape(await get('/jobs/j999'), 404, 'unknown_job');
+});
+
+test('DELETE /jobs/{id} cancels a plan job', async () => {
+  // A fine plan takes a while; cancel it while queued or running.
+  const res = await post('/plans', {robot: ROBOT, vessel: vesselId, ds: 0.1, dq1: 0.5});
+  assert.equal(res.status, 202, res.text);
+  const cancelled = await call('DELETE', `/jobs/${res.json.id}`);
+  assert.equal(cancelled.status, 200, cancelled.text);
+  if (cancelled.json.state !== 'cancelled') {
+    // It may have finished in between on a fast machine; then its final state is returned.
+    assert.equal(cancelled.json.state, 'succeeded', cancelled.text);
+  }
+  const {job} = await waitForJob(res.json.id, 100);
+  assert.equal(job.state, cancelled.json.state);
+});
+
+test('path following: load needs the lease; mode switch needs a plan; steps move the robot', async () => {
+  assertErrorShape(await post(`${R}/path_following`, {plan: inlinePlan()}, {client: 'not-the-holder'}), 409, 'lease_held');
+  assert.equal((await post('/lease', {})).status, 200);
+  // Start from joint mode with no plan of an earlier run: a fresh server has none.
+  const before = await get(`${R}/path_following`);
+  assert.equal(before.status, 200, before.text);
+  if (!before.json.loaded) assertErrorShape(await post(`${R}/mode`, {mode: 'path_following'}), 409, 'no_plan');
+
+  const bad = inlinePlan();
+  bad.steps[2].q[3] = 9;  // distal_bend limit is 5 mm
+  const refused = await post(`${R}/path_following`, {plan: bad});
+  assertErrorShape(refused, 422, 'out_of_limits');
+  assert.match(refused.json.error.message, /^step 2: /);
+  assertErrorShape(await post(`${R}/path_following`, {plan: 'j999'}), 404, 'unknown_job');
+  assertErrorShape(await post(`${R}/path_following`, {}), 400, 'bad_request');
+
+  // The plan job from above: loaded when inside the joint limits, else refused naming the step.
+  const fromJob = await post(`${R}/path_following`, {plan: planJob.id});
+  if (planJob.result.within_joint_limits) {
+    assert.equal(fromJob.status, 200, fromJob.text);
+    assert.equal(fromJob.json.steps, planJob.result.steps.length);
+  } else {
+    assertErrorShape(fromJob, 422, 'out_of_limits');
+    assert.match(fromJob.json.error.message, /^step \d+: /);
+  }
+
+  const loaded = await post(`${R}/path_following`, {plan: inlinePlan()});
+  assert.equal(loaded.status, 200, loaded.text);
+  assert.deepEqual(loaded.json, {steps: 4, step: -1, plan: null});
+
+  assert.equal((await post(`${R}/state_command`, {command: 'enable'})).status, 200);
+  const ready = await pollUntil(async () => {
+    const os = (await get(`${R}/operating_state`)).json;
+    return {done: os.state === 'ENABLED' && os.drives_ready && !os.is_busy, os};
+  });
+  assert.ok(ready.done, JSON.stringify(ready.os));
+
+  assertErrorShape(await post(`${R}/path_following/step`, {advance: 1}), 409, 'wrong_mode');
+  const switched = await post(`${R}/mode`, {mode: 'path_following'});
+  assert.equal(switched.status, 200, switched.text);
+  const os = await pollUntil(async () => {
+    const s = (await get(`${R}/operating_state`)).json;
+    return {done: s.mode === 'path_following', s};
+  });
+  assert.ok(os.done, JSON.stringify(os.s));
+  assertErrorShape(await post(`${R}/move_jp`, {goal: [12, 0, 0, 0]}), 409, 'wrong_mode');
+
+  const step = await post(`${R}/path_following/step`, {advance: 1});
+  assert.equal(step.status, 202, step.text);
+  assert.equal(step.json.step, 0);
+  assert.ok(step.json.duration_s > 0);
+  // While it moves, switching mode or stepping again is refused with the reason.
+  const busySwitch = await post(`${R}/mode`, {mode: 'joint'});
+  if (busySwitch.status !== 200) {
+    assertErrorShape(busySwitch, 409, 'not_holding');
+    assert.match(busySwitch.json.error.message, /moving/);
+  }
+  const reached = await pollUntil(async () => {
+    const s = (await get(`${R}/path_following`)).json;
+    return {done: s.step === 0 && !s.moving, s};
+  }, {polls: 400});
+  assert.ok(reached.done, JSON.stringify(reached.s));
+  const second = await post(`${R}/path_following/step`, {step: 1});
+  assert.equal(second.status, 202, second.text);
+  const reached1 = await pollUntil(async () => {
+    const s = (await get(`${R}/path_following`)).json;
+    return {done: s.step === 1 && !s.moving, s};
+  }, {polls: 400});
+  assert.ok(reached1.done, JSON.stringify(reached1.s));
+  const sp = (await get(`${R}/setpoint_js`)).json.position;
+  inlinePlan().steps[1].q.forEach((v, i) => assert.ok(Math.abs(sp[i] - v) < 1e-6, `joint ${i}: ${sp[i]} vs ${v}`));
+  assertErrorShape(await post(`${R}/path_following/step`, {step: 9}), 422, 'out_of_range');
+  assertErrorShape(await post(`${R}/path_following/step`, {advance: 2}), 400, 'bad_request');
+
+  assert.equal((await post(`${R}/mode`, {mode: 'joint'})).status, 200);
+  // Back to where the simulated robot starts, for the test files that follow.
+  await pollUntil(async () => ({done: (await get(`${R}/operating_state`)).json.mode === 'joint'}));
+  const home = await post(`${R}/move_jp`, {goal: [10, 0, 0, 0]});
+  assert.equal(home.status, 202, home.text);
+  const back = await pollUntil(async () => ({done: !(await get(`${R}/operating_state`)).json.is_busy}), {polls: 400});
+  assert.ok(back.done);
+});
+
+test('DELETE /vessels/{id} forgets a vessel', async () => {
+  assert.equal((await call('DELETE', `/vessels/${vesselId}`)).status, 200);
+  assertErrorShape(await get(`/vessels/${vesselId}`), 404, 'unknown_vessel');
+});

@@ -1,0 +1,277 @@
+// Path following in stepped simulated time over the virtual bus: a plan is loaded (checked against
+// the joint limits), the mode switches only while holding, and the robot steps through the plan with
+// quintic moves that never make the setpoint jump. Also: the shipped sample vessel is what
+// make_synthetic_vessel writes, and a plan of it runs through PlanningService.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "tendril/server/config.hpp"
+#include "tendril/server/planning_service.hpp"
+#include "tendril/server/robot_runtime.hpp"
+#include "tendril/teleop/vessel_centerline.hpp"
+
+namespace tendril::server {
+namespace {
+
+const std::filesystem::path kSource(TENDRIL_SOURCE_DIR);
+const std::filesystem::path kSrmc = kSource / "config/robots/srmc.json";
+const std::filesystem::path kIca = kSource / "config/vessels/synthetic_ica.csv";
+
+std::string read_file(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// Five steps inside the limits, starting where the simulated robot starts (insertion 10 mm).
+nlohmann::json inline_plan() {
+  auto steps = nlohmann::json::array();
+  for (int k = 0; k < 5; ++k) steps.push_back({{"q", {10.0 + 3.0 * k, 0.1 * k, 0.5 * k, -0.3 * k}}});
+  return {{"steps", steps}};
+}
+
+class PathFollowingTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    RuntimeOptions o;
+    o.stepped = true;
+    o.control_rate_hz = 1000;
+    config = load_robot_config(kSrmc);
+    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o);
+    runtime->start();
+    steps(10);
+  }
+  void TearDown() override { runtime->stop(); }
+
+  // Steps while recording the largest per-tick setpoint change of each joint.
+  void steps(int n) {
+    for (int i = 0; i < n; ++i) {
+      const auto before = setpoint();
+      runtime->step();
+      const auto after = setpoint();
+      for (std::size_t j = 0; j < after.size(); ++j)
+        max_step[j] = std::max(max_step[j], std::abs(after[j] - before[j]));
+    }
+  }
+  template <typename Pred>
+  bool step_until(Pred pred, int max_steps) {
+    for (int i = 0; i < max_steps; ++i) {
+      if (pred()) return true;
+      steps(1);
+    }
+    return pred();
+  }
+  std::vector<double> setpoint() {
+    return runtime->setpoint_js("srmc").body["position"].get<std::vector<double>>();
+  }
+  nlohmann::json status() { return runtime->path_following("srmc").body; }
+  nlohmann::json op() { return runtime->operating_state("srmc").body; }
+  void enable() {
+    ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+    ASSERT_TRUE(
+        step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
+        << op().dump();
+  }
+  // Waits until the robot holds again after a move.
+  bool settle() {
+    return step_until([&] { return !status()["moving"].get<bool>(); }, 20000);
+  }
+
+  RobotConfig config;
+  std::unique_ptr<RobotRuntime> runtime;
+  std::array<double, 4> max_step{};
+};
+
+TEST_F(PathFollowingTest, ModeSwitchNeedsALoadedPlan) {
+  EXPECT_EQ(op()["mode"], "joint");
+  const auto refused = runtime->mode("srmc", {{"mode", "path_following"}});
+  EXPECT_EQ(refused.status, 409);
+  EXPECT_EQ(refused.code, "no_plan");
+  EXPECT_NE(refused.message.find("load one first"), std::string::npos) << refused.message;
+  EXPECT_EQ(runtime->mode("srmc", {{"mode", "cartesian"}}).status, 422);
+  const auto robots = runtime->robots();
+  EXPECT_EQ(robots[0]["modes"], nlohmann::json({"joint", "path_following"}));
+}
+
+TEST_F(PathFollowingTest, LoadRejectsAStepOutsideTheJointLimitsNamingIt) {
+  auto plan = inline_plan();
+  plan["steps"][3]["q"][2] = 12.0;  // proximal_bend upper limit is 10 mm
+  const auto r = runtime->load_path("srmc", plan, "");
+  EXPECT_EQ(r.status, 422);
+  EXPECT_EQ(r.code, "out_of_limits");
+  EXPECT_EQ(r.message.rfind("step 3: ", 0), 0u) << r.message;
+  EXPECT_FALSE(status()["loaded"].get<bool>());
+  plan["steps"][1]["q"] = {1, 2, 3};
+  EXPECT_EQ(runtime->load_path("srmc", plan, "").status, 422);  // wrong size
+  EXPECT_EQ(runtime->load_path("srmc", {{"steps", nlohmann::json::array()}}, "").status, 400);
+}
+
+TEST_F(PathFollowingTest, SwitchesOnlyWhileHoldingAndStepsThroughThePlanWithoutASetpointJump) {
+  enable();
+  ASSERT_EQ(runtime->load_path("srmc", inline_plan(), "j1").status, 200);
+  EXPECT_EQ(status()["loaded"], true);
+  EXPECT_EQ(status()["steps"], 5);
+  EXPECT_EQ(status()["step"], -1);
+  EXPECT_EQ(status()["plan"], "j1");
+
+  // Moving: refused, with the reason.
+  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).status, 202);
+  steps(5);
+  const auto moving = runtime->mode("srmc", {{"mode", "path_following"}});
+  EXPECT_EQ(moving.status, 409);
+  EXPECT_EQ(moving.code, "not_holding");
+  EXPECT_NE(moving.message.find("moving"), std::string::npos);
+  ASSERT_TRUE(settle());
+
+  // Holding: the switch leaves the setpoint where it is.
+  const auto before = setpoint();
+  ASSERT_EQ(runtime->mode("srmc", {{"mode", "path_following"}}).status, 200);
+  steps(2);
+  EXPECT_EQ(op()["mode"], "path_following");
+  EXPECT_EQ(setpoint(), before);
+
+  // Joint commands are refused in path following.
+  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
+  EXPECT_EQ(runtime->servo_jv("srmc", {{"velocity", {0.1, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
+
+  max_step = {};
+  const auto plan = inline_plan();
+  for (int k = 0; k < 5; ++k) {
+    const auto r = runtime->path_step("srmc", {{"advance", 1}});
+    ASSERT_EQ(r.status, 202) << r.message;
+    EXPECT_EQ(r.body["step"], k);
+    EXPECT_GT(r.body["duration_s"].get<double>(), 0.0);
+    steps(3);
+    if (k > 0) {
+      // Still moving: a second step is refused until it holds.
+      const auto busy = runtime->path_step("srmc", {{"advance", 1}});
+      EXPECT_EQ(busy.status, 409);
+      EXPECT_EQ(busy.code, "not_holding");
+    }
+    ASSERT_TRUE(settle());
+    EXPECT_EQ(status()["step"], k);
+    const auto sp = setpoint();
+    for (std::size_t j = 0; j < 4; ++j) EXPECT_NEAR(sp[j], plan["steps"][k]["q"][j].get<double>(), 1e-6);
+  }
+  // Per tick the setpoint moves at most max_velocity · dt (no jump anywhere on the way).
+  for (std::size_t j = 0; j < 4; ++j)
+    EXPECT_LE(max_step[j], config.joints[j].max_velocity * 0.001 * 1.01) << config.joints[j].name;
+
+  const auto end = runtime->path_step("srmc", {{"advance", 1}});
+  EXPECT_EQ(end.status, 409);
+  EXPECT_EQ(end.code, "end_of_plan");
+  EXPECT_EQ(runtime->path_step("srmc", {{"step", 7}}).status, 422);
+  EXPECT_EQ(runtime->path_step("srmc", {{"step", 1}}).status, 202);  // back, by index
+  steps(2);  // the command reaches the control thread on its next tick
+  ASSERT_TRUE(settle());
+  EXPECT_EQ(status()["step"], 1);
+
+  // Back to joint mode while holding.
+  ASSERT_EQ(runtime->mode("srmc", {{"mode", "joint"}}).status, 200);
+  steps(2);
+  EXPECT_EQ(op()["mode"], "joint");
+  EXPECT_EQ(runtime->path_step("srmc", {{"advance", 1}}).code, "wrong_mode");
+}
+
+TEST_F(PathFollowingTest, StepsNeedAnEnabledRobotAndSwitchesAreRefusedUnderEstop) {
+  ASSERT_EQ(runtime->load_path("srmc", inline_plan(), "").status, 200);
+  ASSERT_EQ(runtime->mode("srmc", {{"mode", "path_following"}}).status, 200);  // disabled, holding
+  steps(2);
+  const auto disabled = runtime->path_step("srmc", {{"step", 0}});
+  EXPECT_EQ(disabled.status, 409);
+  EXPECT_EQ(disabled.code, "not_enabled");
+  runtime->estop();
+  steps(3);
+  const auto estop = runtime->mode("srmc", {{"mode", "joint"}});
+  EXPECT_EQ(estop.status, 409);
+  EXPECT_EQ(estop.code, "estop_latched");
+}
+
+TEST_F(PathFollowingTest, APauseMidStepLeavesTheLastReachedStep) {
+  enable();
+  ASSERT_EQ(runtime->load_path("srmc", inline_plan(), "").status, 200);
+  ASSERT_EQ(runtime->mode("srmc", {{"mode", "path_following"}}).status, 200);
+  steps(2);
+  ASSERT_EQ(runtime->path_step("srmc", {{"step", 0}}).status, 202);
+  steps(2);
+  ASSERT_TRUE(settle());
+  ASSERT_EQ(runtime->path_step("srmc", {{"step", 4}}).status, 202);
+  steps(100);
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  steps(5);
+  EXPECT_EQ(status()["step"], 0);
+  EXPECT_EQ(status()["target"], 0);
+}
+
+TEST(SampleVessel, TheShippedFileIsTheSyntheticIcaOfSeed7) {
+  const auto shipped = teleop::parse_centerline_csv(read_file(kIca));
+  ASSERT_EQ(shipped.size(), 1u);
+  teleop::SyntheticIcaOptions o;
+  o.point_spacing = 0.2;
+  const auto ica = teleop::make_synthetic_ica(7, o);
+  ASSERT_EQ(shipped[0].points.size(), ica.points.size());
+  for (std::size_t i = 0; i < ica.points.size(); ++i) {
+    EXPECT_LE((shipped[0].points[i] - ica.points[i]).norm(), 1e-3) << "point " << i;
+    EXPECT_NEAR(shipped[0].radii[i], ica.radii[i], 1e-4);
+  }
+}
+
+TEST(PlanningServiceOnTheSampleVessel, PlansWithinTheJointLimitsAndTheRuntimeLoadsThePlan) {
+  const auto config = load_robot_config(kSrmc);
+  PlanningService planning({config});
+  const auto csv = read_file(kIca);
+  const auto start = std::chrono::steady_clock::now();
+  const auto job =
+      planning.submit_plan_file(csv, "text/csv", {{"robot", "srmc"}, {"ds", "0.5"}, {"dq1", "3"}});
+  ASSERT_EQ(job.status, 202) << job.message;
+  const auto id = job.body["id"].get<std::string>();
+  nlohmann::json state;
+  for (int i = 0; i < 1200; ++i) {  // up to 2 minutes on a loaded machine
+    state = planning.job(id).body;
+    if (state["state"] != "queued" && state["state"] != "running") break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_EQ(state["state"], "succeeded") << state["message"];
+  const auto& result = state["result"];
+  std::cout << "[ plan ] synthetic ICA: " << result["steps"].size() << " steps, mean position error "
+            << result["summary"]["mean_position_error_mm"] << " mm, compute "
+            << result["summary"]["compute_s"] << " s, job " << seconds << " s\n";
+  EXPECT_TRUE(result["truncated_to_insertion_range"].get<bool>());  // 150 mm vessel, 120 mm insertion
+  EXPECT_LE(result["planned_length_mm"].get<double>(), 119.5 + 1e-9);
+  ASSERT_FALSE(result["steps"].empty());
+  EXPECT_FALSE(result["steps"][0]["backbone"].empty());
+  EXPECT_EQ(state["progress"], 1.0);
+
+  RuntimeOptions o;
+  o.stepped = true;
+  RobotRuntime runtime({config}, o);
+  runtime.start();
+  const auto loaded = runtime.load_path("srmc", result, id);
+  if (result["within_joint_limits"].get<bool>()) {
+    EXPECT_EQ(loaded.status, 200) << loaded.message;
+  } else {
+    // The planner does not bound the roll; the load must then name the step that is out of range.
+    EXPECT_EQ(loaded.status, 422);
+    EXPECT_NE(loaded.message.find("step "), std::string::npos);
+  }
+  runtime.stop();
+
+  // Unknown job, design of a bad vessel id, bad parameters.
+  EXPECT_EQ(planning.job("j999").status, 404);
+  EXPECT_EQ(planning.submit_plan({{"vessel", "v999"}}).status, 404);
+  EXPECT_EQ(planning.submit_plan_file(csv, "text/csv", {{"ds", "abc"}}).status, 400);
+  EXPECT_EQ(planning.submit_plan_file(csv, "text/csv", {{"dq1", "0"}}).status, 422);
+  EXPECT_EQ(planning.submit_plan_file("", "text/csv", {}).code, "bad_vessel");
+  EXPECT_EQ(planning.upload_vessel(csv, "application/pdf", {}).status, 415);
+}
+
+}  // namespace
+}  // namespace tendril::server
