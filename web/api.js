@@ -1,14 +1,16 @@
 // REST client for tendril's /api/v1 (see API.md). Same-origin fetch: the session cookie set by the
 // server when the page was opened with ?token= goes along, and the lease belongs to that session.
-// Only if the server answers 401 (cookie blocked or lost) and the page still holds the token from its
-// URL does the client switch to a Bearer header, naming itself with X-Tendril-Client so the lease has
+// If the server answers 401 (session lost, e.g. after a restart) and the page still holds the token
+// from its URL, the client first opens a new cookie session with it; only if that fails does it switch
+// to a Bearer header, naming itself with X-Tendril-Client so the lease has
 // a stable owner across connections.
 
 export class ApiError extends Error {
-  constructor(status, code, message) {
+  constructor(status, code, message, details = {}) {
     super(message);
     this.status = status;
     this.code = code;
+    this.details = details;  // the whole error object (e.g. holder, takeover_token for lease_held)
   }
 }
 
@@ -20,31 +22,51 @@ export class Api {
     this.clientName = `console-${Math.random().toString(36).slice(2, 10)}`;
   }
 
-  async request(method, path, body) {
+  async request(method, path, body, options = {}) {
     try {
-      return await this.send(method, path, body);
+      return await this.send(method, path, body, options);
     } catch (err) {
-      if (err.status === 401 && this.token && !this.useBearer) {
-        this.useBearer = true;
-        return this.send(method, path, body);
+      if (err.status !== 401 || !this.token || this.useBearer) throw err;
+      // The session is gone (e.g. tendrild restarted): open a new one the way the page did, so the
+      // WebSocket (which carries only the cookie) works again too. Bearer only if that fails.
+      if (await this.renewSession()) {
+        try {
+          return await this.send(method, path, body, options);
+        } catch (again) {
+          if (again.status !== 401) throw again;
+        }
       }
-      throw err;
+      this.useBearer = true;
+      return this.send(method, path, body, options);
     }
   }
 
-  async send(method, path, body) {
-    const headers = {Accept: 'application/json'};
-    if (body !== undefined) headers['Content-Type'] = 'application/json';
+  // One renewal at a time, however many requests failed together.
+  renewSession() {
+    if (!this.renewing) {
+      this.renewing = fetch(`/?token=${encodeURIComponent(this.token)}`, {credentials: 'same-origin', cache: 'no-store'})
+        .then((r) => r.ok, () => false)
+        .finally(() => setTimeout(() => { this.renewing = null; }, 2000));
+    }
+    return this.renewing;
+  }
+
+  // raw: {contentType, data} sends a file body as is (vessel upload); text: answer is not JSON;
+  // absolute: path is not under /api/v1.
+  async send(method, path, body, {raw = null, text: wantText = false, absolute = false} = {}) {
+    const headers = {Accept: wantText ? 'text/plain' : 'application/json'};
+    if (raw) headers['Content-Type'] = raw.contentType;
+    else if (body !== undefined) headers['Content-Type'] = 'application/json';
     if (this.useBearer) {
       headers.Authorization = `Bearer ${this.token}`;
       headers['X-Tendril-Client'] = this.clientName;
     }
     let response;
     try {
-      response = await fetch(this.base + path, {
+      response = await fetch(absolute ? path : this.base + path, {
         method,
         headers,
-        body: body === undefined ? undefined : JSON.stringify(body),
+        body: raw ? raw.data : body === undefined ? undefined : JSON.stringify(body),
         credentials: 'same-origin',
         cache: 'no-store',
       });
@@ -52,6 +74,7 @@ export class Api {
       throw new ApiError(0, 'network', `server unreachable (${err.message})`);
     }
     const text = await response.text();
+    if (wantText && response.ok) return text;
     let data = null;
     if (text) {
       try {
@@ -63,7 +86,7 @@ export class Api {
     if (!response.ok) {
       const e = data && data.error ? data.error : {};
       throw new ApiError(response.status, e.code || `http_${response.status}`,
-                         e.message || `${method} ${path} failed with HTTP ${response.status}`);
+                         e.message || `${method} ${path} failed with HTTP ${response.status}`, e);
     }
     return data;
   }
@@ -86,6 +109,27 @@ export class Api {
   estop() { return this.post('/estop', {}); }
   estopReset() { return this.post('/estop/reset', {}); }
   lease() { return this.get('/lease'); }
-  takeLease() { return this.post('/lease', {}); }
+  takeLease(takeoverToken) {
+    return this.post('/lease', takeoverToken ? {takeover_token: takeoverToken} : {});
+  }
   releaseLease() { return this.del('/lease'); }
+  setMode(robot, mode) { return this.post(`/robots/${encodeURIComponent(robot)}/mode`, {mode}); }
+  health() { return this.get('/health'); }
+  // Prometheus text of GET /metrics (outside /api/v1).
+  metricsText() { return this.request('GET', '/metrics', undefined, {text: true, absolute: true}); }
+
+  // Planning (vessels, plan jobs) and path following.
+  vessels() { return this.get('/vessels'); }
+  vessel(id, branch) { return this.get(`/vessels/${encodeURIComponent(id)}?branch=${branch}&ds=1`); }
+  uploadVessel(file, name) {
+    const contentType = /\.stl$/i.test(file.name) ? 'model/stl' : 'text/csv';
+    return this.request('POST', `/vessels?name=${encodeURIComponent(name)}`, undefined, {raw: {contentType, data: file}});
+  }
+  deleteVessel(id) { return this.del(`/vessels/${encodeURIComponent(id)}`); }
+  startPlan(body) { return this.post('/plans', body); }
+  job(id) { return this.get(`/jobs/${encodeURIComponent(id)}`); }
+  cancelJob(id) { return this.del(`/jobs/${encodeURIComponent(id)}`); }
+  pathFollowing(robot) { return this.get(`/robots/${encodeURIComponent(robot)}/path_following`); }
+  loadPlan(robot, planId) { return this.post(`/robots/${encodeURIComponent(robot)}/path_following`, {plan: planId}); }
+  pathStep(robot, body) { return this.post(`/robots/${encodeURIComponent(robot)}/path_following/step`, body); }
 }

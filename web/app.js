@@ -5,6 +5,9 @@
 import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';
 import {buildJointPanel} from './joints.js';
+import {ImagePanel} from './images.js';
+import {PlanPanel} from './plan.js';
+import {TimePlot} from './plot.js';
 
 const api = new Api();
 const $ = (sel) => document.querySelector(sel);
@@ -16,6 +19,7 @@ const ui = {
   badgeValue: $('[data-testid="state-value"]'),
   connection: $('[data-testid="connection-indicator"]'),
   connectionText: $('[data-testid="connection-indicator"] .connection-text'),
+  connectionRtt: $('[data-testid="connection-rtt"]'),
   lease: $('[data-testid="lease-status"]'),
   leaseButton: $('#lease-button'),
   enableButton: $('#enable-button'),
@@ -34,6 +38,18 @@ const ui = {
   tip: $('[data-testid="tip-position"]'),
   fitView: $('#fit-view-button'),
   scene: $('#scene'),
+  modeButtons: $('#mode-buttons'),
+  modeBar: $('[data-testid="mode-bar"]'),
+  tabs: [...document.querySelectorAll('[role="tab"]')],
+  eventCount: $('[data-testid="event-count"]'),
+  configTip: $('[data-testid="config-tip"]'),
+  configDirection: $('[data-testid="config-direction"]'),
+  configStep: $('[data-testid="config-step"]'),
+  plotJoint: $('#plot-joint-select'),
+  timingSource: $('[data-testid="timing-source"]'),
+  timingLegend: $('[data-testid="timing-legend"]'),
+  takeoverDialog: $('[data-testid="takeover-dialog"]'),
+  takeoverText: $('[data-testid="takeover-text"]'),
 };
 
 const state = {
@@ -47,10 +63,20 @@ const state = {
   events: [],           // newest first
   lastFaultCause: '',
   offline: false,       // neither stream nor REST answered lately
+  rttMs: NaN,           // round trip of GET /health, every 2 s
+  advertised: new Set(),  // topics the stream currently offers
+  timingSource: null,   // 'diagnostics' | 'metrics' | null
 };
 
 let joints = null;      // joint panel controller
 let view = null;        // CatheterView, loaded lazily so a WebGL/three failure cannot break the controls
+let plan = null;        // PlanPanel
+let trackingPlot = null;  // setpoint against measured, one joint
+let timingPlot = null;    // control loop timing
+const images = {
+  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP'),
+  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral'),
+};
 
 // ---------------------------------------------------------------- token handling
 // The server turns ?token= into a session cookie on this page load; keep the token out of the address
@@ -68,6 +94,7 @@ let view = null;        // CatheterView, loaded lazily so a WebGL/three failure 
 let statusTimer = null;
 function showStatus(text, kind = 'ok') {
   ui.status.textContent = text;
+  ui.status.title = text;
   ui.status.className = `command-status ${kind}`;
   clearTimeout(statusTimer);
   if (kind === 'ok') statusTimer = setTimeout(() => { ui.status.textContent = ''; }, 6000);
@@ -108,6 +135,15 @@ function applyOperatingState(os) {
   ui.badge.title = `state ${os.state} · mode ${os.mode ?? '?'} · homed ${!!os.is_homed} · busy ${!!os.is_busy}`;
   updateBanner();
   updateControls();
+  updateModeBar();
+  plan?.updateButtons();
+}
+
+// The cause the server gives with the state (operating_state.fault), else the newest safety event.
+function faultCause(os) {
+  const f = os && os.fault;
+  if (f && f.message) return `${f.code ? f.code + ': ' : ''}${f.message}${f.joint ? ` (${f.joint})` : ''}`;
+  return state.lastFaultCause;
 }
 
 // The status strip is always there (so the layout never jumps when a fault arrives); its level says
@@ -120,12 +156,12 @@ function updateBanner() {
   if (os && os.estop) {
     level = 'estop';
     title = 'Emergency stop latched';
-    cause = `${state.lastFaultCause || 'Motion is stopped on every robot.'} — find the cause, press Reset, then Enable.`;
+    cause = `${faultCause(os) || 'Motion is stopped on every robot.'} — find the cause, press Reset, then Enable.`;
   } else if (os && os.state === 'FAULT') {
     level = 'fault';
     title = 'Fault';
     // The cause first and whole; what to do next is in the Move hint and the Reset button's title.
-    cause = state.lastFaultCause || 'The robot stopped; see the events for the cause.';
+    cause = faultCause(os) || 'The robot stopped; see the events for the cause.';
   } else if (state.offline && state.robot) {
     level = 'offline';
     title = 'No connection';
@@ -159,9 +195,11 @@ function updateControls() {
   else if (fault) hint = 'Fault: Reset to acknowledge, then Enable.';
   else if (!enabled) hint = 'Enable the robot to move.';
   else if (!state.leaseHeld) hint = 'Take the lease to command.';
+  const pathMode = !!(os && os.mode === 'path_following');
+  if (!hint && pathMode) hint = 'Path-following mode: step through the plan (Plan tab), or switch to Joint mode.';
   const invalid = joints ? joints.invalidJoints() : [];
   if (!hint && invalid.length) hint = `Goal outside limits: ${invalid.join(', ')}`;
-  ui.moveButton.disabled = !os || estop || !enabled || invalid.length > 0;
+  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0;
   ui.moveHint.textContent = hint;
 }
 
@@ -201,6 +239,7 @@ function addEvents(list) {
 }
 
 function renderEvents() {
+  ui.eventCount.textContent = state.events.length ? `(${state.events.length})` : '';
   ui.events.replaceChildren();
   if (state.events.length === 0) {
     const li = document.createElement('li');
@@ -237,6 +276,16 @@ function applyJointState(js, withSetpoint) {
   if (!joints || !js) return;
   joints.updateMeasured(js);
   if (withSetpoint && Array.isArray(js.setpoint)) joints.updateSetpoint({name: js.name, position: js.setpoint});
+  plotJointState(js.name, js.position, 1);
+  if (withSetpoint) plotJointState(js.name, js.setpoint, 0);
+}
+
+// Feeds the setpoint (series 0) or measured (series 1) value of the joint chosen for the plot.
+function plotJointState(names, values, series) {
+  if (!trackingPlot || !Array.isArray(values)) return;
+  const joint = ui.plotJoint.value;
+  const index = Array.isArray(names) ? names.indexOf(joint) : state.robot.joints.findIndex((j) => j.name === joint);
+  if (index >= 0) trackingPlot.push(series, performance.now() / 1000, Number(values[index]));
 }
 
 function applyShape(shape) {
@@ -247,21 +296,35 @@ function applyTipPose(cp) {
   if (!cp || !Array.isArray(cp.position)) return;
   const [x, y, z] = cp.position;
   ui.tip.textContent = `tip x ${x.toFixed(1)}  y ${y.toFixed(1)}  z ${z.toFixed(1)} mm`;
+  ui.configTip.textContent = `${x.toFixed(1)}, ${y.toFixed(1)}, ${z.toFixed(1)} mm`;
+  const q = cp.orientation;
+  if (Array.isArray(q) && q.length === 4) {
+    // The tip frame's z axis (the catheter's heading) as azimuth in XY and elevation above XY.
+    const [qx, qy, qz, qw] = q;
+    const zx = 2 * (qx * qz + qw * qy);
+    const zy = 2 * (qy * qz - qw * qx);
+    const zz = 1 - 2 * (qx * qx + qy * qy);
+    const deg = 180 / Math.PI;
+    ui.configDirection.textContent =
+        `az ${(Math.atan2(zy, zx) * deg).toFixed(1)}°, el ${(Math.atan2(zz, Math.hypot(zx, zy)) * deg).toFixed(1)}°`;
+  }
   view?.setTipPose(cp.position, cp.orientation);
 }
 
-function setConnection(kind, text) {
+function setConnection(kind, text, rtt = '') {
   ui.connection.className = `connection ${kind}`;
   ui.connectionText.textContent = text;
-  ui.connection.setAttribute('aria-label', `Connection: ${text}`);
+  ui.connectionRtt.textContent = rtt;
+  ui.connection.setAttribute('aria-label', `Connection: ${text}${rtt ? `, round trip ${rtt}` : ''}`);
   ui.connection.dataset.kind = kind;
 }
 
 function refreshConnectionIndicator() {
   const now = Date.now();
   let offline = false;
-  if (state.wsLive && now - state.lastWsJointMs < 1500) setConnection('live', 'live (WebSocket)');
-  else if (now - state.lastRestOkMs < 2000) setConnection('polling', 'polling (REST)');
+  const rtt = Number.isFinite(state.rttMs) ? `RTT ${state.rttMs < 10 ? state.rttMs.toFixed(1) : state.rttMs.toFixed(0)} ms` : '';
+  if (state.wsLive && now - state.lastWsJointMs < 1500) setConnection('live', 'live (WebSocket)', rtt);
+  else if (now - state.lastRestOkMs < 2000) setConnection('polling', 'polling (REST)', rtt);
   else {
     setConnection('offline', 'no connection to server');
     offline = true;
@@ -287,7 +350,10 @@ async function poll() {
   const jobs = [];
   if (fallback) {
     jobs.push(api.measuredJs(robot).then((js) => applyJointState(js, false)));
-    jobs.push(api.setpointJs(robot).then((sp) => joints?.updateSetpoint(sp)));
+    jobs.push(api.setpointJs(robot).then((sp) => {
+      joints?.updateSetpoint(sp);
+      plotJointState(sp?.name, sp?.position, 0);
+    }));
     jobs.push(api.operatingState(robot).then(applyOperatingState));
     if (pollTick % 2 === 0) jobs.push(api.shape(robot).then(applyShape));
     if (pollTick % 10 === 0) jobs.push(api.faults().then((d) => addEvents(eventsFromFaults(d))));
@@ -310,9 +376,11 @@ async function pollLease() {
     return;  // a server without GET /lease: rely on command answers
   }
   if (!status) return;
-  if (status.yours) {
+  const mine = status.mine ?? status.yours;
+  const expires = status.expires_s ?? status.expires_in_s;
+  if (mine) {
     setLease(true);
-    if (typeof status.expires_in_s === 'number' && status.expires_in_s < 15) {
+    if (typeof expires === 'number' && expires < 15) {
       try {
         await api.takeLease();
       } catch (err) {
@@ -342,26 +410,160 @@ function startPolling() {
 
 function connectWebSocket(robotName) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const topics = [`/${robotName}/joint_states`, `/${robotName}/operating_state`, `/${robotName}/scene`, '/safety/events'];
-  const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, topics, {
-    onOpen: () => { state.wsLive = true; },
-    onClose: () => { state.wsLive = false; refreshConnectionIndicator(); },
+  const t = {
+    joints: `/${robotName}/joint_states`, operating: `/${robotName}/operating_state`, scene: `/${robotName}/scene`,
+    diagnostics: `/${robotName}/diagnostics`, events: '/safety/events', ap: '/imaging/ap', lateral: '/imaging/lateral',
+    map: '/maps/vessel',
+  };
+  const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, Object.values(t), {
+    onOpen: () => {
+      state.wsLive = true;
+      images.ap.setConnected(true);
+      images.lateral.setConnected(true);
+    },
+    onClose: () => {
+      state.wsLive = false;
+      images.ap.setConnected(false);
+      images.lateral.setConnected(false);
+      refreshConnectionIndicator();
+    },
+    onChannels: (topics) => {
+      state.advertised = topics;
+      images.ap.setAdvertised(topics.has(t.ap));
+      images.lateral.setAdvertised(topics.has(t.lateral));
+      chooseTimingSource();
+    },
     onMessage: (topic, msg) => {
-      if (topic === topics[0]) {
-        state.lastWsJointMs = Date.now();
-        applyJointState(msg, true);
-      } else if (topic === topics[1]) {
-        applyOperatingState(msg);
-      } else if (topic === topics[2]) {
-        view?.applySceneUpdate(msg);
-      } else if (topic === '/safety/events') {
-        addEvents(Array.isArray(msg.events) ? msg.events : [msg]);
+      switch (topic) {
+        case t.joints:
+          state.lastWsJointMs = Date.now();
+          applyJointState(msg, true);
+          break;
+        case t.operating: applyOperatingState(msg); break;
+        case t.scene: view?.applySceneUpdate(msg); break;
+        case t.events: addEvents(Array.isArray(msg.events) ? msg.events : [msg]); break;
+        case t.diagnostics: applyDiagnostics(msg); break;
+        case t.ap: images.ap.frame(msg); break;
+        case t.lateral: images.lateral.frame(msg); break;
+        case t.map: view?.setPointCloud(msg); break;
+        default: break;
       }
     },
     onStatus: (msg) => { if (msg.level >= 1) showStatus(`server: ${msg.message}`, msg.level >= 2 ? 'error' : 'ok'); },
   });
   conn.open();
-  window.tendrilConnection = conn;  // for debugging from the browser console
+  window.tendrilConnection = conn;  // for debugging from the browser console, and the browser tests
+}
+
+// ---------------------------------------------------------------- loop timing
+// From the /{robot}/diagnostics topic (10 Hz) when the server publishes it; otherwise GET /metrics
+// once a second (Prometheus text: tendril_control_period_error_us and tendril_control_work_us). Both give
+// the deviation of the loop period from nominal (jitter) and the compute time per cycle.
+const TIMING_SERIES = {
+  diagnostics: {legend: ['period error p99', 'max', 'work p99'], unit: 'µs',
+                source: 'diagnostics topic, 10 Hz', short: 'diagnostics'},
+  metrics: {legend: ['period error p99', 'max', 'work p99'], unit: 'µs',
+            source: 'GET /metrics, 1 Hz', short: '/metrics'},
+};
+const TIMING_COLORS = ['#3fb950', '#e3b341', '#f85149'];
+
+function chooseTimingSource() {
+  if (!state.robot) return;
+  const next = state.advertised.has(`/${state.robot.name}/diagnostics`) ? 'diagnostics' : 'metrics';
+  if (next === state.timingSource) return;
+  state.timingSource = next;
+  const spec = TIMING_SERIES[next];
+  timingPlot.configure({unit: spec.unit, minSpan: 10});
+  spec.legend.forEach((label, i) => { timingPlot.series[i].label = label; });
+  ui.timingSource.textContent = `(${spec.unit} · ${spec.short})`;
+  ui.timingSource.title = `source: ${spec.source}`;
+  ui.timingSource.dataset.source = next;
+  renderTimingLegend();
+}
+
+// Legend with the latest value of each series: the max can dwarf the p99 on the shared axis.
+function renderTimingLegend() {
+  const spec = TIMING_SERIES[state.timingSource];
+  if (!spec) return;
+  // Drawn inside the plot; the same numbers as text for screen readers.
+  ui.timingLegend.textContent = spec.legend.map((label, i) => {
+    const v = timingPlot.latest(i);
+    return `${label} ${Number.isFinite(v) ? formatMicros(v) : '—'}`;
+  }).join(', ');
+}
+
+function showOverruns(overruns) {
+  const spec = TIMING_SERIES[state.timingSource];
+  const n = Number.isFinite(overruns) ? ` · ${overruns} overrun${overruns === 1 ? '' : 's'}` : '';
+  ui.timingSource.textContent = `(${spec.unit} · ${spec.short}${n})`;
+  ui.timingSource.title = `source: ${spec.source}; overruns: control cycles past their deadline since start`;
+}
+
+function formatMicros(us) {
+  return us >= 1000 ? `${(us / 1000).toFixed(1)} ms` : `${us.toFixed(0)} µs`;
+}
+
+function applyDiagnostics(msg) {
+  if (state.timingSource !== 'diagnostics' || !msg || !msg.period_us) return;
+  const now = performance.now() / 1000;
+  timingPlot.setMessage(null);
+  timingPlot.push(0, now, Number(msg.period_us.p99));
+  timingPlot.push(1, now, Number(msg.period_us.max));
+  timingPlot.push(2, now, Number(msg.work_us?.p99));
+  showOverruns(Number(msg.overruns));
+  renderTimingLegend();
+}
+
+// Value of one Prometheus sample line (name and exact label set), NaN when absent.
+function prometheusValue(text, name, labels = '') {
+  const wanted = labels ? `${name}{${labels}}` : name;
+  for (const line of text.split('\n')) {
+    if (line.startsWith('#')) continue;
+    const at = line.lastIndexOf(' ');
+    if (at > 0 && line.slice(0, at).trim() === wanted) return Number(line.slice(at + 1));
+  }
+  return NaN;
+}
+
+async function pollMetrics() {
+  if (state.timingSource !== 'metrics') return;
+  let text;
+  try {
+    text = await api.metricsText();
+  } catch (err) {
+    timingPlot.setMessage(err instanceof ApiError && err.status === 404
+      ? 'Loop timing not available: the server has neither a diagnostics topic nor GET /metrics.'
+      : `Loop timing unavailable: ${describeError(err)}`);
+    return;
+  }
+  const p99 = prometheusValue(text, 'tendril_control_period_error_us', 'quantile="0.99"');
+  const max = prometheusValue(text, 'tendril_control_period_error_us', 'quantile="1"');
+  const work = prometheusValue(text, 'tendril_control_work_us', 'quantile="0.99"');
+  if (![p99, max, work].some(Number.isFinite)) {
+    timingPlot.setMessage('Loop timing not available: /metrics has no tendril_control_* samples.');
+    return;
+  }
+  timingPlot.setMessage(null);
+  const now = performance.now() / 1000;
+  timingPlot.push(0, now, p99);
+  timingPlot.push(1, now, max);
+  timingPlot.push(2, now, work);
+  renderTimingLegend();
+  const overruns = prometheusValue(text, 'tendril_control_overruns_total');
+  showOverruns(overruns);
+}
+
+// Round trip of a cheap request, every 2 s, shown next to the connection state.
+async function measureRtt() {
+  const t0 = performance.now();
+  try {
+    await api.health();
+    state.rttMs = performance.now() - t0;
+    state.lastRestOkMs = Date.now();
+  } catch {
+    state.rttMs = NaN;
+  }
+  refreshConnectionIndicator();
 }
 
 // ---------------------------------------------------------------- commands
@@ -374,6 +576,72 @@ async function estop() {
     showStatus(`E-STOP FAILED: ${describeError(err)}. Use the hardware stop.`, 'error');
   }
   refreshStateSoon();
+}
+
+function selectTab(tab) {
+  for (const t of ui.tabs) {
+    const selected = t === tab;
+    t.setAttribute('aria-selected', String(selected));
+    t.tabIndex = selected ? 0 : -1;
+    document.getElementById(t.getAttribute('aria-controls')).hidden = !selected;
+  }
+  if (tab.id === 'tab-plan') plan?.refresh();
+}
+
+// Asks before taking the lease from another operator; the server's token is valid for 15 s.
+async function offerTakeover(err) {
+  const holder = err.details.holder || 'another operator';
+  ui.takeoverText.textContent = `The operator lease is held by ${holder}. Taking it over stops their control ` +
+    'of the robot at once; they are told. Do this only when you have agreed it with them.';
+  ui.takeoverDialog.returnValue = '';
+  ui.takeoverDialog.showModal();
+  const choice = await new Promise((resolve) => {
+    ui.takeoverDialog.addEventListener('close', () => resolve(ui.takeoverDialog.returnValue), {once: true});
+  });
+  if (choice !== 'confirm') {
+    showStatus(`Lease takeover cancelled: the lease stays with ${holder}`, 'ok');
+    return;
+  }
+  try {
+    await api.takeLease(err.details.takeover_token);
+    setLease(true);
+    showStatus(`Lease taken over from ${holder}: you are the operator`, 'ok');
+  } catch (e) {
+    showStatus(`Takeover refused: ${describeError(e)}`, 'error');
+  }
+}
+
+function prettyMode(mode) {
+  const s = String(mode).replace(/_/g, ' ');
+  return s.charAt(0).toUpperCase() + s.slice(1);
+}
+
+function buildModeBar(robot) {
+  const modes = Array.isArray(robot.modes) && robot.modes.length ? robot.modes : ['joint'];
+  ui.modeButtons.replaceChildren(...modes.map((mode) => {
+    const b = document.createElement('button');
+    b.type = 'button';
+    b.className = 'btn mode-btn';
+    b.dataset.mode = mode;
+    b.dataset.testid = `mode-${mode}`;
+    b.textContent = prettyMode(mode);
+    b.setAttribute('aria-label', `${prettyMode(mode)} mode`);
+    b.setAttribute('aria-pressed', 'false');
+    return b;
+  }));
+  updateModeBar();
+}
+
+function updateModeBar() {
+  const os = state.operating;
+  for (const b of ui.modeButtons.querySelectorAll('button[data-mode]')) {
+    const active = !!os && os.mode === b.dataset.mode;
+    b.setAttribute('aria-pressed', String(active));
+    b.classList.toggle('active', active);
+  }
+  ui.modeBar.dataset.currentMode = os?.mode ?? '';
+  const path = plan?.path;
+  ui.configStep.textContent = path && path.loaded ? (path.step >= 0 ? `${path.step} / ${path.steps - 1}` : `— / ${path.steps - 1}`) : '—';
 }
 
 async function refreshStateSoon() {
@@ -424,8 +692,41 @@ function wireCommands() {
     } catch (err) {
       // 409 lease_held: the message names who holds it and why
       setLease(false, err instanceof ApiError && err.code === 'lease_held' ? err.message : '');
-      showStatus(`Lease refused: ${describeError(err)}`, 'error');
+      const offer = err instanceof ApiError && err.code === 'lease_held' && err.details.takeover_token;
+      // With a takeover offer the server's message carries the token: say it in words instead.
+      showStatus(offer ? `Lease held by ${err.details.holder || 'another operator'}: take it over only after confirming`
+                       : `Lease refused: ${describeError(err)}`, 'error');
+      // A server that allows takeover sends a short-lived token: taking over needs a deliberate yes.
+      if (err instanceof ApiError && err.code === 'lease_held' && err.details.takeover_token) {
+        await offerTakeover(err);
+      }
     }
+  });
+  ui.modeButtons.addEventListener('click', async (ev) => {
+    const button = ev.target.closest('button[data-mode]');
+    if (!button) return;
+    const mode = button.dataset.mode;
+    const answer = await runCommand(`Mode ${prettyMode(mode)}`, () => api.setMode(state.robot.name, mode));
+    ui.modeBar.dataset.refused = answer ? '' : mode;
+    refreshStateSoon();
+  });
+  for (const tab of ui.tabs) {
+    tab.addEventListener('click', () => selectTab(tab));
+    tab.addEventListener('keydown', (ev) => {
+      // Arrow keys move between tabs (WAI-ARIA tabs pattern).
+      const i = ui.tabs.indexOf(tab);
+      const next = ev.key === 'ArrowRight' ? ui.tabs[(i + 1) % ui.tabs.length]
+                 : ev.key === 'ArrowLeft' ? ui.tabs[(i + ui.tabs.length - 1) % ui.tabs.length] : null;
+      if (next) {
+        ev.preventDefault();
+        selectTab(next);
+        next.focus();
+      }
+    });
+  }
+  ui.plotJoint.addEventListener('change', () => {
+    const joint = state.robot.joints.find((j) => j.name === ui.plotJoint.value);
+    trackingPlot.configure({unit: joint?.unit || '', minSpan: joint?.unit === 'rad' ? 0.01 : 0.1});
   });
   ui.form.addEventListener('submit', async (ev) => {
     ev.preventDefault();
@@ -461,6 +762,12 @@ function selectRobot(name) {
   ui.robotKind.textContent = robot.kind ? robot.kind.replace(/_/g, ' ') : '';
   document.title = `${robot.name.toUpperCase()} · tendril console`;
   joints = buildJointPanel(ui.form, robot.joints, () => updateControls());
+  buildModeBar(robot);
+  ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${j.unit})`, j.name)));
+  const first = robot.joints[0];
+  trackingPlot?.configure({unit: first?.unit || '', minSpan: first?.unit === 'rad' ? 0.01 : 0.1});
+  state.timingSource = null;
+  if (timingPlot) chooseTimingSource();
   updateControls();
   if (window.tendrilConnection) {
     window.tendrilConnection.close();
@@ -469,6 +776,16 @@ function selectRobot(name) {
 }
 
 async function start() {
+  trackingPlot = new TimePlot($('[data-testid="tracking-plot"]'), {
+    series: [{label: 'setpoint', color: '#e6edf3', dash: true}, {label: 'measured', color: '#4ea1ff'}], windowS: 10,
+  });
+  timingPlot = new TimePlot($('[data-testid="timing-plot"]'), {
+    series: TIMING_COLORS.map((color) => ({color, format: formatMicros})), windowS: 60, floorZero: true, minSpan: 10,
+  });
+  plan = new PlanPanel({
+    api, view: () => view, robot: () => state.robot, operating: () => state.operating, status: showStatus,
+    onPathLoaded: () => updateModeBar(),
+  });
   wireCommands();
   renderEvents();
   setLease(false);
@@ -495,6 +812,13 @@ async function start() {
   connectWebSocket(state.robot.name);
   startPolling();
   setInterval(refreshConnectionIndicator, 500);
+  measureRtt();
+  setInterval(measureRtt, 2000);
+  setInterval(pollMetrics, 1000);
+  plan.refresh();
+  plan.refreshPath();
+  // Path-following state (step, moving) changes without the console asking: follow it.
+  setInterval(() => { if (plan.pathAvailable !== false) plan.refreshPath().then(updateModeBar); }, 1000);
 }
 
 start();

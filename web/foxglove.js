@@ -8,7 +8,8 @@ const OP_MESSAGE_DATA = 0x01;
 
 export class FoxgloveConnection {
   // topics: the topics to subscribe to as soon as the server advertises them.
-  // handlers: {onOpen, onClose(reason), onServerInfo(info), onMessage(topic, json, timestampNs), onStatus(msg)}
+  // handlers: {onOpen, onClose(reason), onServerInfo(info), onMessage(topic, json, timestampNs), onStatus(msg),
+  //            onChannels(advertisedTopics: Set)}
   constructor(url, topics, handlers) {
     this.url = url;
     this.wanted = new Set(topics);
@@ -41,7 +42,9 @@ export class FoxgloveConnection {
     };
     ws.onmessage = (ev) => this.handleFrame(ev.data);
     ws.onclose = (ev) => {
+      if (this.ws !== ws) return;  // an older socket closed after a newer one opened
       this.channelsById.clear();
+      this.handlers.onChannels?.(this.advertisedTopics());
       this.subscriptionTopic.clear();
       this.subscribedChannels.clear();
       this.ws = null;
@@ -113,6 +116,7 @@ export class FoxgloveConnection {
           }
         }
         if (subscriptions.length) this.send({op: 'subscribe', subscriptions});
+        this.handlers.onChannels?.(this.advertisedTopics());
         break;
       }
       case 'unadvertise':
@@ -122,6 +126,7 @@ export class FoxgloveConnection {
           this.subscribedChannels.delete(channelId);
           this.channelsById.delete(channelId);
         }
+        this.handlers.onChannels?.(this.advertisedTopics());
         break;
       case 'status':
         this.handlers.onStatus?.(msg);
@@ -132,4 +137,13 @@ export class FoxgloveConnection {
   }
 
   subscribedTopics() { return [...this.subscriptionTopic.values()]; }
+
+  // Topics the server currently advertises (empty while disconnected).
+  advertisedTopics() { return new Set([...this.channelsById.values()].map((c) => c.topic)); }
+
+  // Drops the socket as a network failure would (no clean close handshake is awaited); the client
+  // reconnects on its own. The browser tests use it to simulate a lost socket.
+  drop() {
+    this.ws?.close(4000, 'dropped by the console');
+  }
 }

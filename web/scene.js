@@ -84,6 +84,10 @@ export class CatheterView {
     this.controls.target.set(0, 0, 40);
     this.controls.enableDamping = false;
     this.controls.addEventListener('change', () => this.requestRender());
+    // Once the operator has placed the camera, the view no longer re-frames itself.
+    this.controls.addEventListener('start', () => { this.userCamera = true; });
+    this.userCamera = false;
+    this.fittedBox = null;
 
     this.scene.add(new THREE.HemisphereLight(0xdde8ff, 0x202830, 1.6));
     const sun = new THREE.DirectionalLight(0xffffff, 1.8);
@@ -172,7 +176,9 @@ export class CatheterView {
       this.tipAxes.quaternion.setFromUnitVectors(new THREE.Vector3(0, 0, 1), tangent);
       this.tipAxes.visible = !this.tipFromScene;
     }
-    if (!this.hasFitted) this.fit();
+    // Re-frame when the catheter grows out of the framed region (unless the operator moved the camera).
+    const shapeBox = new THREE.Box3().setFromPoints(clean);
+    if (!this.hasFitted || (!this.userCamera && this.fittedBox && !this.fittedBox.containsBox(shapeBox))) this.fit(false);
     this.requestRender();
   }
 
@@ -279,12 +285,131 @@ export class CatheterView {
     this.scene.add(group);
   }
 
-  // Frame the camera on the backbone (and the grid origin).
-  fit() {
+  // Vessel centreline of the selected branch (mm) and, when radii are known, its wall as a
+  // translucent tube; null removes it.
+  setVessel(points, radius) {
+    if (!this.available) return;
+    this.clearGroup('vesselGroup');
+    if (!points || points.length < 2) return;
+    const group = this.ensureGroup('vesselGroup');
+    const vecs = points.map(toVec);
+    group.add(new THREE.Line(new THREE.BufferGeometry().setFromPoints(vecs),
+                             new THREE.LineBasicMaterial({color: 0xd2555a})));
+    const r = Array.isArray(radius) && radius.length ? radius.reduce((a, b) => a + b, 0) / radius.length : 0;
+    if (r > 0) {
+      const clean = vecs.filter((v, i) => i === 0 || v.distanceToSquared(vecs[i - 1]) > 1e-8);
+      if (clean.length >= 2) {
+        // Mean radius: the wall is a guide for the eye; the planner uses the real radii.
+        const tube = new THREE.TubeGeometry(new THREE.CatmullRomCurve3(clean, false, 'centripetal'),
+                                            Math.min(2000, clean.length * 2), r, 16, false);
+        group.add(new THREE.Mesh(tube, new THREE.MeshStandardMaterial({
+          color: 0xd2555a, transparent: true, opacity: 0.16, depthWrite: false, side: THREE.DoubleSide})));
+      }
+    }
+    this.fitTo(group);
+  }
+
+  // Planned backbones, one per insertion step; the current step is drawn bright, the others faint.
+  setPlan(backbones) {
+    if (!this.available) return;
+    this.clearGroup('planGroup');
+    this.planLines = [];
+    if (!backbones || !backbones.length) return;
+    const group = this.ensureGroup('planGroup');
+    for (const points of backbones) {
+      if (!Array.isArray(points) || points.length < 2) {
+        this.planLines.push(null);
+        continue;
+      }
+      const line = new THREE.Line(new THREE.BufferGeometry().setFromPoints(points.map(toVec)),
+                                  new THREE.LineBasicMaterial({color: 0x39c5cf, transparent: true, opacity: 0.28}));
+      this.planLines.push(line);
+      group.add(line);
+    }
+    this.planStep = -1;
+    this.requestRender();
+  }
+
+  setPlanStep(step) {
+    if (!this.available || !this.planLines || step === this.planStep) return;
+    this.planStep = step;
+    this.planLines.forEach((line, i) => {
+      if (!line) return;
+      line.material.opacity = i === step ? 1 : 0.28;
+      line.material.color.set(i === step ? 0x7ee8f0 : 0x39c5cf);
+    });
+    this.requestRender();
+  }
+
+  // foxglove.PointCloud (JSON, base64 data): the float32 x, y, z fields become points.
+  setPointCloud(msg) {
+    if (!this.available || !msg || typeof msg.data !== 'string') return;
+    const fields = Object.fromEntries((msg.fields || []).map((f) => [f.name, f]));
+    const stride = Number(msg.point_stride);
+    if (!fields.x || !fields.y || !fields.z || !(stride > 0)) return;
+    const key = `${msg.data.length}:${msg.data.slice(0, 64)}:${msg.data.slice(-64)}`;
+    if (key === this.cloudKey) return;  // the map is republished unchanged
+    this.cloudKey = key;
+    const bytes = Uint8Array.from(atob(msg.data), (c) => c.charCodeAt(0));
+    const view = new DataView(bytes.buffer);
+    const n = Math.floor(bytes.length / stride);
+    const positions = new Float32Array(n * 3);
+    // foxglove NumericType 7 = FLOAT32, 8 = FLOAT64
+    const read = (f, at) => (f.type === 8 ? view.getFloat64(at + f.offset, true) : view.getFloat32(at + f.offset, true));
+    for (let i = 0; i < n; i++) {
+      positions[i * 3] = read(fields.x, i * stride);
+      positions[i * 3 + 1] = read(fields.y, i * stride);
+      positions[i * 3 + 2] = read(fields.z, i * stride);
+    }
+    this.clearGroup('cloudGroup');
+    const group = this.ensureGroup('cloudGroup');
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
+    group.add(new THREE.Points(geometry, new THREE.PointsMaterial({color: 0xb07aa1, size: 1.2, sizeAttenuation: true})));
+    applyPose(group, msg.pose);
+    this.requestRender();
+  }
+
+  ensureGroup(name) {
+    if (!this[name]) {
+      this[name] = new THREE.Group();
+      this.scene.add(this[name]);
+    }
+    return this[name];
+  }
+
+  clearGroup(name) {
+    const group = this[name];
+    if (!group) return;
+    for (const child of [...group.children]) {
+      disposeTree(child);
+      group.remove(child);
+    }
+    this.requestRender();
+  }
+
+  // Frame the camera on one object (e.g. a newly loaded vessel).
+  fitTo(object) {
+    const box = new THREE.Box3().setFromObject(object);
+    if (box.isEmpty()) return;
+    box.expandByPoint(new THREE.Vector3(0, 0, 0));
+    this.frameBox(box);
+  }
+
+  // Frame the camera on the backbone (and the grid origin). The Fit view button (byUser) also hands
+  // framing back to the console.
+  fit(byUser = true) {
+    if (byUser) this.userCamera = false;
     if (!this.available) return;
     const box = new THREE.Box3().setFromObject(this.backboneGroup);
     if (box.isEmpty()) box.set(new THREE.Vector3(-20, -20, 0), new THREE.Vector3(20, 20, 60));
     box.expandByPoint(new THREE.Vector3(0, 0, 0));
+    if (this.vesselGroup && this.vesselGroup.children.length) box.union(new THREE.Box3().setFromObject(this.vesselGroup));
+    this.frameBox(box);
+  }
+
+  frameBox(box) {
+    this.fittedBox = box.clone().expandByScalar(Math.max(5, box.getSize(new THREE.Vector3()).length() * 0.1));
     const center = box.getCenter(new THREE.Vector3());
     const radius = Math.max(30, box.getSize(new THREE.Vector3()).length() / 2);
     const distance = radius / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2)) * 1.25;

@@ -1,0 +1,312 @@
+// Plan panel: load a vessel (CSV or STL, mm), show its centreline in 3D, compute a plan (a job on
+// the server, polled with a progress bar), show the planned catheter shape per insertion step and the
+// planned error per step, then hand the plan to the robot's path_following mode and step through it.
+// Routes (contracts): POST/GET /vessels, GET /vessels/{id}?branch=k, POST /plans, GET/DELETE /jobs/{id},
+// GET/POST /robots/{r}/path_following, POST /robots/{r}/path_following/step. A server without the
+// planning routes (404) gets a plain "not available" message, never invented data.
+import {ApiError} from './api.js';
+import {StepPlot} from './plot.js';
+
+const $ = (sel) => document.querySelector(sel);
+const JOB_POLL_MS = 400;
+
+export class PlanPanel {
+  // ctx: {api, view(): CatheterView|null, robot(): robot description, status(text, kind), onPathLoaded()}
+  constructor(ctx) {
+    this.ctx = ctx;
+    this.ui = {
+      availability: $('[data-testid="plan-availability"]'),
+      body: $('#plan-body'),
+      file: $('[data-testid="vessel-file"]'),
+      upload: $('[data-testid="vessel-upload-button"]'),
+      vessel: $('[data-testid="vessel-select"]'),
+      branch: $('[data-testid="branch-select"]'),
+      vesselInfo: $('[data-testid="vessel-info"]'),
+      ds: $('[data-testid="plan-ds"]'),
+      dq1: $('[data-testid="plan-dq1"]'),
+      design: $('[data-testid="plan-design"]'),
+      plan: $('[data-testid="plan-button"]'),
+      cancel: $('[data-testid="plan-cancel-button"]'),
+      progress: $('[data-testid="plan-progress"]'),
+      jobStatus: $('[data-testid="plan-job-status"]'),
+      summary: $('[data-testid="plan-summary"]'),
+      load: $('[data-testid="plan-load-button"]'),
+      pathStatus: $('[data-testid="path-status"]'),
+      prev: $('[data-testid="step-prev-button"]'),
+      next: $('[data-testid="step-next-button"]'),
+      stepInput: $('[data-testid="step-input"]'),
+      go: $('[data-testid="step-go-button"]'),
+    };
+    this.errorPlot = new StepPlot($('[data-testid="plan-error-plot"]'), {
+      left: {label: 'mean position error', unit: 'mm', color: '#e3b341'},
+      right: {label: 'mean orientation error', unit: '°', color: '#39c5cf'},
+    });
+    this.available = null;  // unknown until GET /vessels answered
+    this.vessels = [];
+    this.job = null;        // the plan job being computed or shown
+    this.plan = null;       // result of a succeeded plan job
+    this.path = null;       // GET path_following answer
+    this.pathAvailable = null;
+    this.wire();
+    this.updateButtons();
+  }
+
+  wire() {
+    const {ui} = this;
+    ui.upload.addEventListener('click', () => this.upload());
+    ui.file.addEventListener('change', () => this.updateButtons());
+    ui.vessel.addEventListener('change', () => this.selectVessel(ui.vessel.value));
+    ui.branch.addEventListener('change', () => this.showBranch());
+    ui.plan.addEventListener('click', () => this.startPlan());
+    ui.cancel.addEventListener('click', () => this.cancelPlan());
+    ui.load.addEventListener('click', () => this.loadPlan());
+    ui.prev.addEventListener('click', () => this.step({advance: -1}));
+    ui.next.addEventListener('click', () => this.step({advance: 1}));
+    ui.go.addEventListener('click', () => this.step({step: Number(ui.stepInput.value)}));
+    ui.stepInput.addEventListener('input', () => {
+      const k = Number(ui.stepInput.value);
+      if (Number.isInteger(k)) this.preview(k);
+    });
+  }
+
+  setAvailability(available, text) {
+    this.available = available;
+    this.ui.availability.textContent = text;
+    this.ui.availability.dataset.available = String(available);
+    this.ui.availability.hidden = available;
+    this.ui.body.hidden = !available;
+  }
+
+  async refresh() {
+    let list;
+    try {
+      list = await this.ctx.api.vessels();
+    } catch (err) {
+      if (err instanceof ApiError && [404, 405, 503].includes(err.status)) {
+        this.setAvailability(false, 'Planning is not available on this server (GET /api/v1/vessels answered ' +
+                                    `${err.status}${err.status === 503 ? `: ${err.message}` : ''}). Joint control is unaffected.`);
+      } else if (this.available === null) {
+        this.setAvailability(false, `Cannot reach the planning service: ${err.message}`);
+      }
+      return;
+    }
+    this.setAvailability(true, '');
+    this.vessels = Array.isArray(list) ? list : Array.isArray(list?.vessels) ? list.vessels : [];
+    const selected = this.ui.vessel.value;
+    this.ui.vessel.replaceChildren(new Option(this.vessels.length ? 'choose a vessel…' : 'no vessel loaded yet', ''),
+                                   ...this.vessels.map((v) => new Option(`${v.name || v.id} (${v.source || '?'})`, v.id)));
+    if (this.vessels.some((v) => v.id === selected)) this.ui.vessel.value = selected;
+    this.updateButtons();
+  }
+
+  async refreshPath() {
+    const robot = this.ctx.robot();
+    if (!robot) return;
+    try {
+      this.path = await this.ctx.api.pathFollowing(robot.name);
+      this.pathAvailable = true;
+    } catch (err) {
+      this.path = null;
+      this.pathAvailable = !(err instanceof ApiError && [404, 405, 503].includes(err.status));
+    }
+    this.renderPath();
+  }
+
+  renderPath() {
+    const {ui, path} = this;
+    if (this.pathAvailable === false) {
+      ui.pathStatus.textContent = 'Path following is not available on this server.';
+    } else if (!path || !path.loaded) {
+      ui.pathStatus.textContent = 'No plan loaded on the robot.';
+    } else {
+      const step = path.step >= 0 ? `step ${path.step} of ${path.steps - 1}` : `not started (${path.steps} steps)`;
+      ui.pathStatus.textContent = `Plan ${path.plan ?? ''} loaded: ${step}${path.moving ? ', moving…' : ''}`;
+      ui.stepInput.max = String(Math.max(0, path.steps - 1));
+      if (path.step >= 0) {
+        this.errorPlot.setCurrent(path.step);
+        this.ctx.view()?.setPlanStep(path.step);
+      }
+    }
+    ui.pathStatus.dataset.step = path && path.loaded ? String(path.step) : '';
+    this.updateButtons();
+  }
+
+  updateButtons() {
+    const {ui} = this;
+    const running = this.job && ['queued', 'running'].includes(this.job.state);
+    const os = this.ctx.operating?.();
+    const inPathMode = os && os.mode === 'path_following';
+    ui.upload.disabled = !ui.file.files?.length;
+    ui.plan.disabled = !ui.vessel.value || running;
+    ui.cancel.disabled = !running;
+    ui.load.disabled = !this.plan || !this.job;
+    const canStep = !!(this.path && this.path.loaded && inPathMode && os.state === 'ENABLED');
+    ui.prev.disabled = !canStep || this.path.step <= 0;
+    ui.next.disabled = !canStep || this.path.step >= this.path.steps - 1;
+    ui.go.disabled = !canStep;
+    let hint = '';
+    if (this.path && this.path.loaded && !inPathMode) hint = 'Switch to Path following mode to step.';
+    else if (this.path && this.path.loaded && os && os.state !== 'ENABLED') hint = 'Enable the robot to step.';
+    ui.go.title = hint;
+    ui.next.title = hint;
+    ui.prev.title = hint;
+  }
+
+  async upload() {
+    const file = this.ui.file.files?.[0];
+    if (!file) return;
+    const name = file.name.replace(/\.(csv|stl)$/i, '');
+    try {
+      const vessel = await this.ctx.api.uploadVessel(file, name);
+      this.ctx.status(`Vessel ${vessel.name || vessel.id} loaded: ${vessel.branches?.length ?? 0} branch(es)`, 'ok');
+      await this.refresh();
+      this.ui.vessel.value = vessel.id;
+      await this.selectVessel(vessel.id);
+    } catch (err) {
+      this.ctx.status(`Vessel refused: ${err.message}`, 'error');
+    }
+  }
+
+  async selectVessel(id) {
+    const vessel = this.vessels.find((v) => v.id === id);
+    const branches = vessel?.branches || [];
+    this.ui.branch.replaceChildren(...branches.map((b) => new Option(
+        `branch ${b.index} · ${Number(b.length_mm).toFixed(0)} mm`, String(b.index))));
+    this.ui.vesselInfo.textContent = vessel
+      ? `${branches.length} branch(es), ${branches.reduce((n, b) => n + (b.points || 0), 0)} points`
+      : '';
+    this.updateButtons();
+    if (vessel) await this.showBranch();
+    else this.ctx.view()?.setVessel(null);
+  }
+
+  async showBranch() {
+    const id = this.ui.vessel.value;
+    if (!id) return;
+    try {
+      const branch = await this.ctx.api.vessel(id, Number(this.ui.branch.value || 0));
+      this.branchRadius = branch.radius;
+      this.ctx.view()?.setVessel(branch.points, branch.radius);
+    } catch (err) {
+      this.ctx.status(`Cannot load the vessel branch: ${err.message}`, 'error');
+    }
+  }
+
+  async startPlan() {
+    const robot = this.ctx.robot();
+    const body = {
+      robot: robot.name,
+      vessel: this.ui.vessel.value,
+      branch: Number(this.ui.branch.value || 0),
+      ds: Number(this.ui.ds.value),
+      dq1: Number(this.ui.dq1.value),
+      design: this.ui.design.value,
+    };
+    this.plan = null;
+    this.errorPlot.setData([], []);
+    this.errorPlot.setMessage('Computing the plan…');
+    this.ctx.view()?.setPlan(null);
+    try {
+      this.job = await this.ctx.api.startPlan(body);
+    } catch (err) {
+      this.ctx.status(`Plan refused: ${err.message}`, 'error');
+      this.errorPlot.setMessage('No plan yet.');
+      return;
+    }
+    this.showJob();
+    this.pollJob(this.job.id);
+  }
+
+  async pollJob(id) {
+    while (this.job && this.job.id === id && ['queued', 'running'].includes(this.job.state)) {
+      await new Promise((r) => setTimeout(r, JOB_POLL_MS));
+      try {
+        this.job = await this.ctx.api.job(id);
+      } catch (err) {
+        this.ui.jobStatus.textContent = `Lost track of job ${id}: ${err.message}`;
+        return;
+      }
+      this.showJob();
+    }
+    if (this.job?.id === id && this.job.state === 'succeeded') this.showPlan(this.job.result);
+    else if (this.job?.id === id) this.errorPlot.setMessage(`No plan: the job ${this.job.state}.`);
+  }
+
+  showJob() {
+    const job = this.job;
+    const progress = Math.min(1, Math.max(0, Number(job.progress) || 0));
+    this.ui.progress.value = job.state === 'succeeded' ? 1 : progress;
+    this.ui.progress.setAttribute('aria-valuetext', `${(progress * 100).toFixed(0)} %`);
+    this.ui.progress.dataset.state = job.state;
+    const message = job.message ? `: ${job.message}` : '';
+    this.ui.jobStatus.textContent = `Plan job ${job.id} ${job.state} (${(progress * 100).toFixed(0)} %)${message}`;
+    this.ui.jobStatus.className = `job-status ${job.state === 'failed' ? 'error' : ''}`;
+    this.updateButtons();
+  }
+
+  showPlan(result) {
+    this.plan = result;
+    const steps = Array.isArray(result?.steps) ? result.steps : [];
+    this.errorPlot.setData(steps.map((s) => Number(s.position_error_mm)), steps.map((s) => Number(s.orientation_error_deg)));
+    // The plan lives in its insertion frame (vessel start at the origin, tangent +z); show the vessel
+    // path the planner used in that same frame, so vessel and planned shapes line up.
+    if (Array.isArray(result?.vessel_path) && result.vessel_path.length >= 2) {
+      const r = Array.isArray(this.branchRadius) ? this.branchRadius : null;
+      this.ctx.view()?.setVessel(result.vessel_path, r);
+    }
+    this.ctx.view()?.setPlan(steps.map((s) => s.backbone));
+    const sm = result?.summary || {};
+    const f = (v, d = 2) => (Number.isFinite(Number(v)) ? Number(v).toFixed(d) : '—');
+    const design = result?.design ? ` · design L1 ${f(result.design.L1, 1)} mm, L2 ${f(result.design.L2, 1)} mm` : '';
+    this.ui.summary.textContent = `${steps.length} steps · position error mean ${f(sm.mean_position_error_mm)} / ` +
+      `max ${f(sm.max_position_error_mm)} mm · orientation error mean ${f(sm.mean_orientation_error_deg, 1)} / ` +
+      `max ${f(sm.max_orientation_error_deg, 1)}° · computed in ${f(sm.compute_s, 1)} s${design}` +
+      (result?.truncated_to_insertion_range ? ' · ⚠ truncated to the insertion range' : '') +
+      (result?.within_joint_limits === false
+        ? ` · ⚠ outside joint limits${result.limit_violation ? `: ${JSON.stringify(result.limit_violation).slice(0, 160)}` : ''}` : '');
+    this.ui.stepInput.max = String(Math.max(0, steps.length - 1));
+    this.preview(0);
+    this.updateButtons();
+  }
+
+  // Highlights a step in the 3D view and the error plot without moving the robot.
+  preview(step) {
+    this.errorPlot.setCurrent(step);
+    this.ctx.view()?.setPlanStep(step);
+  }
+
+  async cancelPlan() {
+    if (!this.job) return;
+    try {
+      this.job = await this.ctx.api.cancelJob(this.job.id);
+      this.showJob();
+    } catch (err) {
+      this.ctx.status(`Cancel refused: ${err.message}`, 'error');
+    }
+  }
+
+  async loadPlan() {
+    const robot = this.ctx.robot();
+    try {
+      const answer = await this.ctx.api.loadPlan(robot.name, this.job.id);
+      this.ctx.status(`Plan loaded on ${robot.name}: ${answer.steps} steps. Switch to Path following mode, then step.`, 'ok');
+    } catch (err) {
+      this.ctx.status(`Loading the plan refused: ${err.message}`, 'error');
+    }
+    await this.refreshPath();
+    this.ctx.onPathLoaded?.();
+  }
+
+  async step(body) {
+    const robot = this.ctx.robot();
+    try {
+      const answer = await this.ctx.api.pathStep(robot.name, body);
+      this.preview(answer.step);
+      const d = Number.isFinite(answer.duration_s) ? ` (about ${answer.duration_s.toFixed(1)} s)` : '';
+      this.ctx.status(`Moving to plan step ${answer.step}${d}`, 'ok');
+    } catch (err) {
+      this.ctx.status(`Step refused: ${err.message}`, 'error');
+    }
+    this.refreshPath();
+  }
+}
