@@ -49,7 +49,10 @@ start_tendrild() {
   "control_rate_hz": 1000,
   "publish_rate_hz": 50,
   "realtime_priority": true,
-  "robots": ["$repo_root/config/robots/srmc.json"]
+  "robots": ["$repo_root/config/robots/srmc.json"],
+  "imaging": {"enabled": true, "width": 512, "height": 512, "fps": 10, "jpeg_quality": 80,
+              "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [0, 0, 50],
+              "vessel": "$repo_root/config/vessels/synthetic_ica.csv"}
 }
 JSON
   local args=(--config "$tendrild_workdir/server.json")

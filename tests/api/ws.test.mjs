@@ -96,3 +96,37 @@ test('serverInfo, advertised channels, and joint_states messages with 4 position
     client.close();
   }
 });
+
+test('the simulated fluoroscope streams JPEG foxglove.CompressedImage and the vessel wall as a PointCloud', async () => {
+  const {client} = connect(`${WS_URL}?token=${encodeURIComponent(TOKEN)}`);
+  try {
+    const channels = new Map();
+    client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
+    await waitFor(client, 'serverInfo', (i) => i);
+    for (const topic of ['/imaging/ap', '/imaging/lateral', '/maps/vessel']) {
+      if (!channels.has(topic)) await waitFor(client, 'advertise', (list) => list.find((c) => c.topic === topic));
+    }
+    assert.equal(channels.get('/imaging/ap').schemaName, 'foxglove.CompressedImage');
+    assert.equal(channels.get('/maps/vessel').schemaName, 'foxglove.PointCloud');
+    const decoder = new TextDecoder();
+    const parse = (m) => JSON.parse(decoder.decode(new Uint8Array(m.data.buffer, m.data.byteOffset, m.data.byteLength)));
+
+    const imageSub = client.subscribe(channels.get('/imaging/ap').id);
+    const image = await waitFor(client, 'message', (m) => (m.subscriptionId === imageSub ? parse(m) : undefined));
+    assert.equal(image.format, 'jpeg');
+    const jpeg = Buffer.from(image.data, 'base64');
+    assert.deepEqual([...jpeg.subarray(0, 3)], [0xff, 0xd8, 0xff], 'data is a JPEG (SOI marker)');
+    assert.deepEqual([...jpeg.subarray(-2)], [0xff, 0xd9], 'the JPEG is complete (EOI marker)');
+    assert.ok(image.timestamp.sec > 0, 'capture timestamp');
+
+    const cloudSub = client.subscribe(channels.get('/maps/vessel').id);
+    const cloud = await waitFor(client, 'message', (m) => (m.subscriptionId === cloudSub ? parse(m) : undefined));
+    const points = Buffer.from(cloud.data, 'base64');
+    assert.ok(cloud.point_stride >= 12, 'x, y, z floats at least');
+    assert.ok(points.length >= 100 * cloud.point_stride, 'the vessel wall has points');
+    assert.equal(points.length % cloud.point_stride, 0);
+    assert.deepEqual(cloud.fields.slice(0, 3).map((f) => f.name), ['x', 'y', 'z']);
+  } finally {
+    client.close();
+  }
+});
