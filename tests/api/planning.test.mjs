@@ -229,3 +229,75 @@ test('DELETE /vessels/{id} forgets a vessel', async () => {
   assert.equal((await call('DELETE', `/vessels/${vesselId}`)).status, 200);
   assertErrorShape(await get(`/vessels/${vesselId}`), 404, 'unknown_vessel');
 });
+
+// A binary STL of an open tube (radius 2.5 mm, 24 sides) around a centerline that runs straight for
+// 20 mm along +z and then bends through a 40 mm radius arc in the x–z plane for 60 mm.
+function tubeStl() {
+  const centre = (s) => {
+    if (s <= 20) return {p: [0, 0, s], t: [0, 0, 1], n: [1, 0, 0]};
+    const a = (s - 20) / 40;
+    return {p: [40 * (1 - Math.cos(a)), 0, 20 + 40 * Math.sin(a)], t: [Math.sin(a), 0, Math.cos(a)], n: [Math.cos(a), 0, -Math.sin(a)]};
+  };
+  const sides = 24;
+  const rings = [];
+  for (let s = 0; s <= 80 + 1e-9; s += 0.5) {
+    const {p, n} = centre(s);
+    const b = [0, 1, 0];
+    const ring = [];
+    for (let k = 0; k < sides; k++) {
+      const phi = (2 * Math.PI * k) / sides;
+      ring.push(p.map((v, i) => v + 2.5 * (Math.cos(phi) * n[i] + Math.sin(phi) * b[i])));
+    }
+    rings.push(ring);
+  }
+  const triangles = [];
+  for (let r = 0; r + 1 < rings.length; r++) {
+    for (let k = 0; k < sides; k++) {
+      const a = rings[r][k], b = rings[r][(k + 1) % sides], c = rings[r + 1][k], d = rings[r + 1][(k + 1) % sides];
+      triangles.push([a, b, d], [a, d, c]);
+    }
+  }
+  const buffer = Buffer.alloc(84 + 50 * triangles.length);
+  buffer.write('tendril api test tube', 0, 'ascii');
+  buffer.writeUInt32LE(triangles.length, 80);
+  triangles.forEach((tri, i) => {
+    let offset = 84 + 50 * i + 12;  // zero normal
+    for (const v of tri) for (const x of v) { buffer.writeFloatLE(x, offset); offset += 4; }
+  });
+  return buffer;
+}
+
+test('POST /vessels with a binary STL mesh extracts its centerline (model/stl)', async () => {
+  const res = await upload('/vessels?name=tube', tubeStl(), 'model/stl');
+  assert.equal(res.status, 201, res.text);
+  assert.equal(res.json.source, 'stl');
+  assert.equal(res.json.branches.length, 1);
+  const length = res.json.branches[0].length_mm;
+  assert.ok(length > 70 && length <= 81, `centerline length ${length} mm of an 80 mm tube`);
+  const one = await get(`/vessels/${res.json.id}?branch=0&ds=1`);
+  assert.equal(one.status, 200, one.text);
+  // Every extracted point lies on the true centerline: within 0.5 mm of the straight part or the arc.
+  for (const [x, y, z] of one.json.points) {
+    const onStraight = z <= 20 ? Math.hypot(x, y) : Infinity;
+    const onArc = z >= 20 ? Math.abs(Math.hypot(x - 40, z - 20) - 40) + Math.abs(y) : Infinity;
+    assert.ok(Math.min(onStraight, onArc) < 0.5, `point ${[x, y, z].map((v) => v.toFixed(2))} is off the centerline`);
+  }
+  for (const r of one.json.radius) assert.ok(Math.abs(r - 2.5) < 0.25, `radius ${r}`);
+
+  const broken = await upload('/vessels', tubeStl().subarray(0, 500), 'model/stl');
+  assertErrorShape(broken, 400, 'bad_vessel');
+});
+
+test('POST /designs optimises L1, L2, δ2 as a job and lowers the design penalty', async () => {
+  const up = await upload('/vessels?name=ica-design', icaCsv, 'text/csv');
+  assert.equal(up.status, 201, up.text);
+  const res = await post('/designs', {vessel: up.json.id, branch: 0, flexure: false});
+  assert.equal(res.status, 202, res.text);
+  assert.equal(res.json.kind, 'design');
+  const {job} = await waitForJob(res.json.id);
+  assert.equal(job.state, 'succeeded', job.message);
+  const result = job.result;
+  assert.ok(result.penalty < result.initial_penalty, `g(χ) ${result.penalty} must fall below ${result.initial_penalty}`);
+  for (const key of ['L1', 'L2', 'delta2']) assert.ok(Number.isFinite(result.design[key]), key);
+  assert.ok(result.summary.mean_position_error_mm >= 0);
+});

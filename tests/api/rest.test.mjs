@@ -141,7 +141,14 @@ test('move_jp answers 202 and the robot reaches the goal', async () => {
     const within = m.position.every((v, i) => Math.abs(v - goal[i]) <= tolerance(joints[i].unit));
     return {done: within, m};
   }, {polls, intervalMs: 50});
-  assert.ok(last.done, `measured ${JSON.stringify(last.m.position)} did not reach goal ${JSON.stringify(goal)}`);
+  if (!last.done) {
+    // Say why: a fault (and its cause) or a setpoint that stopped short.
+    const state = await operatingState();
+    const faults = (await get('/faults?max=3')).json;
+    const setpoint = (await get(`${R}/setpoint_js`)).json.position;
+    assert.fail(`measured ${JSON.stringify(last.m.position)} did not reach goal ${JSON.stringify(goal)}; ` +
+      `setpoint ${JSON.stringify(setpoint)}, state ${JSON.stringify(state)}, recent faults ${JSON.stringify(faults)}`);
+  }
   const sp = await get(`${R}/setpoint_js`);
   sp.json.position.forEach((v, i) => assert.ok(Math.abs(v - goal[i]) <= tolerance(joints[i].unit), 'setpoint at goal'));
 });

@@ -947,10 +947,15 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
 
   void do_read() {
     parser_.emplace();
-    parser_->body_limit(server_.opts.max_body_bytes);
+    // Beast checks Content-Length against the body limit while it parses the header, before the
+    // route is known: admit the largest body any route takes here, and narrow it in on_header.
+    std::size_t largest = server_.opts.max_body_bytes;
+    if (server_.opts.planning != nullptr)
+      largest = std::max(largest, server_.opts.planning->max_vessel_bytes());
+    parser_->body_limit(largest);
     parser_->header_limit(16 * 1024);
     lowest().expires_after(std::chrono::seconds(30));
-    body_limit_ = server_.opts.max_body_bytes;
+    body_limit_ = largest;
     // Headers first: vessel files and plans may be larger than other bodies (planning_routes.hpp).
     std::visit(
         [this](auto& stream) {
@@ -964,11 +969,16 @@ class FrontEndHttpSession : public std::enable_shared_from_this<FrontEndHttpSess
   void on_header(beast::error_code ec, std::size_t bytes) {
     if (ec) return on_read(ec, bytes);
     const auto& header = parser_->get();
-    if (server_.opts.planning != nullptr &&
-        takes_large_body(header.method_string(), parse_target(header.target()).path)) {
-      body_limit_ = std::max(body_limit_, server_.opts.planning->max_vessel_bytes());
-      parser_->body_limit(body_limit_);
+    if (server_.opts.planning == nullptr ||
+        !takes_large_body(header.method_string(), parse_target(header.target()).path)) {
+      body_limit_ = server_.opts.max_body_bytes;
     }
+    // A declared length over the route's limit is refused before the body is read; a chunked body
+    // is held to the limit chunk by chunk.
+    if (const auto declared = parser_->content_length(); declared && *declared > body_limit_) {
+      return on_read(bhttp::error::body_limit, bytes);
+    }
+    parser_->body_limit(body_limit_);
     std::visit(
         [this](auto& stream) {
           bhttp::async_read(stream, buffer_, *parser_,
