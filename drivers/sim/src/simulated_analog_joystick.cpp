@@ -35,19 +35,17 @@ void SimulatedAnalogJoystick::handle_nmt(const can::Frame& frame) noexcept {
   if (frame.id != 0 || frame.len < 2) return;
   if (frame.data[1] != 0 && frame.data[1] != parameters_.node_id) return;
   switch (frame.data[0]) {
-    case 0x01:
+    case 0x01:  // start
       operational_ = true;
-      break;  // start
-    case 0x02:
+      break;
+    case 0x02:  // stop
+    case 0x80:  // enter pre-operational: no PDOs in either state
       operational_ = false;
-      break;  // stop
-    case 0x80:
-      operational_ = false;
-      break;    // pre-operational
+      break;
     case 0x81:  // reset node
-    case 0x82:
+    case 0x82:  // reset communication: boot again
       booted_ = false;
-      break;  // reset communication
+      break;
     default:
       break;
   }

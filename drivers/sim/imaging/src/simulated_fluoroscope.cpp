@@ -272,7 +272,7 @@ struct SimulatedFluoroscope::Impl {
 };
 
 SimulatedFluoroscope::SimulatedFluoroscope(FluoroView view, FluoroscopeOptions options,
-                                           std::vector<VesselTube> vessels)
+                                           const std::vector<VesselTube>& vessels)
     : impl_(std::make_unique<Impl>()) {
   const auto& g = options.geometry;
   require(std::isfinite(g.sid_mm) && std::isfinite(g.sod_mm) && g.sod_mm > 0 && g.sid_mm > g.sod_mm,

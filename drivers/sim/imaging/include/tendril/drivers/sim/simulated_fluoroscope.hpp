@@ -84,7 +84,8 @@ class SimulatedFluoroscope {
   // `vessels`: contrast-filled branches, drawn once (they do not move). Throws FluoroscopeError on a
   // geometry that cannot image (non-positive distances, SOD ≥ SID, sizes outside 16..4096 px), a
   // vessel with mismatched radii, or non-finite numbers.
-  SimulatedFluoroscope(FluoroView view, FluoroscopeOptions options, std::vector<VesselTube> vessels = {});
+  SimulatedFluoroscope(FluoroView view, FluoroscopeOptions options,
+                       const std::vector<VesselTube>& vessels = {});
   ~SimulatedFluoroscope();
   SimulatedFluoroscope(SimulatedFluoroscope&&) noexcept;
   SimulatedFluoroscope& operator=(SimulatedFluoroscope&&) noexcept;
