@@ -435,7 +435,8 @@ std::string ImagingWorker::metrics() const {
     n = std::min(n, kTimingWindow);
     if (n == 0) return 0.0;
     auto end = values.begin() + static_cast<std::ptrdiff_t>(n);
-    auto at = values.begin() + static_cast<std::ptrdiff_t>(std::min(n - 1, static_cast<std::size_t>(q * n)));
+    auto at = values.begin() + static_cast<std::ptrdiff_t>(
+                                   std::min(n - 1, static_cast<std::size_t>(q * static_cast<double>(n))));
     std::nth_element(values.begin(), at, end);
     return *at;
   };

@@ -82,7 +82,7 @@ TriangleMesh parse_binary(std::string_view bytes, std::uint32_t count) {
     const char* record = bytes.data() + 84 + 50 * static_cast<std::size_t>(t);
     std::array<Eigen::Vector3d, 3> corners;
     for (int c = 0; c < 3; ++c) {
-      const char* p = record + 12 + 12 * c;  // skip the facet normal (recomputed nowhere, unused)
+      const char* p = record + 12 + std::ptrdiff_t{12} * c;  // skip the facet normal (unused)
       corners[c] = {read_f32_le(p), read_f32_le(p + 4), read_f32_le(p + 8)};
       check_corner(corners[c], t);
     }

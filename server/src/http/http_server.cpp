@@ -581,7 +581,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
 
   // Current values of `names` (all when empty); unknown names are left out, as the spec allows.
   json select_parameters(const std::vector<std::string>& names) const {
-    const json all = server_.api.parameters();
+    json all = server_.api.parameters();
     if (names.empty()) return all;
     json selected = json::array();
     for (const auto& p : all) {
@@ -1672,8 +1672,12 @@ void HttpServer::Impl::report_new_safety_events() {
     const std::string robot = event.value("robot", std::string());
     const auto level = kind == "estop_reset" ? fg::StatusLevel::kInfo : fg::StatusLevel::kError;
     const std::string what = kind == "estop" ? "e-stop" : kind == "estop_reset" ? "e-stop reset" : "fault";
-    broadcast_status(fg::status(level, robot + " " + what + ": " + event.value("message", std::string()),
-                                "safety/" + robot));
+    std::string text = robot;
+    text += ' ';
+    text += what;
+    text += ": ";
+    text += event.value("message", std::string());
+    broadcast_status(fg::status(level, text, "safety/" + robot));
   }
 }
 

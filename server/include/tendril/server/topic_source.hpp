@@ -34,7 +34,9 @@ class TopicSource {
   virtual std::optional<TopicPayload> latest(const std::string& topic, std::uint64_t since_version) const = 0;
   // The server registers a callback that the source calls (from its own thread, cheaply) when a new
   // message is ready, so that it goes out at once instead of at the next publisher tick.
-  virtual void set_ready_callback(std::function<void()> ready) { (void)ready; }
+  // By value: implementations keep the callback. The default source is polled only.
+  // NOLINTNEXTLINE(performance-unnecessary-value-param)
+  virtual void set_ready_callback(std::function<void()> /*ready*/) {}
   // Prometheus text appended to GET /metrics.
   virtual std::string metrics() const { return {}; }
 };
