@@ -68,6 +68,17 @@ CenterlinePolyline truncated(const CenterlinePolyline& p, double max_length) {
   return out;
 }
 
+// The tip cannot go deeper than the insertion joint reaches: the vessel is planned that far, in the
+// insertion frame, resampled at ds.
+teleop::VesselCenterline reachable_path(const teleop::CenterlinePolyline& branch, const RobotConfig& rc,
+                                        double ds) {
+  const auto& insertion = rc.joints.at(0);
+  const double reach = insertion.upper - insertion.soft_margin;
+  return teleop::VesselCenterline::from_polyline(
+             polyline_length(branch) > reach ? truncated(branch, reach) : branch, ds)
+      .aligned_to_insertion();
+}
+
 json point_json(const Eigen::Vector3d& p) { return json::array({p.x(), p.y(), p.z()}); }
 
 struct StoredVessel {
@@ -449,14 +460,9 @@ struct PlanningService::Impl {
       work = [p, branch = std::move(branch), rc = robot.config, base = *robot.design,
               vessel_id](const teleop::JobControl& control) {
         const auto start = std::chrono::steady_clock::now();
-        // The tip cannot go deeper than the insertion joint reaches: plan that far, say so.
-        const auto& insertion = rc.joints.at(0);
-        const double reach = insertion.upper - insertion.soft_margin;
         const double length = polyline_length(branch);
-        const bool cut = length > reach;
-        const auto aligned =
-            teleop::VesselCenterline::from_polyline(cut ? truncated(branch, reach) : branch, p.ds)
-                .aligned_to_insertion();
+        const bool cut = length > rc.joints.at(0).upper - rc.joints.at(0).soft_margin;  // said in the result
+        const auto aligned = reachable_path(branch, rc, p.ds);
         auto options = planner_options(rc, p.dq1, p.flexure);
         teleop::PathPlan plan;
         if (p.design == "optimise") {
@@ -476,12 +482,7 @@ struct PlanningService::Impl {
       work = [p, branch = std::move(branch), rc = robot.config, base = *robot.design,
               vessel_id](const teleop::JobControl& control) {
         const auto start = std::chrono::steady_clock::now();
-        const auto& insertion = rc.joints.at(0);
-        const double reach = insertion.upper - insertion.soft_margin;
-        const double length = polyline_length(branch);
-        const auto aligned =
-            teleop::VesselCenterline::from_polyline(length > reach ? truncated(branch, reach) : branch, p.ds)
-                .aligned_to_insertion();
+        const auto aligned = reachable_path(branch, rc, p.ds);
         const auto start_design = p.design == "nominal" ? teleop::nominal_planning_design() : base;
         const auto result = teleop::optimise_design(start_design, aligned,
                                                     planner_options(rc, p.dq1, p.flexure), {}, control);
