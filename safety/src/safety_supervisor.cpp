@@ -113,6 +113,20 @@ void SafetySupervisor::fault(double t, FaultCode code, int joint, const char* de
   raise_fault(t, code == FaultCode::kNone ? FaultCode::kExternal : code, joint, text);
 }
 
+bool SafetySupervisor::hold(double t, FaultCode code, int joint, const char* detail) noexcept {
+  process_estop_request(t);
+  if (state_.load(std::memory_order_relaxed) != OperatingState::kEnabled) return false;
+  char text[96];
+  if (joint >= 0 && static_cast<std::size_t>(joint) < limits_.size())
+    std::snprintf(text, sizeof(text), "hold: %s on joint '%s'%s%s", to_string(code),
+                  limits_[joint].name.c_str(), detail ? ": " : "", detail ? detail : "");
+  else
+    std::snprintf(text, sizeof(text), "hold: %s%s%s", to_string(code), detail ? ": " : "",
+                  detail ? detail : "");
+  transition(t, OperatingState::kPaused, EventKind::kHold, code, joint, text);
+  return true;
+}
+
 CommandResult SafetySupervisor::refuse(double t, StateCommand command, CommandResult why) noexcept {
   char text[96];
   std::snprintf(text, sizeof(text), "%s %s", to_string(command), to_string(why));

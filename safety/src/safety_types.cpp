@@ -70,6 +70,8 @@ const char* to_string(FaultCode code) noexcept {
       return "invalid setpoint";
     case FaultCode::kCommandTimeout:
       return "servo command timeout";
+    case FaultCode::kSpringDeflection:
+      return "spring deflection over its bound";
     case FaultCode::kExternal:
       return "external fault";
   }

@@ -312,3 +312,27 @@ TEST(SafetyTypes, EveryEnumHasAName) {
 
 }  // namespace
 }  // namespace tendril::safety
+
+namespace tendril::safety {
+namespace {
+
+TEST(SafetySupervisorHold, SpringDeflectionHoldsWithoutLosingPowerAndLogsTheCause) {
+  auto s = make();
+  EXPECT_FALSE(s->hold(0.0, FaultCode::kSpringDeflection, 0, "1.6 mm over 1.5 mm"));  // DISABLED: nothing
+  ASSERT_EQ(s->request(0.1, StateCommand::kEnable), CommandResult::kAccepted);
+  drain(*s);
+  EXPECT_TRUE(s->hold(0.2, FaultCode::kSpringDeflection, 1, "1.6 mm over 1.5 mm"));
+  EXPECT_EQ(s->state(), OperatingState::kPaused);
+  const auto events = drain(*s);
+  ASSERT_EQ(events.size(), 1u);
+  EXPECT_EQ(events[0].kind, EventKind::kHold);
+  EXPECT_EQ(events[0].code, FaultCode::kSpringDeflection);
+  EXPECT_NE(std::string(events[0].text).find("spring deflection"), std::string::npos) << events[0].text;
+  // Held, not faulted: resume brings it back.
+  EXPECT_FALSE(s->hold(0.3, FaultCode::kSpringDeflection, 1, nullptr));
+  EXPECT_EQ(s->request(0.4, StateCommand::kResume), CommandResult::kAccepted);
+  EXPECT_EQ(s->state(), OperatingState::kEnabled);
+}
+
+}  // namespace
+}  // namespace tendril::safety

@@ -79,6 +79,10 @@ class SafetySupervisor {
   CommandResult reset_estop(double t) noexcept;
   // External fault (drive heartbeat lost, EMCY, bus-off, …). detail may be null.
   void fault(double t, FaultCode code, int joint, const char* detail) noexcept;
+  // A limit that needs the robot to stop but not to lose power (spring deflection, a stale contact
+  // sensor): ENABLED -> PAUSED with the cause logged as a hold. Returns false (and logs nothing) when
+  // the robot was not ENABLED.
+  bool hold(double t, FaultCode code, int joint, const char* detail) noexcept;
 
   // --- any thread ---
   // Latches the e-stop immediately as seen by state()/estop_latched(); the control thread logs it and

@@ -35,6 +35,7 @@ enum class FaultCode : std::uint8_t {
   kInvalidMeasurement,  // wrong size or non-finite measured joint state
   kInvalidSetpoint,     // controller produced a non-finite or wrong-size setpoint
   kCommandTimeout,      // servo stream not refreshed (a hold, not a fault)
+  kSpringDeflection,    // a series-elastic spring deflected beyond its bound (a hold)
   kExternal,            // any other cause reported from outside
 };
 
