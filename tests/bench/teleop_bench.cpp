@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "tendril/safety/safety_supervisor.hpp"
+#include "tendril/teleop/catheter_configuration.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
 #include "tendril/teleop/pid.hpp"
 #include "tendril/teleop/quintic_interpolator.hpp"
@@ -113,5 +114,32 @@ void BM_ControlTick(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_ControlTick);
+
+// Configuration controller step: one step() of configuration-space control (§4.11.2): quintic sample
+// in ψ, (4.21) twice (midpoint rule) and the drift correction, on the seed's placeholder model. The
+// goal alternates between two bend configurations whenever a motion ends, so every step is mid-motion
+// except the one that retargets.
+void BM_ConfigurationControllerStep(benchmark::State& state) {
+  using tendril::teleop::CatheterConfigurationMap;
+  using V4 = CatheterConfigurationMap::Vector4;
+  const CatheterConfigurationMap map(
+      tendril::teleop::constant_curvature_modal_parameters(tendril::teleop::CatheterParameters{}),
+      tendril::teleop::ConfigurationRateParameters{});
+  tendril::teleop::ConfigurationSpaceController controller(map, V4(2.0, 0.5, 0.1, 0.2),
+                                                           V4(5.0, 2.0, 0.5, 1.0));
+  const std::array<V4, 2> goals{V4(20.0, 0.8, 0.05, 0.3), V4(10.0, -0.4, -0.02, 0.0)};
+  V4 q(10.0, 0.0, 0.0, 0.0), qd = V4::Zero();
+  double t = 0.0;
+  std::size_t next = 0;
+  controller.reset(t, q);
+  controller.retarget(t, goals[next]);
+  for (auto _ : state) {
+    t += 1e-3;
+    benchmark::DoNotOptimize(controller.step(t, 1e-3, q, qd));
+    benchmark::DoNotOptimize(q);
+    if (controller.done(t)) controller.retarget(t, goals[next ^= 1]);
+  }
+}
+BENCHMARK(BM_ConfigurationControllerStep)->Name("configuration controller step");
 
 }  // namespace
