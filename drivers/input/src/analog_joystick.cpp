@@ -1,5 +1,7 @@
 #include "tendril/drivers/input/analog_joystick.hpp"
 
+#include "tendril/drivers/canopen/analog_input_node.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -7,28 +9,14 @@ namespace tendril::input {
 
 std::optional<std::array<double, kAnalogJoystickChannels>> decode_analog_joystick_pdo(
     const can::Frame& frame, std::uint8_t node_id) noexcept {
-  if (frame.extended || frame.rtr || frame.error) return std::nullopt;
-  if (frame.id != 0x180U + node_id || frame.len < 2 * kAnalogJoystickChannels) return std::nullopt;
-  std::array<double, kAnalogJoystickChannels> volts{};
-  for (std::size_t i = 0; i < kAnalogJoystickChannels; ++i) {
-    const auto millivolts = static_cast<std::uint16_t>(frame.data[2 * i] | (frame.data[2 * i + 1] << 8));
-    volts[i] = millivolts / 1000.0;
-  }
-  return volts;
+  const auto pdo = canopen::decode_analog_input_pdo(frame, node_id);
+  if (!pdo) return std::nullopt;
+  return pdo->volts;
 }
 
 can::Frame encode_analog_joystick_pdo(std::uint8_t node_id,
                                       const std::array<double, kAnalogJoystickChannels>& volts) noexcept {
-  can::Frame frame;
-  frame.id = 0x180U + node_id;
-  frame.len = 2 * kAnalogJoystickChannels;
-  for (std::size_t i = 0; i < kAnalogJoystickChannels; ++i) {
-    const double mv = std::isfinite(volts[i]) ? std::clamp(std::round(volts[i] * 1000.0), 0.0, 65535.0) : 0.0;
-    const auto value = static_cast<std::uint16_t>(mv);
-    frame.data[2 * i] = static_cast<std::uint8_t>(value & 0xFFU);
-    frame.data[2 * i + 1] = static_cast<std::uint8_t>(value >> 8);
-  }
-  return frame;
+  return canopen::encode_analog_input_pdo(node_id, volts);
 }
 
 JoystickState analog_joystick_state(const std::array<double, kAnalogJoystickChannels>& volts,
@@ -69,16 +57,25 @@ AnalogJoystickReceiver::AnalogJoystickReceiver(AnalogJoystickCalibration calibra
     throw JoystickConfigError("analog joystick: fault_margin_volts must not be negative");
   }
   if (c.stale_after_ns <= 0) throw JoystickConfigError("analog joystick: stale_after must be positive");
+  if (c.deadman_digital_input < -1 || c.deadman_digital_input > 7)
+    throw JoystickConfigError("analog joystick: deadman_digital_input must be -1 (none) or 0..7");
 }
 
 bool AnalogJoystickReceiver::handle(const can::Frame& frame, std::int64_t now_ns) noexcept {
-  const auto volts = decode_analog_joystick_pdo(frame, calibration_.node_id);
-  if (!volts) return false;
-  volts_ = *volts;
+  const auto pdo = canopen::decode_analog_input_pdo(frame, calibration_.node_id);
+  if (!pdo) return false;
+  volts_ = pdo->volts;
+  digital_inputs_ = pdo->has_digital_inputs ? pdo->digital_inputs : 0;
   last_ns_ = now_ns;
   seen_ = true;
   ++frames_;
   return true;
+}
+
+JoystickState AnalogJoystickReceiver::state(std::int64_t now_ns) const noexcept {
+  const int bit = calibration_.deadman_digital_input;
+  const bool pedal = bit >= 0 && ((digital_inputs_ >> bit) & 1U) != 0;
+  return state(pedal, now_ns);
 }
 
 JoystickState AnalogJoystickReceiver::state(bool deadman, std::int64_t now_ns) const noexcept {

@@ -31,6 +31,9 @@ struct AnalogJoystickCalibration {
   double fault_margin_volts = 0.25;           // beyond 0 − margin or supply + margin: wiring fault
   std::int64_t stale_after_ns = 100'000'000;  // no TPDO for this long: not connected
   std::array<bool, kAnalogJoystickChannels> invert{};
+  // The node's digital input wired to an operator-presence foot pedal (the 822 has no deadman of its
+  // own); -1: none, the deadman must come from elsewhere.
+  int deadman_digital_input = 0;
 };
 
 // One decoded TPDO: volts per channel, or nothing when the frame is not this node's TPDO1 or is
@@ -57,11 +60,14 @@ class AnalogJoystickReceiver {
   bool handle(const can::Frame& frame, std::int64_t now_ns) noexcept;
   // The newest reading, turned "not connected" when it is older than stale_after_ns.
   JoystickState state(bool deadman, std::int64_t now_ns) const noexcept;
+  // The same with the deadman read from the node's digital input (deadman_digital_input).
+  JoystickState state(std::int64_t now_ns) const noexcept;
   std::uint64_t frames() const noexcept { return frames_; }
 
  private:
   AnalogJoystickCalibration calibration_;
   std::array<double, kAnalogJoystickChannels> volts_{};
+  std::uint8_t digital_inputs_ = 0;
   std::int64_t last_ns_ = 0;
   bool seen_ = false;
   std::uint64_t frames_ = 0;
