@@ -1,0 +1,68 @@
+// SIMULATED contact of the steerable catheter with a vessel wall: the vessel is a tube (centerline
+// polyline in the catheter's frame {0}, mm, and a lumen radius); the catheter's backbone comes from
+// its assembled shape model at the actuation that reaches the tubes (insertion, roll, proximal
+// carriage, effective distal actuation). A backbone point whose distance from the centerline plus
+// the catheter radius exceeds the lumen penetrates the wall by d and stores ½·k_wall·d² of elastic
+// energy. The generalised wall forces on insertion and the two carriages are −∂E/∂q (central
+// differences), i.e. what a compliant wall pushes back with through the catheter's kinematics.
+// Allocation-free after construction; one instance per plant (it keeps scratch buffers).
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "tendril/teleop/modal_catheter_kinematics.hpp"
+
+namespace tendril::sim {
+
+struct CatheterVesselContactParameters {
+  double lumen_radius = 1.5875;  // mm: the seed's phantom tubing, ID 3.175 mm
+  double catheter_radius = 0.6;  // mm: 1.2 mm outer tube
+  double wall_stiffness = 1.0;   // N/mm per backbone point in contact
+  std::size_t points_per_segment = 8;
+};
+
+struct ContactForces {
+  // Generalised forces on [insertion (N), roll (N·mm), proximal carriage (N), distal actuation (N)].
+  std::array<double, 4> generalised{};
+  double total_force = 0.0;  // Σ k·d over the points in contact (N)
+  double max_force = 0.0;    // largest single point force (N)
+  int points_in_contact = 0;
+};
+
+class CatheterVesselContact {
+ public:
+  // Throws std::invalid_argument (via SimulationSetupError's base) for fewer than 2 centerline points,
+  // non-finite values, a lumen not wider than the catheter, or a non-positive stiffness.
+  CatheterVesselContact(std::vector<Eigen::Vector3d> centerline, const teleop::ModalCatheterParameters& shape,
+                        CatheterVesselContactParameters parameters);
+
+  // q = [insertion mm, roll rad, proximal carriage mm, effective distal actuation mm].
+  ContactForces evaluate(const Eigen::Vector4d& q) noexcept;
+  // Wall energy at q (N·mm); also used by evaluate() for the differences.
+  double energy(const Eigen::Vector4d& q, ContactForces* stats = nullptr) noexcept;
+
+  const teleop::ModalCatheterKinematics& shape() const noexcept { return shape_; }
+  const std::vector<Eigen::Vector3d>& centerline() const noexcept { return centerline_; }
+  const CatheterVesselContactParameters& parameters() const noexcept { return parameters_; }
+  // Distance (mm) from p to the centerline polyline.
+  double distance_to_centerline(const Eigen::Vector3d& p) const noexcept;
+
+ private:
+  std::vector<Eigen::Vector3d> centerline_;
+  teleop::ModalCatheterKinematics shape_;
+  CatheterVesselContactParameters parameters_;
+  std::vector<Eigen::Vector3d> backbone_;  // scratch, sized at construction
+};
+
+// Bend of the catheter tip relative to its base axis (rad), from the assembled shape at q.
+double tip_bend(const teleop::ModalCatheterKinematics& shape, const Eigen::Vector4d& q) noexcept;
+
+// A channel for experiments: straight along +z from the origin for lead_in mm, then a circular arc
+// of bend_radius turning by turn_rad toward +x, sampled about every step mm.
+std::vector<Eigen::Vector3d> arc_channel(double lead_in, double bend_radius, double turn_rad, double step = 0.5);
+
+}  // namespace tendril::sim
