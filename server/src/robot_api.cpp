@@ -1,7 +1,9 @@
 // RobotRuntime's ControlApi: request validation (network threads) and state read-out.
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
+#include "catheter_unit.hpp"
 #include "robot_runtime_impl.hpp"
 
 namespace tendril::server {
@@ -90,14 +92,49 @@ bool supports_path_following(const RobotUnit& r) {
   return r.n == 4 && r.config.kinematics.value("model", std::string{}) == "constant_curvature_catheter";
 }
 
+// Joint values for the display model (shape, tip pose, scene). A catheter's bends are drawn from
+// what the sensors say reaches the tubes (catheter_display_positions).
 std::vector<double> positions(const RobotUnit& r, const RobotSnapshot& s) {
+  if (r.catheter) return catheter_display_positions(r, s);
   return std::vector<double>(s.position.begin(), s.position.begin() + static_cast<std::ptrdiff_t>(r.n));
+}
+
+std::vector<ControlMode> available_modes(const RobotUnit& r) {
+  std::vector<ControlMode> modes{ControlMode::joint};
+  if (r.catheter)
+    modes.insert(modes.end(),
+                 {ControlMode::configuration, ControlMode::active_compliance, ControlMode::telemanipulation});
+  if (supports_path_following(r)) modes.push_back(ControlMode::path_following);
+  return modes;
 }
 
 }  // namespace
 
 const char* to_string(ControlMode mode) noexcept {
-  return mode == ControlMode::path_following ? "path_following" : "joint";
+  switch (mode) {
+    case ControlMode::path_following:
+      return "path_following";
+    case ControlMode::configuration:
+      return "configuration";
+    case ControlMode::active_compliance:
+      return "active_compliance";
+    case ControlMode::telemanipulation:
+      return "telemanipulation";
+    case ControlMode::joint:
+      break;
+  }
+  return "joint";
+}
+
+bool parse_control_mode(const std::string& name, ControlMode& mode) noexcept {
+  for (auto m : {ControlMode::joint, ControlMode::path_following, ControlMode::configuration,
+                 ControlMode::active_compliance, ControlMode::telemanipulation}) {
+    if (name == to_string(m)) {
+      mode = m;
+      return true;
+    }
+  }
+  return false;
 }
 
 #define TENDRIL_FIND_ROBOT(name)                                 \
@@ -123,15 +160,16 @@ nlohmann::json RobotRuntime::robots() const {
                                        {"interface", b->config.interface},
                                        {"simulated", b->virtual_bus != nullptr},
                                        {"load", b->load}});
-    out.push_back(
-        nlohmann::json{{"name", r->config.name},
-                       {"kind", r->config.kind},
-                       {"description", r->config.description},
-                       {"joints", joints},
-                       {"modes", supports_path_following(*r) ? nlohmann::json{"joint", "path_following"}
-                                                             : nlohmann::json{"joint"}},
-                       {"buses", buses},
-                       {"command_timeout_ms", r->config.command_timeout_ms}});
+    auto modes = nlohmann::json::array();
+    for (auto m : available_modes(*r)) modes.push_back(to_string(m));
+    out.push_back(nlohmann::json{{"name", r->config.name},
+                                 {"kind", r->config.kind},
+                                 {"description", r->config.description},
+                                 {"joints", joints},
+                                 {"modes", modes},
+                                 {"buses", buses},
+                                 {"command_timeout_ms", r->config.command_timeout_ms}});
+    if (r->catheter) catheter_robot_json(*r, out.back());
   }
   return out;
 }
@@ -186,6 +224,11 @@ ApiResult RobotRuntime::operating_state(const std::string& robot) const {
         {"joint", s.fault.joint >= 0
                       ? nlohmann::json(r.config.joints[static_cast<std::size_t>(s.fault.joint)].name)
                       : nlohmann::json(nullptr)}};
+  if (r.catheter) {
+    catheter_state_json(r, s, out);
+    std::lock_guard lock(r.refusal_mutex);
+    out["mode_refusal"] = r.mode_refusal;
+  }
   return ApiResult::success(out);
 }
 
@@ -270,39 +313,58 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
 
 ApiResult RobotRuntime::mode(const std::string& robot, const nlohmann::json& body) {
   TENDRIL_FIND_ROBOT(robot)
-  const bool path = supports_path_following(r);
-  const std::string available = path ? "joint, path_following" : "joint";
+  const auto modes = available_modes(r);
+  std::string available;
+  for (auto m : modes) available += (available.empty() ? "" : ", ") + std::string(to_string(m));
   if (!body.is_object() || !body.contains("mode") || !body["mode"].is_string())
-    return ApiResult::error(400, "bad_request", "expected {\"mode\": \"" + available + "\"} (one of them)");
+    return ApiResult::error(400, "bad_request", "expected {\"mode\": one of " + available + "}");
   const auto m = body["mode"].get<std::string>();
-  if (m != "joint" && !(path && m == "path_following"))
+  ControlMode to{};
+  if (!parse_control_mode(m, to) || std::find(modes.begin(), modes.end(), to) == modes.end())
     return ApiResult::error(
         422, "unknown_mode",
         "mode '" + m + "' is not available for robot '" + robot + "' (available: " + available + ")");
   const auto s = r.snapshot.load();
   if (to_string(s.mode) == m) return ApiResult::success({{"mode", m}});
+  // Every refusal is kept for operating_state, so a console that did not send the switch sees why.
+  auto refuse = [&](int status, const std::string& code, const std::string& why) {
+    std::lock_guard lock(r.refusal_mutex);
+    r.mode_refusal = {{"mode", m}, {"code", code}, {"reason", why}, {"timestamp", impl_->wall_offset + s.time}};
+    return ApiResult::error(status, code, why);
+  };
   if (s.estop)
-    return ApiResult::error(
-        409, "estop_latched",
-        "the e-stop is latched; reset it (POST /api/v1/estop/reset) before changing mode");
+    return refuse(409, "estop_latched",
+                  "the e-stop is latched; reset it (POST /api/v1/estop/reset) before changing mode");
   if (s.state == OperatingState::kFault)
-    return ApiResult::error(409, "invalid_state",
-                            "robot '" + robot + "' is in fault (" + std::string(s.fault.text) +
-                                "); send disable to acknowledge it before changing mode");
-  if (s.busy)
-    return ApiResult::error(409, "not_holding",
-                            "robot '" + robot + "' is moving; modes change only while it holds");
-  if (m == "path_following") {
+    return refuse(409, "invalid_state",
+                  "robot '" + robot + "' is in fault (" + std::string(s.fault.text) +
+                      "); send disable to acknowledge it before changing mode");
+  if (s.busy) {
+    std::string why = "robot '" + robot + "' is moving";
+    if (s.joystick_deadman) why += " (a joystick's deadman is held)";
+    return refuse(409, "not_holding", why + "; modes change only while it holds");
+  }
+  if (s.retraction_only)
+    return refuse(409, "held_after_limit",
+                  "robot '" + robot + "' is held after a safety limit (" + safety::to_string(s.hold_code) +
+                      "); retract if needed, then resume before changing mode");
+  if (to == ControlMode::path_following) {
     std::lock_guard lock(r.path_mutex);
     if (!r.path)
-      return ApiResult::error(409, "no_plan",
-                              "no plan is loaded for robot '" + robot +
-                                  "'; load one first (POST /api/v1/robots/" + robot +
-                                  "/path_following {\"plan\": \"<job id>\"})");
+      return refuse(409, "no_plan",
+                    "no plan is loaded for robot '" + robot + "'; load one first (POST /api/v1/robots/" + robot +
+                        "/path_following {\"plan\": \"<job id>\"})");
+  }
+  if (to == ControlMode::active_compliance && r.catheter && !s.deflection_fresh)
+    return refuse(409, "sensor_stale",
+                  "robot '" + robot + "' has no valid spring-deflection reading; active compliance needs it");
+  {
+    std::lock_guard lock(r.refusal_mutex);
+    r.mode_refusal = nullptr;
   }
   RobotCommand c;
   c.kind = CommandKind::mode;
-  c.index = static_cast<std::int32_t>(m == "joint" ? ControlMode::joint : ControlMode::path_following);
+  c.index = static_cast<std::int32_t>(to);
   c.received = std::chrono::steady_clock::now();
   if (!post(r, c)) return busy_mailbox(robot);
   return ApiResult::success({{"mode", m}});
@@ -349,12 +411,28 @@ ApiResult RobotRuntime::servo_jv(const std::string& robot, const nlohmann::json&
     return ApiResult::error(422, "out_of_limits", r.supervisor->describe(v));
   if (auto why = operating_limit_violation(r, r.operating_limits.load(), c.values, true)) return *why;
   const auto s = r.snapshot.load();
-  if (s.mode != ControlMode::joint)
+  const bool bends_still = r.n == 4 && c.values[2] == 0.0 && c.values[3] == 0.0;
+  if (s.retraction_only && s.state == OperatingState::kPaused) {
+    // Held after a limit: only withdrawal of the catheter.
+    if (!bends_still || c.values[1] != 0.0 || c.values[0] > 0.0)
+      return ApiResult::error(409, "retraction_only",
+                              "robot '" + robot + "' is held after a safety limit (" +
+                                  safety::to_string(s.hold_code) +
+                                  "); only retraction (negative insertion velocity, all else 0) may move it");
+  } else if (s.mode == ControlMode::active_compliance) {
+    if (!bends_still)
+      return ApiResult::error(409, "wrong_mode",
+                              "robot '" + robot +
+                                  "' is in active_compliance mode: the bend drives follow their springs, so "
+                                  "their velocities must be 0 (insertion and roll may move)");
+  } else if (s.mode != ControlMode::joint) {
     return ApiResult::error(409, "wrong_mode",
                             std::string("robot '") + robot + "' is in " + to_string(s.mode) +
                                 " mode; switch to joint mode for joint commands");
+  }
   if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
-  if (s.state != OperatingState::kEnabled || !s.drives_ready)
+  if (!(s.state == OperatingState::kEnabled || (s.retraction_only && s.state == OperatingState::kPaused)) ||
+      !s.drives_ready)
     return ApiResult::error(409, "not_enabled",
                             std::string("robot '") + robot + "' is " + state_name(s.state) +
                                 (s.drives_ready ? "" : " and its drives are not ready") +
@@ -982,6 +1060,7 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
     const auto q = positions(r, s);
     msg = scene_update(r, r.kinematics->shape(q), r.kinematics->tip(q), im.wall_offset + s.time);
     add_path_entities(*it->second, msg);
+    if (r.catheter) add_catheter_entities(r, msg);
   } else if (leaf == "diagnostics") {
     msg = diagnostics(r, s, im);
   } else {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "catheter_unit.hpp"
 #include "robot_runtime_impl.hpp"
 
 namespace tendril::server {
@@ -34,6 +35,7 @@ void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c
 void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now,
                                        bool previous_overrun) noexcept {
   const double t = std::chrono::duration<double>(now - start_time).count();
+  now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
   ticks.fetch_add(1, std::memory_order_relaxed);
   for (auto& r : robots) control_robot(*r, t, previous_overrun);
 }
@@ -54,6 +56,13 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         // Pause and resume both start from rest at the current setpoint.
         s.servo_active = false;
         r.interpolator->reset({s.q_des.data(), r.n}, t);
+        if (r.catheter)
+          r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+      }
+      // Resuming or disabling is the operator's acknowledgement of a hold.
+      if (c.state != safety::StateCommand::kPause && sup.state() != OperatingState::kPaused) {
+        s.retraction_only = false;
+        s.hold_code = safety::FaultCode::kNone;
       }
       break;
     case CommandKind::move_jp:
@@ -71,15 +80,23 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n},
                                {r.max_acceleration.data(), r.n});
       break;
-    case CommandKind::servo_jv:
-      if (s.mode != ControlMode::joint || sup.state() != OperatingState::kEnabled || !s.drives_ready ||
-          sup.check_velocity(values) || !within_operating_velocity(s.limits, values))
+    case CommandKind::servo_jv: {
+      // Joint mode: every joint. Active compliance: insertion and roll (the bends comply). Held with
+      // retraction allowed: insertion backwards only.
+      const bool bends_still = c.count == 4 && values[2] == 0.0 && values[3] == 0.0;
+      const bool allowed =
+          (s.mode == ControlMode::joint && sup.state() == OperatingState::kEnabled) ||
+          (s.mode == ControlMode::active_compliance && sup.state() == OperatingState::kEnabled && bends_still) ||
+          (s.retraction_only && sup.state() == OperatingState::kPaused && bends_still && values[1] == 0.0 &&
+           values[0] <= 0.0);
+      if (!allowed || !s.drives_ready || sup.check_velocity(values) || !within_operating_velocity(s.limits, values))
         break;
       for (std::size_t i = 0; i < r.n; ++i) s.servo_velocity[i] = values[i];
       s.servo_active = true;
       s.last_servo_time = t;
       sup.servo_command_received(t);
       break;
+    }
     case CommandKind::estop:
       sup.estop(t);
       s.servo_active = false;
@@ -89,6 +106,7 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       sup.reset_estop(t);
       break;
     case CommandKind::hold:
+      s.console_deadman = false;  // the operator is gone: the console joystick lets go
       if (s.servo_active) {
         s.servo_active = false;
         r.interpolator->reset({s.q_des.data(), r.n}, t);
@@ -97,14 +115,33 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
     case CommandKind::mode: {
       // Only while holding (nothing moving, nothing pending); the setpoint is not touched, so the
       // switch never makes it jump.
-      const bool holding = !s.enable_pending && !s.goal_pending && !s.servo_active && r.interpolator->done(t);
-      if (holding && (c.index == static_cast<std::int32_t>(ControlMode::joint) ||
-                      c.index == static_cast<std::int32_t>(ControlMode::path_following))) {
-        s.mode = static_cast<ControlMode>(c.index);
+      const auto to = static_cast<ControlMode>(c.index);
+      const bool catheter_mode = to == ControlMode::configuration || to == ControlMode::active_compliance ||
+                                 to == ControlMode::telemanipulation;
+      if (holding(r, t) && (!catheter_mode || r.catheter)) {
+        s.mode = to;
         s.path_target = s.path_step;
+        if (r.catheter) {
+          r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+          s.console_deadman = false;  // a stream for the old mode must not carry over
+          s.joystick_deadman = false;
+          s.joystick_source = 0;
+          s.joystick_axes = {};
+        }
       }
       break;
     }
+    case CommandKind::move_configuration:
+      if (!r.catheter || s.mode != ControlMode::configuration || sup.state() != OperatingState::kEnabled ||
+          !s.drives_ready)
+        break;
+      r.catheter->configuration->retarget(t, Eigen::Vector4d(c.values[0], c.values[1], c.values[2], c.values[3]));
+      break;
+    case CommandKind::joystick:
+      for (std::size_t i = 0; i < 4; ++i) s.console_axes[i] = c.values[i];
+      s.console_deadman = c.index != 0;
+      s.console_time = t;
+      break;
     case CommandKind::path_loaded:
       s.path_step = -1;
       s.path_target = -1;
@@ -230,7 +267,16 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   // 5. Mid-level control: joint interpolation or integrated servo velocity.
   const JointArray setpoint_before = s.q_des;
   const std::span<double> q_des(s.q_des.data(), n), qd_des(s.qd_des.data(), n), qdd_des(s.qdd_des.data(), n);
-  if (state == OperatingState::kEnabled && s.drives_ready) {
+  if (r.catheter) {
+    catheter_sensors(r, t, state);
+    state = sup.state();
+  }
+  const bool catheter_mode = r.catheter && (s.mode == ControlMode::configuration ||
+                                            s.mode == ControlMode::active_compliance ||
+                                            s.mode == ControlMode::telemanipulation);
+  if (state == OperatingState::kEnabled && s.drives_ready && catheter_mode) {
+    catheter_mid_level(r, t);
+  } else if (state == OperatingState::kEnabled && s.drives_ready) {
     // The operating servo timeout may be shorter than the supervisor's configured one.
     if (s.servo_active && sup.servo_live() && t - s.last_servo_time <= s.limits.servo_timeout_s) {
       for (std::size_t i = 0; i < n; ++i) {
@@ -247,6 +293,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     }
   } else if (state == OperatingState::kPaused && s.drives_ready) {
     for (std::size_t i = 0; i < n; ++i) s.qd_des[i] = 0.0;  // hold the setpoint
+    if (r.catheter && s.retraction_only) catheter_retraction(r, t);
   } else {
     // Not commanding: the setpoint follows the measurement so that enabling never jumps.
     for (std::size_t i = 0; i < n; ++i) {
@@ -255,8 +302,10 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     }
     s.servo_active = false;
     r.interpolator->reset(q_des, t);
+    if (r.catheter) r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
   }
-  if (state == OperatingState::kEnabled && s.drives_ready) {
+  if ((state == OperatingState::kEnabled || (state == OperatingState::kPaused && s.retraction_only)) &&
+      s.drives_ready) {
     auto clamp = sup.clamp_setpoint(q_des, qd_des);
     // Tightened operating limits: the setpoint stops at the boundary. A setpoint already outside (the
     // robot was moved while disabled) is never pulled in with a jump: it may only move back inwards.
@@ -274,6 +323,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     if (clamp.clamped_joints > 0 && !s.servo_active) {
       // The interpolator must not keep pulling against a clamped setpoint.
       r.interpolator->reset(q_des, t);
+      if (r.catheter && s.mode == ControlMode::configuration)
+        r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
     }
   }
 
@@ -330,8 +381,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   snap.state = state;
   snap.estop = estop;
   snap.drives_ready = s.drives_ready;
-  snap.busy =
-      s.enable_pending || s.goal_pending || s.servo_active || (s.drives_ready && !r.interpolator->done(t));
+  snap.busy = s.drives_ready ? !holding(r, t) : (s.enable_pending || s.goal_pending);
   snap.fault = sup.fault_cause();
   snap.estop_tick = s.estop_tick;
   snap.commands_applied = s.commands_applied;
@@ -339,6 +389,19 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   snap.mode = s.mode;
   snap.path_step = s.path_step;
   snap.path_target = s.path_target;
+  if (r.catheter) {
+    snap.spring_deflection = s.spring_deflection;
+    snap.deflection_fresh = s.deflection_fresh;
+    snap.retraction_only = s.retraction_only;
+    snap.hold_code = s.hold_code;
+    const auto goal = r.catheter->configuration->goal();
+    for (std::size_t i = 0; i < 4; ++i) snap.configuration_goal[i] = goal[static_cast<Eigen::Index>(i)];
+    snap.configuration_moving = s.mode == ControlMode::configuration && !r.catheter->configuration->done(t);
+    snap.joystick_source = s.joystick_source;
+    snap.joystick_deadman = s.joystick_deadman;
+    snap.joystick_conflict = s.joystick_conflict;
+    snap.joystick_axes = s.joystick_axes;
+  }
   r.snapshot.store(snap);
 }
 

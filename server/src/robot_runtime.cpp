@@ -6,6 +6,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "catheter_unit.hpp"
 #include "robot_runtime_impl.hpp"
 #include "tendril/drivers/can/socketcan_bus.hpp"
 #include "tendril/drivers/canopen/bus_load.hpp"
@@ -155,6 +156,12 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
       unit->bindings[i].drive = k;
       unit->bindings[i].sim = bus->virtual_bus ? bus->sim_drives[k].get() : nullptr;
     }
+    if (!rc.catheter.is_null()) {
+      // Sensor and joystick nodes sit on the bus of the bend drives.
+      if (unit->n != 4)
+        throw ConfigError(file + ": catheter: settings for a steerable catheter need its 4 joints");
+      unit->catheter = make_catheter_unit(rc, *unit->bindings[2].bus, unit->bindings);
+    }
     unit->config = std::move(rc);
     im.by_name[unit->config.name] = unit.get();
     im.robots.push_back(std::move(unit));
@@ -203,6 +210,7 @@ void RobotRuntime::start() {
         "sim:" + bus->config.name, std::chrono::milliseconds(1),
         [bus](std::chrono::steady_clock::time_point now, bool) {
           for (auto& d : bus->sim_drives) d->pump(now, 0.001);
+          for (auto* p : bus->plants) p->step(0.001);
         },
         im.options.realtime_priority, 70);
   }
@@ -210,6 +218,8 @@ void RobotRuntime::start() {
     auto* bus = b.get();
     bus->master->start(im.blocking_idle(*bus));
   }
+  for (auto& r : im.robots)
+    if (r->catheter) start_catheter_nodes(*r->catheter, *r->bindings[2].bus);
   if (im.options.stepped) {
     im.stepped_now = std::chrono::steady_clock::now();
   } else {
@@ -256,9 +266,13 @@ void RobotRuntime::Impl::run_bus(BusUnit& b) {
     auto wait = std::min<std::chrono::nanoseconds>(b.master->next_deadline() - now, kMaxSleep);
     if (wait < std::chrono::nanoseconds(0)) wait = std::chrono::nanoseconds(0);
     if (auto frame = b.master_endpoint->receive(wait)) {
-      b.master->handle(*frame, std::chrono::steady_clock::now());
-      while (auto more = b.master_endpoint->receive(std::chrono::nanoseconds(0)))
-        b.master->handle(*more, std::chrono::steady_clock::now());
+      auto handle = [&b](const can::Frame& f) {
+        const auto at = std::chrono::steady_clock::now();
+        b.master->handle(f, at);
+        for (auto& listen : b.frame_listeners) listen(f, at);
+      };
+      handle(*frame);
+      while (auto more = b.master_endpoint->receive(std::chrono::nanoseconds(0))) handle(*more);
     }
     b.master->poll(std::chrono::steady_clock::now());
   }
@@ -273,7 +287,11 @@ void RobotRuntime::step() {
   const auto now = im.stepped_now;
   for (auto& b : im.buses) {
     for (auto& d : b->sim_drives) d->pump(now, im.period);
-    while (auto f = b->master_endpoint->receive(std::chrono::nanoseconds(0))) b->master->handle(*f, now);
+    for (auto* p : b->plants) p->step(im.period);
+    while (auto f = b->master_endpoint->receive(std::chrono::nanoseconds(0))) {
+      b->master->handle(*f, now);
+      for (auto& listen : b->frame_listeners) listen(*f, now);
+    }
     b->master->poll(now);
   }
   im.control_cycle(now, false);
@@ -286,6 +304,8 @@ void RobotRuntime::stop() {
   if (!im.running.exchange(false)) return;
   im.control_thread.stop();
   im.stopping.store(true);
+  for (auto& r : im.robots)
+    if (r->catheter && r->catheter->evdev) r->catheter->evdev->stop();
   for (auto& b : im.buses)
     if (b->bus_thread.joinable()) b->bus_thread.join();
   for (auto& b : im.buses) {

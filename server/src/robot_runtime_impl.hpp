@@ -16,6 +16,7 @@
 #include "tendril/drivers/can/virtual_bus.hpp"
 #include "tendril/drivers/canopen/master.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
+#include "tendril/drivers/sim/simulation.hpp"
 #include "tendril/safety/safety_supervisor.hpp"
 #include "tendril/server/command_mailbox.hpp"
 #include "tendril/server/robot_kinematics.hpp"
@@ -37,13 +38,23 @@ enum class CommandKind : std::uint8_t {
   hold,
   mode,         // index = ControlMode; applied only while holding
   path_loaded,  // a new plan was loaded: no step reached yet
-  path_step     // index = step; values = the step's joint configuration
+  path_step,    // index = step; values = the step's joint configuration
+  move_configuration,  // values = goal ψ (insertion, roll, θ_L1, θ_L2), steerable catheter only
+  joystick             // console joystick: values = axes per joint (−1..1), index = deadman held
 };
 
-// Control modes (operating_state "mode"): joint = move_jp/servo_jv; path_following = a loaded plan is
-// played back one insertion step at a time (path_step commands), joint commands are refused.
-enum class ControlMode : std::uint8_t { joint, path_following };
+// Control modes (operating_state "mode"), the mid-level controller of seed 000 §4.7:
+//   joint: move_jp (quintic) and servo_jv;
+//   path_following: a loaded plan is played back one insertion step at a time (path_step commands);
+//   configuration (catheter): move_configuration goals in ψ = (insertion, roll, θ_L1, θ_L2) through
+//     eq. 4.21 with loss and coupling compensation;
+//   active_compliance (catheter): the bend drives yield to their spring deflection (eqs. 4.24–4.26);
+//     insertion and roll follow servo_jv or a joystick;
+//   telemanipulation (catheter): joint velocities from a joystick while its deadman is held.
+enum class ControlMode : std::uint8_t { joint, path_following, configuration, active_compliance, telemanipulation };
 const char* to_string(ControlMode mode) noexcept;
+bool parse_control_mode(const std::string& name, ControlMode& mode) noexcept;
+struct CatheterUnit;
 
 // One command from the network threads to the control thread; trivially copyable, fixed size.
 struct RobotCommand {
@@ -91,7 +102,22 @@ struct RobotSnapshot {
   ControlMode mode = ControlMode::joint;
   std::int32_t path_step = -1;    // last plan step reached (-1: none since the plan was loaded)
   std::int32_t path_target = -1;  // step being moved to (== path_step when not moving to one)
+  // Steerable catheter (zeros otherwise).
+  std::array<double, 2> spring_deflection{};  // mm, drive − carriage
+  bool deflection_fresh = false;
+  bool retraction_only = false;      // held after a limit: only insertion withdrawal may move
+  safety::FaultCode hold_code = safety::FaultCode::kNone;
+  std::array<double, 4> configuration_goal{};  // ψ goal of the configuration controller
+  bool configuration_moving = false;
+  std::uint8_t joystick_source = 0;  // JoystickSource
+  bool joystick_deadman = false;
+  bool joystick_conflict = false;    // more than one source held its deadman: no motion
+  std::array<double, 4> joystick_axes{};
 };
+
+// Where telemanipulation velocities come from (operating_state "joystick.source").
+enum class JoystickSource : std::uint8_t { none, console, evdev, analog };
+const char* to_string(JoystickSource source) noexcept;
 
 struct BusUnit {
   BusConfig config;
@@ -105,6 +131,10 @@ struct BusUnit {
   std::string load_breakdown;
   std::thread bus_thread;
   PeriodicThread sim_thread;
+  // Other nodes on the bus (ADC nodes): every received frame also goes to these, on the bus thread.
+  std::vector<std::function<void(const can::Frame&, std::chrono::steady_clock::time_point)>> frame_listeners;
+  // Simulated physics stepped after the drives on the simulation thread (virtual buses only).
+  std::vector<sim::Plant*> plants;
 };
 
 struct JointBinding {
@@ -128,6 +158,11 @@ struct RobotUnit {
   std::shared_ptr<const LoadedPath> path;                 // guarded by path_mutex
   teleop::LatestValue<OperatingLimits> operating_limits;  // see OperatingLimits
   std::mutex limits_write_mutex;                          // network threads only: read-modify-write
+  std::unique_ptr<CatheterUnit> catheter;                 // steerable catheter robots only
+  // Last refused mode switch, for operating_state (network threads only).
+  std::mutex refusal_mutex;
+  nlohmann::json mode_refusal;  // guarded by refusal_mutex; null when none
+  ~RobotUnit();
 
   // Control-thread state (touched only by the control thread).
   struct ControlState {
@@ -150,6 +185,18 @@ struct RobotUnit {
     OperatingLimits limits{};  // copy of operating_limits, refreshed when its version changes
     std::uint64_t limits_version = ~std::uint64_t{0};
     double last_servo_time = 0.0;
+    // Console joystick stream (telemanipulation).
+    std::array<double, 4> console_axes{};
+    bool console_deadman = false;
+    double console_time = -1.0;
+    bool retraction_only = false;
+    safety::FaultCode hold_code = safety::FaultCode::kNone;
+    std::array<double, 2> spring_deflection{};
+    bool deflection_fresh = false;
+    std::uint8_t joystick_source = 0;
+    bool joystick_deadman = false;
+    bool joystick_conflict = false;
+    std::array<double, 4> joystick_axes{};
   } rt;
 };
 
@@ -180,6 +227,12 @@ struct RobotRuntime::Impl : RuntimeImplBase {
   void control_cycle(std::chrono::steady_clock::time_point now, bool previous_overrun) noexcept;
   void control_robot(RobotUnit& r, double t, bool previous_overrun) noexcept;
   void apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept;
+  // Steerable catheter parts of the control cycle (catheter_control.cpp).
+  void catheter_sensors(RobotUnit& r, double t, safety::OperatingState state) noexcept;
+  void catheter_mid_level(RobotUnit& r, double t) noexcept;
+  void catheter_retraction(RobotUnit& r, double t) noexcept;
+  bool holding(const RobotUnit& r, double t) const noexcept;
+  std::int64_t now_ns = 0;  // control-cycle time on the steady clock (ns), for sensor freshness
   void run_bus(BusUnit& b);
   // What a blocking master exchange runs while it waits (steps simulated drives in stepped mode).
   std::function<void()> blocking_idle(BusUnit& bus) const;

@@ -40,6 +40,15 @@ start_tendrild() {
   # Same settings as config/server.json, with absolute paths, our port and token. Real-time priority
   # stays requested: on a busy machine it keeps the simulated drives' heartbeats on time (where it is
   # refused, tendrild logs that and runs without).
+  # The robot file as shipped, but with the catheter in free space: the shipped SIMULATED vessel makes
+  # any sizeable bend touch its wall, which would hold the robot in tests that are not about contact.
+  # TENDRIL_TEST_VESSEL=1 keeps the vessel.
+  node -e '
+    const fs = require("fs");
+    const robot = JSON.parse(fs.readFileSync(process.argv[1], "utf8"));
+    if (process.argv[3] !== "1" && robot.catheter && robot.catheter.simulation) delete robot.catheter.simulation.vessel;
+    fs.writeFileSync(process.argv[2], JSON.stringify(robot, null, 2));
+  ' "$repo_root/config/robots/srmc.json" "$tendrild_workdir/srmc.json" "${TENDRIL_TEST_VESSEL:-0}"
   cat > "$tendrild_workdir/server.json" <<JSON
 {
   "listen": "127.0.0.1:$port",
@@ -49,7 +58,7 @@ start_tendrild() {
   "control_rate_hz": 1000,
   "publish_rate_hz": 50,
   "realtime_priority": true,
-  "robots": ["$repo_root/config/robots/srmc.json"],
+  "robots": ["$tendrild_workdir/srmc.json"],
   "imaging": {"enabled": true, "width": 512, "height": 512, "fps": 10, "jpeg_quality": 80,
               "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [0, 0, 50],
               "vessel": "$repo_root/config/vessels/synthetic_ica.csv"}

@@ -71,6 +71,7 @@ enum class Command {
   kMoveJp,
   kServoJv,
   kMoveConfiguration,
+  kJoystick,
   kEstop,
   kEstopReset,
   kAuthorizeOnly
@@ -123,6 +124,8 @@ constexpr ServiceDef kServices[] = {
     {5, "estop", Command::kEstop, false},
     {6, "estop_reset", Command::kEstopReset, false},
     {7, "lease", std::nullopt, false},
+    {8, "move_configuration", Command::kMoveConfiguration, true},
+    {9, "joystick", Command::kJoystick, true},
 };
 
 // REST commands and getters under /api/v1/robots/{robot}/...
@@ -141,7 +144,8 @@ const std::map<std::string, Command>& robot_commands() {
       {"mode", Command::kMode},
       {"move_jp", Command::kMoveJp},
       {"servo_jv", Command::kServoJv},
-      {"move_configuration", Command::kMoveConfiguration}};
+      {"move_configuration", Command::kMoveConfiguration},
+      {"joystick", Command::kJoystick}};
   return commands;
 }
 
@@ -168,6 +172,19 @@ std::vector<fg::Service> service_list() {
       request = service_schema({{"robot", robot}, {"goal", numbers}}, {"robot", "goal"});
     } else if (name == "servo_jv") {
       request = service_schema({{"robot", robot}, {"velocity", numbers}}, {"robot", "velocity"});
+    } else if (name == "move_configuration") {
+      request = service_schema({{"robot", robot},
+                                {"goal",
+                                 {{"type", "object"},
+                                  {"properties",
+                                   {{"insertion", {{"type", "number"}}},
+                                    {"roll", {{"type", "number"}}},
+                                    {"theta_proximal", {{"type", "number"}}},
+                                    {"theta_distal", {{"type", "number"}}}}}}}},
+                               {"robot", "goal"});
+    } else if (name == "joystick") {
+      request = service_schema({{"robot", robot}, {"axes", numbers}, {"deadman", {{"type", "boolean"}}}},
+                               {"robot", "axes", "deadman"});
     } else if (name == "lease") {
       request =
           service_schema({{"action", {{"type", "string"}, {"enum", {"acquire", "release", "status"}}}}}, {});
@@ -656,13 +673,14 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
       return;
     }
     for (const auto& channel : advertise.channels) {
-      // Operator streams: "/{robot}/servo_jv" with JSON {"velocity":[...]} (joystick input).
+      // Operator streams: "/{robot}/servo_jv" with JSON {"velocity":[...]}, and "/{robot}/joystick"
+      // with JSON {"axes":[...], "deadman": bool} (console joystick, telemanipulation).
       const auto segments = split_path(channel.topic);
-      if (segments.size() != 2 || segments[1] != "servo_jv" || !server_.api.has_robot(segments[0]) ||
-          channel.encoding != "json") {
+      if (segments.size() != 2 || (segments[1] != "servo_jv" && segments[1] != "joystick") ||
+          !server_.api.has_robot(segments[0]) || channel.encoding != "json") {
         send_text(fg::status(fg::StatusLevel::kError,
-                             "advertise: tendril accepts client channels \"/{robot}/servo_jv\""
-                             " with encoding \"json\" only; refused \"" +
+                             "advertise: tendril accepts client channels \"/{robot}/servo_jv\" and "
+                             "\"/{robot}/joystick\" with encoding \"json\" only; refused \"" +
                                  channel.topic + "\""));
         continue;
       }
@@ -670,7 +688,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
         send_text(fg::status(fg::StatusLevel::kError, "advertise: at most 64 client channels"));
         return;
       }
-      client_channels_[channel.id] = segments[0];
+      client_channels_[channel.id] = {segments[0], segments[1] == "joystick" ? Command::kJoystick : Command::kServoJv};
     }
   }
 
@@ -686,11 +704,12 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
         return;
       }
       const ApiResult body = parse_json_body(message->payload, server_.opts.max_ws_message_bytes);
-      const ApiResult result =
-          body.ok() ? server_.execute(Command::kServoJv, it->second, body.body, identity_) : body;
+      const auto& [robot, command] = it->second;
+      const ApiResult result = body.ok() ? server_.execute(command, robot, body.body, identity_) : body;
       if (!result.ok()) {
         send_text(fg::status(fg::StatusLevel::kWarning,
-                             "/" + it->second + "/servo_jv: " + result.code + ": " + result.message));
+                             "/" + robot + (command == Command::kJoystick ? "/joystick: " : "/servo_jv: ") +
+                                 result.code + ": " + result.message));
       }
     } else if (auto* call = std::get_if<fg::ServiceCallRequest>(&parsed)) {
       handle_service_call(*call);
@@ -898,7 +917,7 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
   bool closing_ = false;
   bool gone_ = false;
   websocket::close_code close_code_ = websocket::close_code::normal;
-  std::map<std::uint32_t, std::string> client_channels_;  // client channel id -> robot
+  std::map<std::uint32_t, std::pair<std::string, Command>> client_channels_;  // id -> robot, stream
   std::string current_text_;
   PendingData current_data_;
 
@@ -1494,9 +1513,13 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
       case Command::kEstopReset:
         return api.estop_reset();
       case Command::kMoveConfiguration:
-        return ApiResult::error(
-            501, "not_implemented",
-            "move_configuration is not available: ControlApi has no configuration-space move yet");
+        return api.move_configuration(robot, body);
+      case Command::kJoystick: {
+        ApiResult result = api.joystick(robot, body);
+        // A held deadman counts as streaming commands (a takeover must not cut it off silently).
+        if (result.ok() && body.value("deadman", false)) note_servo(who.lease_key, SteadyClock::now());
+        return result;
+      }
       case Command::kAuthorizeOnly:
         return ApiResult::success(json::object());
       case Command::kEstop:

@@ -64,6 +64,8 @@ struct RobotConfig {
   std::vector<JointConfig> joints;
   std::vector<BusConfig> buses;
   nlohmann::json kinematics;  // model-specific; validated by the model that reads it
+  nlohmann::json catheter;    // steerable-catheter control settings (null when absent)
+  std::filesystem::path directory() const { return file.parent_path(); }
 };
 
 struct ServerConfig {

@@ -100,6 +100,21 @@ class ControlApi {
     return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no path following");
   }
 
+  // Steerable catheter, configuration mode: {"goal": {"insertion": mm, "roll": rad, "theta_proximal":
+  // rad, "theta_distal": rad}} (any subset; the rest keep their current value). 202 {"duration_s",
+  // "joints"}: the joint values the goal needs; 422 when they are outside the limits; 409 wrong mode.
+  virtual ApiResult move_configuration(const std::string& robot, const nlohmann::json& body) {
+    (void)body;
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no configuration space");
+  }
+  // Console joystick for telemanipulation (and insertion/roll in active compliance):
+  // {"axes": [4 values in -1..1, joint order], "deadman": bool}. Motion only while deadman is true and
+  // the stream is refreshed within the command timeout.
+  virtual ApiResult joystick(const std::string& robot, const nlohmann::json& body) {
+    (void)body;
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' takes no joystick input");
+  }
+
   // Run-time parameters (Foxglove "parameters" capability), e.g. "/srmc/insertion/upper",
   // "/srmc/insertion/max_velocity", "/srmc/servo_timeout_s": [{"name","value","type"}], every one
   // readable. Writable ones may only be set within the configured (safe) range: tightening, or going

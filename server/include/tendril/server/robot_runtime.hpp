@@ -17,6 +17,8 @@
 
 namespace tendril::sim {
 class SimulatedCia402Drive;
+class SimulatedAnalogJoystick;
+class SimulatedAnalogInputNode;
 }
 
 namespace tendril::server {
@@ -58,6 +60,10 @@ class RobotRuntime final : public ControlApi {
   std::unique_ptr<can::Bus> tap_bus(const std::string& robot, const std::string& bus);
   // The simulated drive behind a joint, or nullptr when the joint's drive is real hardware.
   sim::SimulatedCia402Drive* simulated_drive(const std::string& robot, const std::string& joint);
+  // A steerable catheter's simulated ADC nodes (joystick with pedal; spring-deflection
+  // potentiometers), or nullptr when the robot has none or they are real hardware.
+  sim::SimulatedAnalogJoystick* simulated_analog_joystick(const std::string& robot);
+  sim::SimulatedAnalogInputNode* simulated_spring_sensor(const std::string& robot);
   std::uint64_t control_ticks() const noexcept;
   LoopStatistics loop_statistics() const noexcept;
 
@@ -85,6 +91,8 @@ class RobotRuntime final : public ControlApi {
                       const std::string& plan_id) override;
   ApiResult path_step(const std::string& robot, const nlohmann::json& body) override;
   ApiResult path_following(const std::string& robot) const override;
+  ApiResult move_configuration(const std::string& robot, const nlohmann::json& body) override;
+  ApiResult joystick(const std::string& robot, const nlohmann::json& body) override;
   nlohmann::json parameters() const override;
   ApiResult set_parameters(const nlohmann::json& parameters) override;
 

@@ -1,0 +1,80 @@
+// Settings of a steerable catheter robot (the "catheter" object of its robot file, seed 000 ch. 4):
+// the nominal shape model with losses and coupling for configuration control, the spring-deflection
+// sensors and their bound, active compliance, telemanipulation speeds and joystick inputs, and the
+// simulated plant (springs, vessel, ADC nodes) used when its bus is virtual.
+// Parsed at start-up; every mistake throws ConfigError naming the file and the key.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "tendril/drivers/input/analog_joystick.hpp"
+#include "tendril/drivers/input/evdev_joystick.hpp"
+#include "tendril/server/config.hpp"
+#include "tendril/teleop/active_compliance.hpp"
+#include "tendril/teleop/modal_catheter_kinematics.hpp"
+#include "tendril/teleop/shape_calibration.hpp"
+
+namespace tendril::server {
+
+struct SpringDeflectionSensorSettings {
+  std::uint8_t node_id = 0x31;   // CiA 401 ADC node with the two linear potentiometers
+  double volts_per_mm = 0.5;     // potentiometer gain around the 2.5 V centre (±5 mm over 0–5 V)
+  double limit_mm = 1.5;         // |deflection| beyond this holds the robot
+  double stale_ms = 100.0;       // no reading for this long: the sensor is stale (hold)
+};
+
+struct VesselTubeSettings {
+  // Either a centerline file (CSV x,y,z in mm, the frame of the catheter base) or an arc channel.
+  std::string centerline_file;
+  double lead_in_mm = 20.0;  // arc channel: straight part along +z from z = 0
+  double bend_radius_mm = 25.0;
+  double turn_deg = 90.0;
+  double lumen_radius_mm = 1.5875;  // the seed's phantom tubing, ID 3.175 mm
+};
+
+struct CatheterSimulationSettings {
+  double spring_stiffness_n_per_mm = 0.2;
+  double tube_stiffness_n_per_mm = 0.0;
+  double potentiometer_noise_mm = 0.005;
+  double wall_stiffness_n_per_mm = 0.01;    // per backbone point: a compliant vessel wall
+  double carriage_damping_n_s_per_mm = 0.02;  // tendon and rail friction, viscous
+  double catheter_outer_radius_mm = 0.6;
+  std::optional<VesselTubeSettings> vessel;  // none: the catheter moves in free space
+  bool analog_joystick_node = true;          // simulate the ADC joystick node as well
+};
+
+struct CatheterSettings {
+  // Nominal (tip-only) model of the two bending segments and the assembled-catheter loss lines.
+  teleop::ModalCatheterParameters nominal;
+  teleop::ConfigurationRateParameters rates;
+  std::array<double, 2> nominal_gain{1.4, 1.4};  // k_i, rad/mm (constant-curvature nominal model)
+  // Shape for display and scene: the assembled bend per mm of effective actuation.
+  SpringDeflectionSensorSettings deflection;
+  teleop::ActiveComplianceParameters compliance;
+  std::array<double, 4> telemanipulation_max_speed{2.0, 0.5, 1.0, 1.0};  // per joint, at full stick
+  bool retraction_only_while_held = true;
+  double max_contact_force_n = 0.1;  // bound the spring limit keeps the tip force under (reported)
+  std::optional<input::AnalogJoystickCalibration> analog_joystick;
+  std::optional<input::EvdevJoystickOptions> evdev_joystick;
+  CatheterSimulationSettings simulation;
+};
+
+// Parses rc.catheter (must be an object) for a 4-joint robot; relative paths resolve against the
+// robot file's folder.
+CatheterSettings parse_catheter_settings(const RobotConfig& rc);
+
+// The assembled catheter's shape for the simulated plant: constant curvature with the bend
+// a_i·k_i·q + b_i at the tip (the nominal model through the loss lines), so that the plant bends as
+// the configuration map predicts.
+teleop::ModalCatheterParameters assembled_shape(const CatheterSettings& settings);
+
+// The vessel centerline of the simulation (mm): loaded or built as an arc channel.
+std::vector<Eigen::Vector3d> vessel_centerline(const VesselTubeSettings& vessel);
+
+}  // namespace tendril::server

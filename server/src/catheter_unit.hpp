@@ -1,0 +1,94 @@
+// The steerable-catheter parts of a robot in the runtime: its configuration-space model and
+// controller, the spring-deflection and joystick inputs (CAN ADC nodes, evdev), and, on a virtual
+// bus, the SIMULATED series-elastic plant in its vessel with simulated ADC nodes.
+//
+// Threads: the bus thread decodes the ADC nodes' PDOs into the LatestValue slots; the control thread
+// reads those slots and owns `configuration`; network threads only read the immutable model, the
+// settings and the simulation's published state.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "catheter_settings.hpp"
+#include "tendril/drivers/canopen/analog_input_node.hpp"
+#include "tendril/drivers/input/analog_joystick.hpp"
+#include "tendril/drivers/input/evdev_joystick.hpp"
+#include "tendril/teleop/catheter_configuration.hpp"
+#include "tendril/teleop/latest_value.hpp"
+
+namespace tendril::server {
+
+struct BusUnit;
+struct JointBinding;
+
+struct DeflectionReading {
+  std::array<double, 2> mm{};  // proximal, distal: drive − carriage
+  std::int64_t stamp_ns = 0;   // steady clock
+  bool valid = false;          // false: never read, or a wiring fault on a channel
+};
+
+// What the simulation shows the API (any thread).
+struct CatheterSimulationView {
+  bool present = false;
+  double contact_force_n = 0.0;      // total wall force on the catheter now
+  double max_contact_force_n = 0.0;  // largest since start
+  double tip_bend_rad = 0.0;         // true total bend of the simulated catheter
+};
+
+struct CatheterSimulation;  // catheter_simulation.cpp
+
+struct CatheterUnit {
+  CatheterSettings settings;
+  std::unique_ptr<teleop::CatheterConfigurationMap> map;
+  std::unique_ptr<teleop::ConfigurationSpaceController> configuration;  // control thread
+  Eigen::Vector4d psi_max_velocity, psi_max_acceleration;              // its quintic's bounds in ψ
+  std::unique_ptr<canopen::AnalogInputReceiver> deflection_receiver;    // bus thread
+  std::unique_ptr<input::AnalogJoystickReceiver> joystick_receiver;     // bus thread
+  teleop::LatestValue<DeflectionReading> deflection;
+  teleop::LatestValue<input::JoystickState> analog_joystick;
+  std::unique_ptr<input::EvdevJoystick> evdev;
+  std::array<int, 4> evdev_output{-1, -1, -1, -1};  // joint → output index of the evdev mapping
+  std::unique_ptr<CatheterSimulation> simulation;
+  std::vector<Eigen::Vector3d> vessel;  // simulated vessel centerline (mm), empty without one
+  double lumen_radius_mm = 0.0;
+
+  CatheterUnit();
+  ~CatheterUnit();
+  CatheterUnit(const CatheterUnit&) = delete;
+  CatheterUnit& operator=(const CatheterUnit&) = delete;
+
+  CatheterSimulationView simulation_view() const noexcept;
+};
+
+// Builds the catheter unit of a 4-joint robot: model, controller, receivers on `bus` (the bus of its
+// bend drives), the evdev joystick (started with the runtime), and on a virtual bus the simulated
+// plant, vessel and ADC nodes, registered as plants and endpoints of that bus. Throws ConfigError.
+std::unique_ptr<CatheterUnit> make_catheter_unit(const RobotConfig& rc, BusUnit& bus,
+                                                 const std::vector<JointBinding>& bindings);
+
+// On a virtual bus: the simulated plant, vessel and ADC nodes (catheter_simulation.cpp).
+void attach_catheter_simulation(CatheterUnit& c, const RobotConfig& rc, BusUnit& bus,
+                                const std::vector<JointBinding>& bindings);
+
+// NMT start for the ADC nodes (they send PDOs only when operational).
+void start_catheter_nodes(CatheterUnit& c, BusUnit& bus);
+
+struct RobotUnit;
+struct RobotSnapshot;
+// API read-out (catheter_api.cpp, network threads).
+void catheter_robot_json(const RobotUnit& r, nlohmann::json& robot);
+void catheter_state_json(const RobotUnit& r, const RobotSnapshot& s, nlohmann::json& out);
+// The simulated vessel as a scene entity (a line as thick as the lumen).
+void add_catheter_entities(const RobotUnit& r, nlohmann::json& scene);
+// Joint values for the display model: bend entries are the assembled tip bend angles (from the
+// effective actuation q − deflection through the configuration map) divided by the display model's
+// bend gains, so the drawn shape shows the bend the sensors imply.
+std::vector<double> catheter_display_positions(const RobotUnit& r, const RobotSnapshot& s);
+
+}  // namespace tendril::server

@@ -1,0 +1,152 @@
+// The steerable catheter's modes over REST and the Foxglove WebSocket (seed 000 §4.7): every mode
+// switch, refused switches with their reason, configuration goals, and the console joystick as a
+// REST call and as a Foxglove client channel, with its deadman. Free space (tests/api/server.sh
+// drops the simulated vessel).
+import {test, after} from 'node:test';
+import assert from 'node:assert/strict';
+import wsProtocol from '@foxglove/ws-protocol';
+import WebSocket from 'ws';
+import {BASE_URL, TOKEN, ROBOT, get, post, call, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
+
+const {FoxgloveClient} = wsProtocol;
+const R = `/robots/${ROBOT}`;
+const deg = Math.PI / 180;
+
+const operatingState = async () => {
+  const res = await get(`${R}/operating_state`);
+  assert.equal(res.status, 200, res.text);
+  return res.json;
+};
+const setpoint = async () => (await get(`${R}/setpoint_js`)).json.position;
+const holding = () => pollUntil(async () => !(await operatingState()).is_busy, {polls: 400, intervalMs: 50});
+
+async function switchTo(mode) {
+  const res = await post(`${R}/mode`, {mode});
+  assert.equal(res.status, 200, res.text);
+  const ok = await pollUntil(async () => (await operatingState()).mode === mode);
+  assert.ok(ok, `mode did not become ${mode}`);
+}
+
+after(async () => {
+  await post(`${R}/joystick`, {axes: [0, 0, 0, 0], deadman: false});
+  await holding();
+  await post(`${R}/mode`, {mode: 'joint'});
+  await post(`${R}/state_command`, {command: 'disable'});
+  await call('DELETE', '/lease');
+});
+
+test('the catheter lists its modes, configuration space and joystick sources', async () => {
+  const res = await get('/robots');
+  const srmc = res.json.find((r) => r.name === ROBOT);
+  for (const m of ['joint', 'configuration', 'active_compliance', 'telemanipulation', 'path_following'])
+    assert.ok(srmc.modes.includes(m), `modes include ${m}: ${JSON.stringify(srmc.modes)}`);
+  assert.deepEqual(srmc.configuration.names, ['insertion', 'roll', 'theta_proximal', 'theta_distal']);
+  assert.ok(srmc.joystick_sources.includes('console'));
+  const s = await operatingState();
+  assert.equal(s.spring_deflection_mm.length, 2);
+  assert.equal(typeof s.spring_deflection_limit_mm, 'number');
+  assert.equal(s.configuration.length, 4);
+});
+
+test('every mode switch from a holding robot, and back to joint, without moving it', async () => {
+  assert.equal((await post('/lease', {})).status, 200);
+  assert.equal((await post(`${R}/state_command`, {command: 'enable'})).status, 200);
+  assert.ok(await pollUntil(async () => (await operatingState()).drives_ready), 'drives ready');
+  await holding();
+  const before = await setpoint();
+  for (const m of ['configuration', 'active_compliance', 'telemanipulation', 'joint']) {
+    await switchTo(m);
+    const now = await setpoint();
+    now.forEach((v, i) => assert.ok(Math.abs(v - before[i]) < 0.05, `${m}: joint ${i} moved ${v - before[i]}`));
+  }
+});
+
+test('refused switches say why: unknown mode 422, while moving 409 not_holding (kept in operating_state)', async () => {
+  assertErrorShape(await post(`${R}/mode`, {mode: 'cartesian'}), 422, 'unknown_mode');
+  assertErrorShape(await post(`${R}/mode`, {}), 400);
+  const q = await setpoint();
+  assert.equal((await post(`${R}/move_jp`, {goal: [q[0] + 8, q[1], q[2], q[3]]})).status, 202);
+  const res = await post(`${R}/mode`, {mode: 'configuration'});
+  assertErrorShape(res, 409, 'not_holding');
+  const s = await operatingState();
+  assert.equal(s.mode, 'joint');
+  assert.equal(s.mode_refusal.mode, 'configuration');
+  assert.match(s.mode_refusal.reason, /moving/);
+  await holding();
+  await post(`${R}/move_jp`, {goal: q});
+  await holding();
+});
+
+test('configuration mode: move_configuration in radians reaches the bend angles', async () => {
+  assertErrorShape(await post(`${R}/move_configuration`, {goal: {theta_proximal: 0.1}}), 409, 'wrong_mode');
+  await switchTo('configuration');
+  assertErrorShape(await post(`${R}/move_jp`, {goal: await setpoint()}), 409, 'wrong_mode');
+  assertErrorShape(await post(`${R}/move_configuration`, {goal: {theta_distal: 170 * deg}}), 422, 'out_of_limits');
+  assertErrorShape(await post(`${R}/move_configuration`, {goal: {theta_distal: 'a lot'}}), 400);
+  assertErrorShape(await call('POST', `${R}/move_configuration`, {raw: '{"goal":{"theta_distal":NaN}}'}), 400);
+  const res = await post(`${R}/move_configuration`, {goal: {theta_proximal: 20 * deg, theta_distal: -25 * deg}});
+  assert.equal(res.status, 202, res.text);
+  assert.equal(res.json.joints.length, 4);
+  assert.ok(await holding(), 'move ends');
+  const s = await operatingState();
+  assert.ok(Math.abs(s.configuration[2] - 20 * deg) < 1 * deg, `theta_proximal ${s.configuration[2] / deg} deg`);
+  assert.ok(Math.abs(s.configuration[3] + 25 * deg) < 1 * deg, `theta_distal ${s.configuration[3] / deg} deg`);
+  const back = await post(`${R}/move_configuration`, {goal: {theta_proximal: 0, theta_distal: 0}});
+  assert.equal(back.status, 202, back.text);
+  await holding();
+  await switchTo('joint');
+});
+
+test('telemanipulation over REST: nothing moves without the deadman, the bend moves with it', async () => {
+  assertErrorShape(await post(`${R}/joystick`, {axes: [0, 0, 0.5, 0], deadman: true}), 409, 'wrong_mode');
+  await switchTo('telemanipulation');
+  assertErrorShape(await post(`${R}/joystick`, {axes: [0, 0, 2, 0], deadman: true}), 422, 'out_of_range');
+  assertErrorShape(await post(`${R}/joystick`, {axes: [0, 0, 0], deadman: true}), 422, 'wrong_size');
+  assertErrorShape(await post(`${R}/joystick`, {axes: [0, 0, 0, 0]}), 400);
+  const q0 = await setpoint();
+  for (let i = 0; i < 10; ++i) {
+    assert.equal((await post(`${R}/joystick`, {axes: [0, 0, 1, 0], deadman: false})).status, 200);
+    await sleep(30);
+  }
+  assert.ok(Math.abs((await setpoint())[2] - q0[2]) < 1e-6, 'moved without the deadman');
+  for (let i = 0; i < 15; ++i) {
+    await post(`${R}/joystick`, {axes: [0, 0, 1, 0], deadman: true});
+    await sleep(30);
+  }
+  const s = await operatingState();
+  assert.ok((await setpoint())[2] - q0[2] > 0.05, 'proximal bend moved with the deadman held');
+  await post(`${R}/joystick`, {axes: [0, 0, 0, 0], deadman: false});
+  assert.ok(await holding(), 'holds after the deadman is released');
+  assert.ok(['console', null].includes(s.joystick.source));
+});
+
+test('telemanipulation over a Foxglove client channel /srmc/joystick', async () => {
+  const ws = new WebSocket(`${BASE_URL.replace(/^http/, 'ws')}/ws?token=${encodeURIComponent(TOKEN)}`,
+      [FoxgloveClient.SUPPORTED_SUBPROTOCOL], {headers: {'X-Tendril-Client': 'api-test'}, rejectUnauthorized: false});
+  const client = new FoxgloveClient({ws});
+  const statuses = [];
+  client.on('status', (s) => statuses.push(s));
+  await new Promise((resolve, reject) => {
+    client.on('serverInfo', resolve);
+    client.on('error', reject);
+  });
+  try {
+    const channel = client.advertise({topic: `/${ROBOT}/joystick`, encoding: 'json', schemaName: 'tendril.Joystick'});
+    const q0 = await setpoint();
+    for (let i = 0; i < 20; ++i) {
+      client.sendMessage(channel, new TextEncoder().encode(JSON.stringify({axes: [0, 0, 0, -1], deadman: true})));
+      await sleep(25);
+    }
+    client.sendMessage(channel, new TextEncoder().encode(JSON.stringify({axes: [0, 0, 0, 0], deadman: false})));
+    const moved = (await setpoint())[3] - q0[3];
+    assert.ok(moved < -0.1, `distal bend moved ${moved} mm; statuses ${JSON.stringify(statuses)}`);
+    // A bad message gets a status, not motion.
+    client.sendMessage(channel, new TextEncoder().encode(JSON.stringify({axes: [0, 0, 0, 9], deadman: true})));
+    const warned = await pollUntil(() => statuses.find((s) => /joystick: out_of_range/.test(s.message)));
+    assert.ok(warned, `no status for a bad joystick message: ${JSON.stringify(statuses)}`);
+  } finally {
+    client.close();
+  }
+  assert.ok(await holding());
+  await switchTo('joint');
+});

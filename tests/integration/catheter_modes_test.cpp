@@ -1,0 +1,313 @@
+// The steerable catheter's modes over the virtual bus in stepped simulated time (seed 000 §4.7,
+// §4.10.2): configuration control through eq. 4.21, telemanipulation from the console and from the
+// simulated ADC joystick with its deadman, active compliance from the simulated spring-deflection
+// sensors, the spring-deflection hold with retraction only, and the seed's active-vs-passive bend.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <numbers>
+
+#include "tendril/drivers/sim/simulated_analog_joystick.hpp"
+#include "tendril/server/config.hpp"
+#include "tendril/server/robot_runtime.hpp"
+
+namespace tendril::server {
+namespace {
+
+const std::filesystem::path kSrmc = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots/srmc.json";
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+// The channel of the §4.10.2 reproduction (geometry chosen with drivers/sim's plant parameters,
+// see drivers/sim/README.md).
+struct Channel {
+  double lead_in, bend_radius, turn_deg, lumen, insertion, passive_limit, band_deg;
+};
+constexpr Channel kChannel{55.0, 20.0, 120.0, 1.5875, 40.0, 9.5, 5.0};
+
+RobotConfig free_space_srmc() {
+  auto c = load_robot_config(kSrmc);
+  c.catheter["simulation"].erase("vessel");
+  return c;
+}
+
+class CatheterTest : public ::testing::Test {
+ protected:
+  void start(RobotConfig config) {
+    RuntimeOptions o;
+    o.stepped = true;
+    o.control_rate_hz = 1000;
+    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o);
+    runtime->start();
+    steps(50);  // first PDOs from the drives and the ADC nodes
+  }
+  void TearDown() override {
+    if (runtime) runtime->stop();
+  }
+
+  // Steps while recording the largest per-tick setpoint change of each joint.
+  void steps(int n) {
+    for (int i = 0; i < n; ++i) {
+      const auto before = setpoint();
+      runtime->step();
+      const auto after = setpoint();
+      for (std::size_t j = 0; j < 4; ++j) max_step[j] = std::max(max_step[j], std::abs(after[j] - before[j]));
+    }
+  }
+  template <typename Pred>
+  bool step_until(Pred pred, int max_steps) {
+    for (int i = 0; i < max_steps; ++i) {
+      if (pred()) return true;
+      steps(1);
+    }
+    return pred();
+  }
+  std::vector<double> setpoint() { return runtime->setpoint_js("srmc").body["position"].get<std::vector<double>>(); }
+  std::vector<double> measured() { return runtime->measured_js("srmc").body["position"].get<std::vector<double>>(); }
+  nlohmann::json op() { return runtime->operating_state("srmc").body; }
+  void enable() {
+    ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+    ASSERT_TRUE(step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
+        << op().dump();
+  }
+  void mode(const std::string& m) {
+    const auto r = runtime->mode("srmc", {{"mode", m}});
+    ASSERT_EQ(r.status, 200) << r.message;
+    ASSERT_TRUE(step_until([&] { return op()["mode"] == m; }, 10)) << op().dump();
+  }
+  // Streams the console joystick for `ms` milliseconds, 50 Hz like the console.
+  void joystick(std::array<double, 4> axes, bool deadman, int ms) {
+    for (int t = 0; t < ms; t += 20) {
+      const auto r = runtime->joystick("srmc", {{"axes", axes}, {"deadman", deadman}});
+      ASSERT_EQ(r.status, 200) << r.message;
+      steps(20);
+    }
+  }
+
+  std::unique_ptr<RobotRuntime> runtime;
+  std::array<double, 4> max_step{};
+};
+
+TEST_F(CatheterTest, ListsTheModesAndTheConfigurationSpace) {
+  start(free_space_srmc());
+  const auto robot = runtime->robots()[0];
+  EXPECT_EQ(robot["modes"], nlohmann::json({"joint", "configuration", "active_compliance", "telemanipulation",
+                                            "path_following"}));
+  EXPECT_EQ(robot["configuration"]["names"],
+            nlohmann::json({"insertion", "roll", "theta_proximal", "theta_distal"}));
+  // Seed bend-drive limits: -6 <= q3 <= 10 mm, |q4| <= 5 mm.
+  EXPECT_EQ(robot["joints"][2]["lower"], -6.0);
+  EXPECT_EQ(robot["joints"][2]["upper"], 10.0);
+  EXPECT_EQ(robot["joints"][3]["lower"], -5.0);
+  EXPECT_EQ(robot["joints"][3]["upper"], 5.0);
+  // The proximal bend range follows from those limits through the loss line (4.13): a1·k·q + b1.
+  EXPECT_NEAR(robot["configuration"]["upper"][2].get<double>(), 0.063 * 1.4 * 10.0 - 0.049, 1e-3);
+  const auto state = op();
+  EXPECT_EQ(state["mode"], "joint");
+  ASSERT_TRUE(state["spring_deflection_mm"].is_array()) << state.dump();
+  EXPECT_LT(std::abs(state["spring_deflection_mm"][0].get<double>()), 0.05);  // free space, relaxed springs
+}
+
+TEST_F(CatheterTest, ModeSwitchesOnlyWhileHoldingAndSaysWhyNot) {
+  start(free_space_srmc());
+  enable();
+  EXPECT_EQ(runtime->mode("srmc", {{"mode", "cartesian"}}).status, 422);
+  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {30.0, 0.0, 0.0, 0.0}}}).status, 202);
+  steps(5);
+  const auto refused = runtime->mode("srmc", {{"mode", "configuration"}});
+  EXPECT_EQ(refused.status, 409);
+  EXPECT_EQ(refused.code, "not_holding");
+  EXPECT_EQ(op()["mode_refusal"]["mode"], "configuration");
+  EXPECT_NE(op()["mode_refusal"]["reason"].get<std::string>().find("moving"), std::string::npos);
+  ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
+  const auto before = setpoint();
+  for (const char* m : {"configuration", "telemanipulation", "active_compliance", "joint"}) {
+    mode(m);
+    steps(20);
+    const auto after = setpoint();
+    for (std::size_t j = 0; j < 4; ++j) EXPECT_NEAR(after[j], before[j], 0.02) << m << " joint " << j;
+  }
+  EXPECT_TRUE(op()["mode_refusal"].is_null());  // cleared by the accepted switch
+}
+
+TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
+  start(free_space_srmc());
+  enable();
+  // Joint commands are for joint mode; configuration goals for configuration mode.
+  EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 0.2}}}}).status, 409);
+  mode("configuration");
+  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {10.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
+  EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 170 * kDeg}}}}).status, 422);
+  EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"yaw", 0.1}}}}).status, 400);
+  max_step = {};
+  const auto r = runtime->move_configuration(
+      "srmc", {{"goal", {{"theta_proximal", 30 * kDeg}, {"theta_distal", -40 * kDeg}, {"insertion", 20.0}}}});
+  ASSERT_EQ(r.status, 202) << r.message;
+  const double duration = r.body["duration_s"].get<double>();
+  EXPECT_GT(duration, 0.5);
+  steps(5);
+  ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, static_cast<int>(duration * 1000) + 3000));
+  const auto psi = op()["configuration"];
+  EXPECT_NEAR(psi[0].get<double>(), 20.0, 0.05);
+  EXPECT_NEAR(psi[2].get<double>(), 30 * kDeg, 0.5 * kDeg) << psi.dump();
+  EXPECT_NEAR(psi[3].get<double>(), -40 * kDeg, 0.5 * kDeg) << psi.dump();
+  // Smooth: no joint setpoint moved faster than its velocity limit in any tick.
+  const std::array<double, 4> vmax{10.0, 1.5, 2.0, 2.0};
+  for (std::size_t j = 0; j < 4; ++j) EXPECT_LE(max_step[j], vmax[j] * 0.001 * 1.05) << "joint " << j;
+  // Coupling compensation (4.15/4.21) moves the distal drive when only the proximal bend changes.
+  const double q4_before = setpoint()[3];
+  ASSERT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 10 * kDeg}}}}).status, 202);
+  steps(5);
+  ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
+  EXPECT_GT(std::abs(setpoint()[3] - q4_before), 0.01);
+  EXPECT_NEAR(op()["configuration"][3].get<double>(), -40 * kDeg, 0.5 * kDeg);
+}
+
+TEST_F(CatheterTest, TelemanipulationMovesOnlyWhileTheDeadmanIsHeld) {
+  start(free_space_srmc());
+  enable();
+  EXPECT_EQ(runtime->joystick("srmc", {{"axes", {0, 0, 0.5, 0}}, {"deadman", true}}).code, "wrong_mode");
+  mode("telemanipulation");
+  const auto q0 = setpoint();
+  joystick({0, 0, 0.5, 0}, false, 500);
+  EXPECT_NEAR(setpoint()[2], q0[2], 1e-9) << "moved without the deadman";
+  joystick({0, 0, 0.5, 0}, true, 1000);
+  // 0.5 of the configured 1.0 mm/s for 1 s.
+  EXPECT_NEAR(setpoint()[2] - q0[2], 0.5, 0.05);
+  EXPECT_EQ(op()["joystick"]["source"], "console");
+  // The stream stops: motion stops within the command timeout (150 ms).
+  const double after = setpoint()[2];
+  steps(400);
+  EXPECT_LT(setpoint()[2] - after, 0.5 * 1.0 * 0.16);
+  EXPECT_EQ(runtime->joystick("srmc", {{"axes", {0, 0, 1.5, 0}}, {"deadman", true}}).status, 422);
+  EXPECT_EQ(runtime->joystick("srmc", {{"axes", {0, 0, 0}}, {"deadman", true}}).status, 422);
+}
+
+TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
+  start(free_space_srmc());
+  enable();
+  mode("telemanipulation");
+  auto* stick = runtime->simulated_analog_joystick("srmc");
+  ASSERT_NE(stick, nullptr);
+  const auto q0 = setpoint();
+  stick->set_deflection({0.0, 0.0, 1.0});  // distal bend full forward, pedal up
+  steps(500);
+  EXPECT_NEAR(setpoint()[3], q0[3], 1e-9) << "moved without the pedal";
+  stick->set_pedal(true);
+  steps(1000);
+  EXPECT_EQ(op()["joystick"]["source"], "analog");
+  EXPECT_NEAR(setpoint()[3] - q0[3], 1.0, 0.1);  // 1.0 mm/s at full stick for ~1 s
+  // Both the console and the pedal: a conflict, nothing moves.
+  const double q3 = setpoint()[3];
+  joystick({0, 0, 0, -1}, true, 300);
+  EXPECT_TRUE(op()["joystick"]["conflict"].get<bool>());
+  EXPECT_NEAR(setpoint()[3], q3, 0.02);
+  stick->set_pedal(false);
+}
+
+// The seed's channel experiment (§4.10.2) in the simulated vessel: a curved channel (the phantom
+// tubing's lumen, a 55 mm lead-in, then a 120° bend of 20 mm radius), the catheter inserted 40 mm at
+// 2 mm/s, once with the bend drives held (passive: only the springs let the tubes bend) and once
+// under active compliance. For the comparison at equal depth both runs raise the deflection bound
+// to 9.5 mm (the passive catheter ends near 6 mm; the seed's passive run had no such bound).
+RobotConfig channel_srmc(double deflection_limit_mm) {
+  auto c = load_robot_config(kSrmc);
+  c.catheter["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in}, {"bend_radius_mm", kChannel.bend_radius},
+                                        {"turn_deg", kChannel.turn_deg}, {"lumen_radius_mm", kChannel.lumen}};
+  c.catheter["spring_deflection"]["limit_mm"] = deflection_limit_mm;
+  // A potentiometer range that can read the passive run's deflection (±10 mm over 0–5 V).
+  c.catheter["spring_deflection"]["volts_per_mm"] = 0.24;
+  return c;
+}
+
+struct ChannelRun {
+  double bend_deg = 0.0;
+  double peak_contact_n = 0.0;
+  std::string state;
+};
+
+class ChannelTest : public CatheterTest {
+ protected:
+  // Inserts by `distance` mm at 2 mm/s with servo_jv refreshed every 20 ms, in `mode_name`.
+  ChannelRun insert(const std::string& mode_name, double distance) {
+    enable();
+    mode(mode_name);
+    const int ms = static_cast<int>(distance / 2.0 * 1000.0);
+    for (int t = 0; t < ms; t += 20) {
+      const auto r = runtime->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}});
+      if (r.status != 200) break;  // held: the run ends where the safety stopped it
+      steps(20);
+    }
+    steps(300);
+    const auto s = op();
+    return {s["simulation"]["tip_bend_rad"].get<double>() / kDeg,
+            s["simulation"]["peak_contact_force_n"].get<double>(), s["state"].get<std::string>()};
+  }
+};
+
+TEST_F(ChannelTest, ActiveComplianceBendsFurtherThanPassiveWithLessWallForce) {
+  start(channel_srmc(kChannel.passive_limit));
+  const auto passive = insert("joint", kChannel.insertion);
+  runtime->stop();
+  start(channel_srmc(kChannel.passive_limit));
+  const auto active = insert("active_compliance", kChannel.insertion);
+  std::printf("  channel: passive %.1f deg (peak wall force %.3f N), active compliance %.1f deg (%.3f N)\n",
+              passive.bend_deg, passive.peak_contact_n, active.bend_deg, active.peak_contact_n);
+  EXPECT_EQ(passive.state, "ENABLED");
+  EXPECT_EQ(active.state, "ENABLED");
+  // Seed: 81° with active compliance against 43° passive.
+  EXPECT_NEAR(active.bend_deg, 81.0, kChannel.band_deg);
+  EXPECT_NEAR(passive.bend_deg, 43.0, kChannel.band_deg);
+  // The contact force stays under its configured bound (max_contact_force_n, 0.1 N) with compliance;
+  // the passive catheter loads the wall more.
+  EXPECT_LE(active.peak_contact_n, 0.1);
+  EXPECT_GT(passive.peak_contact_n, active.peak_contact_n);
+}
+
+TEST_F(ChannelTest, SpringDeflectionOverItsBoundHoldsAndAllowsOnlyRetraction) {
+  start(channel_srmc(1.5));
+  const auto run = insert("joint", kChannel.insertion);
+  ASSERT_EQ(run.state, "PAUSED") << op().dump();
+  auto s = op();
+  EXPECT_EQ(s["hold_reason"], "spring deflection over its bound");
+  EXPECT_TRUE(s["retraction_only"].get<bool>());
+  const double deflection =
+      std::max(std::abs(s["spring_deflection_mm"][0].get<double>()), std::abs(s["spring_deflection_mm"][1].get<double>()));
+  EXPECT_GT(deflection, 1.4);
+  // Forward is refused with the reason; so is a mode switch.
+  const auto forward = runtime->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}});
+  EXPECT_EQ(forward.status, 409);
+  EXPECT_EQ(forward.code, "retraction_only");
+  EXPECT_EQ(runtime->mode("srmc", {{"mode", "active_compliance"}}).code, "held_after_limit");
+  // Withdrawal moves the catheter back out.
+  const double q1 = setpoint()[0];
+  for (int t = 0; t < 1000; t += 20) {
+    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    steps(20);
+  }
+  EXPECT_NEAR(setpoint()[0], q1 - 2.0, 0.1);
+  EXPECT_EQ(op()["state"], "PAUSED");
+  // Resume acknowledges the hold.
+  steps(200);
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  steps(5);
+  s = op();
+  EXPECT_FALSE(s["retraction_only"].get<bool>());
+}
+
+TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobot) {
+  start(free_space_srmc());
+  enable();
+  auto* sensor = runtime->simulated_spring_sensor("srmc");
+  ASSERT_NE(sensor, nullptr);
+  sensor->set_silent(true);
+  ASSERT_TRUE(step_until([&] { return op()["state"] == "PAUSED"; }, 300)) << op().dump();
+  EXPECT_EQ(op()["hold_reason"], "sensor stream stale");
+  EXPECT_TRUE(op()["spring_deflection_mm"].is_null());
+  EXPECT_EQ(runtime->mode("srmc", {{"mode", "active_compliance"}}).status, 409);
+  sensor->set_silent(false);
+}
+
+}  // namespace
+}  // namespace tendril::server
