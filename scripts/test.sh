@@ -80,10 +80,10 @@ if [ "$quick" = 0 ]; then
   step "fuzzing (libFuzzer, bounded)"
   CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_FUZZ=ON \
     -DTENDRIL_BUILD_TESTS=ON -DTENDRIL_BUILD_BENCHMARKS=OFF -DTENDRIL_CAN_VM_TESTS=OFF >/dev/null &&
-    cmake --build build-fuzz -j "$jobs" --target fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl
+    cmake --build build-fuzz -j "$jobs" --target fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo
   status=$?
   if [ $status -eq 0 ]; then
-    for target in fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl; do
+    for target in fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo; do
       corpus_dir=$(mktemp -d)
       cp -r tests/fuzz/corpus/"$target"/. "$corpus_dir"/ 2>/dev/null || true
       if build-fuzz/tests/fuzz/$target -max_total_time="${TENDRIL_FUZZ_SECONDS:-60}" -rss_limit_mb=2048 -print_final_stats=1 \
