@@ -90,5 +90,32 @@ TEST(SimulatedAnalogJoystick, NmtStopSilenceAndWiringFaultsStopMotion) {
   EXPECT_FALSE(rig.receiver.state(true, rig.now_ns).connected);
 }
 
+TEST(SimulatedAnalogJoystick, TheFootPedalOnDigitalInput0IsTheDeadman) {
+  Rig rig;
+  rig.node.set_deflection({0.0, 1.0, 0.0});
+  rig.run(0.2);
+  auto state = rig.receiver.state(rig.now_ns);
+  EXPECT_TRUE(state.connected);
+  EXPECT_FALSE(state.deadman);
+  EXPECT_GT(state.outputs[1], 0.9);  // the stick reads; without the pedal nothing may move
+  rig.node.set_pedal(true);
+  rig.run(0.05);
+  EXPECT_TRUE(rig.receiver.state(rig.now_ns).deadman);
+  rig.node.set_pedal(false);
+  rig.run(0.05);
+  EXPECT_FALSE(rig.receiver.state(rig.now_ns).deadman);
+  // A calibration without a pedal never reports the deadman from the node.
+  input::AnalogJoystickCalibration none;
+  none.deadman_digital_input = -1;
+  input::AnalogJoystickReceiver no_pedal(none);
+  rig.node.set_pedal(true);
+  rig.run(0.05);
+  const auto frame = input::encode_analog_joystick_pdo(0x30, {2.5, 2.5, 2.5});
+  no_pedal.handle(frame, rig.now_ns);
+  EXPECT_FALSE(no_pedal.state(rig.now_ns).deadman);
+  none.deadman_digital_input = 9;
+  EXPECT_THROW(input::AnalogJoystickReceiver{none}, input::JoystickConfigError);
+}
+
 }  // namespace
 }  // namespace tendril

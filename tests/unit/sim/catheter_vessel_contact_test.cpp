@@ -1,0 +1,127 @@
+// SIMULATED catheter-vessel contact and the SRMC plant's coupling and potentiometer output.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "tendril/drivers/can/virtual_bus.hpp"
+#include "tendril/drivers/canopen/analog_input_node.hpp"
+#include "tendril/drivers/sim/catheter_vessel_contact.hpp"
+#include "tendril/drivers/sim/simulated_analog_input_node.hpp"
+#include "tendril/drivers/sim/simulation.hpp"
+#include "tendril/drivers/sim/srmc_plant.hpp"
+#include "tendril/teleop/catheter_kinematics.hpp"
+
+namespace tendril::sim {
+namespace {
+
+// The assembled SRMC shape of config/robots/srmc.json: 22/18.8 mm, δ2 = −0.76, bend a·k per mm.
+teleop::ModalCatheterParameters shape() {
+  teleop::CatheterParameters cc;
+  cc.proximal_length = 22.0;
+  cc.distal_length = 18.8;
+  cc.plane_offset = -0.76;
+  cc.proximal_curvature_gain = 0.063 * 1.4;
+  cc.distal_curvature_gain = 0.17 * 1.4;
+  return teleop::constant_curvature_modal_parameters(cc);
+}
+
+TEST(CatheterVesselContact, AStraightCatheterInAStraightTubeTouchesNothing) {
+  CatheterVesselContact contact(arc_channel(200.0, 20.0, 0.5), shape(), {});
+  const auto f = contact.evaluate(Eigen::Vector4d(30.0, 0.0, 0.0, 0.0));
+  EXPECT_EQ(f.points_in_contact, 0);
+  EXPECT_EQ(f.total_force, 0.0);
+  for (double g : f.generalised) EXPECT_EQ(g, 0.0);
+}
+
+TEST(CatheterVesselContact, ACurvedWallPushesTheProximalCarriageTowardTheCurve) {
+  // The channel bends toward +x 5 mm past the tip; pushing the catheter in makes the wall bend it.
+  CatheterVesselContact contact(arc_channel(45.0, 20.0, 2.0), shape(), {});
+  const auto f = contact.evaluate(Eigen::Vector4d(20.0, 0.0, 0.0, 0.0));
+  ASSERT_GT(f.points_in_contact, 0);
+  EXPECT_GT(f.total_force, 0.0);
+  EXPECT_LE(f.max_force, f.total_force);
+  // Positive carriage travel bends the proximal segment toward +x: the wall asks for more of it, and
+  // resists further insertion.
+  EXPECT_GT(f.generalised[2], 0.0);
+  EXPECT_LT(f.generalised[0], 0.0);
+  // A little bend with the channel lowers the wall energy (the force is its slope).
+  EXPECT_LT(contact.energy(Eigen::Vector4d(20.0, 0.0, 0.3, 0.0)),
+            contact.energy(Eigen::Vector4d(20.0, 0.0, 0.0, 0.0)));
+}
+
+TEST(CatheterVesselContact, RejectsAVesselItCannotModel) {
+  EXPECT_THROW(CatheterVesselContact({Eigen::Vector3d::Zero()}, shape(), {}), std::invalid_argument);
+  CatheterVesselContactParameters narrow;
+  narrow.lumen_radius = 0.5;  // narrower than the 0.6 mm catheter
+  EXPECT_THROW(CatheterVesselContact(arc_channel(10.0, 5.0, 1.0), shape(), narrow), std::invalid_argument);
+  EXPECT_THROW(arc_channel(10.0, -1.0, 1.0), std::invalid_argument);
+}
+
+TEST(CatheterVesselContact, TipBendIsTheSumOfInPlaneSegmentBends) {
+  auto planar = shape();
+  planar.plane_offset = 0.0;
+  const teleop::ModalCatheterKinematics k(planar);
+  // 5 mm on each drive: 0.441 + 1.19 rad in one plane.
+  EXPECT_NEAR(tip_bend(k, Eigen::Vector4d(10.0, 0.0, 5.0, 5.0)), 0.063 * 1.4 * 5 + 0.17 * 1.4 * 5, 1e-6);
+}
+
+struct PlantRig {
+  can::VirtualBus bus{"srmc"};
+  std::unique_ptr<can::VirtualBusEndpoint> master = bus.attach("master");
+  std::unique_ptr<can::VirtualBusEndpoint> adc = bus.attach("adc");
+  Simulation sim{bus};
+  SimulatedAnalogInputNode node{*adc, [] {
+                                  AnalogInputNodeParameters p;
+                                  p.node_id = 0x31;
+                                  p.noise_volts = 0.0;
+                                  return p;
+                                }()};
+  PlantRig() {
+    sim.add_drive(1, DriveParameters::srmc_insertion("insertion"));
+    sim.add_drive(2, DriveParameters::srmc_roll("roll"));
+    sim.add_drive(3, DriveParameters::srmc_bend("proximal_bend"));
+    sim.add_drive(4, DriveParameters::srmc_bend("distal_bend"));
+  }
+};
+
+TEST(SrmcPlantCoupling, ProximalBendShiftsTheDistalActuationByR1CosDelta2) {
+  PlantRig rig;
+  SrmcPlantParameters p;
+  p.shape = shape();
+  p.coupling_mm_per_rad = 0.6 * std::cos(-0.76);
+  SrmcPlant plant(rig.sim, {0, 1, 2, 3}, p);
+  plant.set_external_force(0, 0.4);  // pushes the proximal carriage up by 2 mm against the 0.2 N/mm spring
+  for (int i = 0; i < 3000; ++i) plant.step(0.001);
+  const auto s = plant.state();
+  EXPECT_NEAR(s.carriage[0], 2.0, 0.05);
+  EXPECT_NEAR(s.deflection[0], -2.0, 0.05);
+  EXPECT_NEAR(s.bend[0], 0.063 * 1.4 * s.carriage[0], 1e-9);
+  EXPECT_NEAR(s.distal_actuation, s.carriage[1] + p.coupling_mm_per_rad * s.bend[0], 1e-12);
+  EXPECT_GT(s.bend[1], 0.0);  // the distal tube bends though its drive has not moved
+}
+
+TEST(SrmcPlantPotentiometers, DeflectionReachesTheBusAsVoltsAroundTheCentre) {
+  PlantRig rig;
+  SrmcPlantParameters p;
+  p.potentiometer_volts_per_mm = 0.5;
+  SrmcPlant plant(rig.sim, {0, 1, 2, 3}, p);
+  plant.set_potentiometer_node(&rig.node);
+  plant.set_external_force(1, -0.2);  // distal carriage pushed down 1 mm: deflection +1 mm
+  canopen::AnalogInputReceiver rx({0x31, 5.0, 0.25, 100'000'000});
+  std::int64_t now = 0;
+  for (int i = 0; i < 3000; ++i) {
+    plant.step(0.001);
+    rig.node.step(0.001);
+    now += 1'000'000;
+    while (auto f = rig.master->receive(std::chrono::nanoseconds(0))) rx.handle(*f, now);
+  }
+  const auto r = rx.reading(now);
+  ASSERT_TRUE(r.fresh);
+  EXPECT_NEAR((r.volts[1] - 2.5) / 0.5, plant.state().deflection[1], 0.01);
+  EXPECT_NEAR(plant.state().deflection[1], 1.0, 0.05);
+  EXPECT_NEAR(r.volts[0], 2.5, 0.01);
+}
+
+}  // namespace
+}  // namespace tendril::sim
