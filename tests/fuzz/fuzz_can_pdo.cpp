@@ -29,7 +29,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         if (!std::isfinite(v) || v < 0.0 || v > 65.535) std::abort();
       // Round trip: what we decode re-encodes to the same bytes.
       const auto again = canopen::encode_analog_input_pdo(
-          0x31, pdo->volts, pdo->has_digital_inputs ? std::optional<std::uint8_t>(pdo->digital_inputs) : std::nullopt);
+          0x31, pdo->volts,
+          pdo->has_digital_inputs ? std::optional<std::uint8_t>(pdo->digital_inputs) : std::nullopt);
       for (std::size_t i = 0; i < 6; ++i)
         if (again.data[i] != f.data[i]) std::abort();
     }
