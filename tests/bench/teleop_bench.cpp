@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "tendril/safety/safety_supervisor.hpp"
+#include "tendril/teleop/active_compliance.hpp"
 #include "tendril/teleop/catheter_configuration.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
 #include "tendril/teleop/pid.hpp"
@@ -141,5 +142,68 @@ void BM_ConfigurationControllerStep(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_ConfigurationControllerStep)->Name("configuration controller step");
+
+// The SRMC's mid-level plus low-level compute per 1 kHz tick, by mode (issue target: < 20 µs):
+// the mode's setpoint law, the supervisor's clamp and tick, four joint PIDs (the drives' position
+// loop in simulation) and the tip pose for display. 0 = configuration (eq. 4.21), 1 = active
+// compliance (eqs. 4.24–4.26), 2 = telemanipulation (joystick velocity integrated).
+void BM_SrmcMidAndLowLevelTick(benchmark::State& state) {
+  using tendril::teleop::CatheterConfigurationMap;
+  using V4 = CatheterConfigurationMap::Vector4;
+  tendril::teleop::CatheterParameters nominal;
+  nominal.proximal_length = 22.0;
+  nominal.distal_length = 18.8;
+  nominal.plane_offset = -0.76;
+  const CatheterConfigurationMap map(tendril::teleop::constant_curvature_modal_parameters(nominal),
+                                     tendril::teleop::ConfigurationRateParameters{});
+  tendril::teleop::ConfigurationSpaceController controller(map, V4(10.0, 1.5, 0.18, 0.48),
+                                                           V4(50.0, 10.0, 1.8, 4.8));
+  const tendril::teleop::ActiveComplianceParameters compliance;
+  std::array<tendril::teleop::Pid, 4> pids;
+  pids.fill(tendril::teleop::Pid({.kp = 2.0, .ki = 1.0, .kd = 0.01, .output_limit = 5.0}));
+  const ConstantCurvatureCatheter cat(tendril::teleop::CatheterParameters{});
+  auto supervisor = std::make_unique<tendril::safety::SafetySupervisor>(tendril::safety::LimitSet({
+      {"insertion", "mm", 0.0, 120.0, 0.5, 10.0, 50.0, 50.0},
+      {"roll", "rad", -3.14, 3.14, 0.02, 1.5, 10.0, 5.0},
+      {"proximal_bend", "mm", -6.0, 10.0, 0.1, 2.0, 20.0, 5.0},
+      {"distal_bend", "mm", -5.0, 5.0, 0.1, 2.0, 20.0, 5.0},
+  }));
+  supervisor->request(0.0, tendril::safety::StateCommand::kEnable);
+  const std::array<V4, 2> goals{V4(20.0, 0.8, 0.3, -0.4), V4(10.0, -0.4, -0.1, 0.2)};
+  std::size_t next = 0;
+  V4 q(10.0, 0.0, 0.0, 0.0), qd = V4::Zero();
+  std::array<double, 4> measured{10.0, 0.0, 0.0, 0.0}, effort{}, q_des{}, qd_des{};
+  const std::array<double, 2> deflection{-0.4, 0.2};
+  const std::array<double, 4> stick{0.5, 0.0, 0.3, -0.2}, max_speed{3.0, 0.5, 1.0, 1.0};
+  double t = 0.0;
+  controller.reset(t, q);
+  controller.retarget(t, goals[next]);
+  const auto mode = state.range(0);
+  for (auto _ : state) {
+    t += 1e-3;
+    if (mode == 0) {
+      controller.step(t, 1e-3, q, qd);
+      if (controller.done(t)) controller.retarget(t, goals[next ^= 1]);
+      for (int j = 0; j < 4; ++j) {
+        q_des[static_cast<std::size_t>(j)] = q[j];
+        qd_des[static_cast<std::size_t>(j)] = qd[j];
+      }
+    } else if (mode == 1) {
+      tendril::teleop::apply_active_compliance(compliance, measured, deflection, 1e-3, q_des);
+    } else {
+      for (std::size_t j = 0; j < 4; ++j) {
+        qd_des[j] = stick[j] * max_speed[j];
+        q_des[j] += qd_des[j] * 1e-3;
+      }
+      if (q_des[0] > 100.0) q_des = measured;
+    }
+    supervisor->clamp_setpoint(q_des, qd_des);
+    for (std::size_t j = 0; j < 4; ++j) effort[j] = pids[j].update(q_des[j], measured[j], 1e-3);
+    benchmark::DoNotOptimize(cat.tip_pose(JV(measured[0], measured[1], measured[2], measured[3])));
+    benchmark::DoNotOptimize(supervisor->tick(t, measured, q_des));
+    benchmark::DoNotOptimize(effort);
+  }
+}
+BENCHMARK(BM_SrmcMidAndLowLevelTick)->Arg(0)->Arg(1)->Arg(2)->ArgName("mode");
 
 }  // namespace
