@@ -73,15 +73,15 @@ void catheter_robot_json(const RobotUnit& r, nlohmann::json& robot) {
 
 void catheter_state_json(const RobotUnit& r, const RobotSnapshot& s, nlohmann::json& out) {
   const auto& c = *r.catheter;
-  out["spring_deflection_mm"] =
-      s.deflection_fresh ? nlohmann::json{s.spring_deflection[0], s.spring_deflection[1]} : nlohmann::json(nullptr);
+  out["spring_deflection_mm"] = s.deflection_fresh
+                                    ? nlohmann::json{s.spring_deflection[0], s.spring_deflection[1]}
+                                    : nlohmann::json(nullptr);
   out["spring_deflection_limit_mm"] = c.settings.deflection.limit_mm;
   out["configuration"] = vec(c.map->configuration(effective_actuation(s)));
   const bool moving = s.mode == ControlMode::configuration && s.configuration_moving;
-  out["configuration_goal"] =
-      moving ? vec(Eigen::Vector4d(s.configuration_goal[0], s.configuration_goal[1], s.configuration_goal[2],
-                                   s.configuration_goal[3]))
-             : nlohmann::json(nullptr);
+  out["configuration_goal"] = moving ? vec(Eigen::Vector4d(s.configuration_goal[0], s.configuration_goal[1],
+                                                           s.configuration_goal[2], s.configuration_goal[3]))
+                                     : nlohmann::json(nullptr);
   out["retraction_only"] = s.retraction_only;
   out["hold_reason"] = s.hold_code != safety::FaultCode::kNone && s.state == OperatingState::kPaused
                            ? nlohmann::json(safety::to_string(s.hold_code))
@@ -96,7 +96,8 @@ void catheter_state_json(const RobotUnit& r, const RobotSnapshot& s, nlohmann::j
   out["contact_force_n"] = sim.present ? nlohmann::json(sim.contact_force_n) : nlohmann::json(nullptr);
   out["max_contact_force_n"] = c.settings.max_contact_force_n;
   if (sim.present)
-    out["simulation"] = {{"tip_bend_rad", sim.tip_bend_rad}, {"peak_contact_force_n", sim.max_contact_force_n}};
+    out["simulation"] = {{"tip_bend_rad", sim.tip_bend_rad},
+                         {"peak_contact_force_n", sim.max_contact_force_n}};
 }
 
 void add_catheter_entities(const RobotUnit& r, nlohmann::json& scene) {
@@ -106,8 +107,9 @@ void add_catheter_entities(const RobotUnit& r, nlohmann::json& scene) {
   auto points = nlohmann::json::array();
   for (const auto& p : c.vessel) points.push_back(nlohmann::json{{"x", p.x()}, {"y", p.y()}, {"z", p.z()}});
   e["id"] = r.config.name + "/simulated_vessel";
-  e["metadata"] = nlohmann::json::array(
-      {{{"key", "lumen_radius_mm"}, {"value", std::to_string(c.lumen_radius_mm)}}, {{"key", "simulated"}, {"value", "true"}}});
+  e["metadata"] =
+      nlohmann::json::array({{{"key", "lumen_radius_mm"}, {"value", std::to_string(c.lumen_radius_mm)}},
+                             {{"key", "simulated"}, {"value", "true"}}});
   e["lines"][0]["points"] = std::move(points);
   e["lines"][0]["thickness"] = 2.0 * c.lumen_radius_mm;  // the lumen, drawn to scale
   e["lines"][0]["color"] = {{"r", 0.35}, {"g", 0.55}, {"b", 0.95}, {"a", 0.25}};
@@ -133,10 +135,11 @@ ApiResult RobotRuntime::move_configuration(const std::string& robot, const nlohm
   const auto s = r.snapshot.load();
   const auto& c = *r.catheter;
   // Unnamed entries keep the goal the controller is on (or the current setpoint's configuration).
-  Eigen::Vector4d psi = c.map->configuration(
-      Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
+  Eigen::Vector4d psi =
+      c.map->configuration(Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
   if (s.configuration_moving)
-    psi = {s.configuration_goal[0], s.configuration_goal[1], s.configuration_goal[2], s.configuration_goal[3]};
+    psi = {s.configuration_goal[0], s.configuration_goal[1], s.configuration_goal[2],
+           s.configuration_goal[3]};
   for (const auto& [key, value] : body["goal"].items()) {
     int index = -1;
     for (int i = 0; i < 4; ++i)
@@ -145,8 +148,7 @@ ApiResult RobotRuntime::move_configuration(const std::string& robot, const nlohm
       return ApiResult::error(400, "bad_request",
                               "unknown configuration entry '" + key +
                                   "'; expected insertion, roll, theta_proximal or theta_distal");
-    if (!value.is_number())
-      return ApiResult::error(400, "bad_request", "goal." + key + " must be a number");
+    if (!value.is_number()) return ApiResult::error(400, "bad_request", "goal." + key + " must be a number");
     const double v = value.get<double>();
     if (!std::isfinite(v)) return ApiResult::error(422, "not_finite", "goal." + key + " is not finite");
     psi[index] = v;
@@ -178,11 +180,13 @@ ApiResult RobotRuntime::move_configuration(const std::string& robot, const nlohm
   if (s.mode != ControlMode::configuration)
     return ApiResult::error(409, "wrong_mode",
                             "robot '" + robot + "' is in " + to_string(s.mode) +
-                                " mode; switch to configuration (POST /api/v1/robots/" + robot + "/mode) first");
+                                " mode; switch to configuration (POST /api/v1/robots/" + robot +
+                                "/mode) first");
   if (s.estop) return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled || !s.drives_ready)
-    return ApiResult::error(409, "not_enabled",
-                            "robot '" + robot + "' is " + safety::to_string(s.state) + "; enable it before moving");
+    return ApiResult::error(
+        409, "not_enabled",
+        "robot '" + robot + "' is " + safety::to_string(s.state) + "; enable it before moving");
   // Duration as the controller will plan it: the same quintic in ψ from the current configuration.
   const Eigen::Vector4d from =
       c.map->configuration(Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
@@ -196,17 +200,20 @@ ApiResult RobotRuntime::move_configuration(const std::string& robot, const nlohm
   cmd.received = std::chrono::steady_clock::now();
   if (!r.mailbox.push(cmd)) {
     r.mailbox_full.fetch_add(1, std::memory_order_relaxed);
-    return ApiResult::error(503, "control_busy",
-                            "the control loop of '" + robot + "' is not taking commands fast enough; try again");
+    return ApiResult::error(
+        503, "control_busy",
+        "the control loop of '" + robot + "' is not taking commands fast enough; try again");
   }
-  return ApiResult::success({{"duration_s", predict.duration()}, {"goal", vec(psi)}, {"joints", vec(q)}}, 202);
+  return ApiResult::success({{"duration_s", predict.duration()}, {"goal", vec(psi)}, {"joints", vec(q)}},
+                            202);
 }
 
 ApiResult RobotRuntime::joystick(const std::string& robot, const nlohmann::json& body) {
   auto found = impl_->by_name.find(robot);
   if (found == impl_->by_name.end()) return unknown(robot);
   RobotUnit& r = *found->second;
-  if (!r.catheter) return ApiResult::error(422, "not_supported", "robot '" + robot + "' takes no joystick input");
+  if (!r.catheter)
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' takes no joystick input");
   if (!body.is_object() || !body.contains("axes") || !body["axes"].is_array() || !body.contains("deadman") ||
       !body["deadman"].is_boolean())
     return ApiResult::error(400, "bad_request",
@@ -221,7 +228,8 @@ ApiResult RobotRuntime::joystick(const std::string& robot, const nlohmann::json&
   cmd.kind = CommandKind::joystick;
   cmd.count = 4;
   for (std::size_t i = 0; i < 4; ++i) {
-    if (!axes[i].is_number()) return ApiResult::error(400, "bad_request", "axes[" + std::to_string(i) + "] is not a number");
+    if (!axes[i].is_number())
+      return ApiResult::error(400, "bad_request", "axes[" + std::to_string(i) + "] is not a number");
     const double v = axes[i].get<double>();
     if (!std::isfinite(v) || v < -1.0 || v > 1.0)
       return ApiResult::error(422, "out_of_range", "axes[" + std::to_string(i) + "] must be within -1..1");
@@ -238,8 +246,9 @@ ApiResult RobotRuntime::joystick(const std::string& robot, const nlohmann::json&
   cmd.received = std::chrono::steady_clock::now();
   if (!r.mailbox.push(cmd)) {
     r.mailbox_full.fetch_add(1, std::memory_order_relaxed);
-    return ApiResult::error(503, "control_busy",
-                            "the control loop of '" + robot + "' is not taking commands fast enough; try again");
+    return ApiResult::error(
+        503, "control_busy",
+        "the control loop of '" + robot + "' is not taking commands fast enough; try again");
   }
   return ApiResult::success({{"command_timeout_ms", r.config.command_timeout_ms}});
 }

@@ -126,7 +126,8 @@ void RobotRuntime::Impl::catheter_mid_level(RobotUnit& r, double t) noexcept {
     }
     case ControlMode::active_compliance: {
       // Insertion and roll from the operator (servo stream or joystick), bends from eq. 4.24.
-      const bool servo = s.servo_active && r.supervisor->servo_live() && t - s.last_servo_time <= s.limits.servo_timeout_s;
+      const bool servo =
+          s.servo_active && r.supervisor->servo_live() && t - s.last_servo_time <= s.limits.servo_timeout_s;
       if (servo) {
         v[0] = s.servo_velocity[0];
         v[1] = s.servo_velocity[1];

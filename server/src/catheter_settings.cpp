@@ -51,8 +51,9 @@ input::JoystickMapping evdev_mapping(const Reader& r) {
 CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
   const std::string file = rc.file.string();
   if (rc.joints.size() != 4)
-    throw ConfigError(file + ": catheter: a steerable catheter has 4 joints (insertion, roll, proximal and "
-                             "distal bend drives), this robot has " +
+    throw ConfigError(file +
+                      ": catheter: a steerable catheter has 4 joints (insertion, roll, proximal and "
+                      "distal bend drives), this robot has " +
                       std::to_string(rc.joints.size()));
   const Reader r(rc.catheter, file, "catheter");
   CatheterSettings s;
@@ -62,7 +63,8 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     const Reader m = r.child("model");
     const auto lengths = pair(m, "segment_lengths_mm", {22.0, 18.8});
     const auto gains = pair(m, "nominal_bend_gain_rad_per_mm", {1.4, 1.4});
-    if (!(lengths[0] > 0 && lengths[1] > 0)) m.fail("segment_lengths_mm", "two lengths > 0", m.raw("segment_lengths_mm"));
+    if (!(lengths[0] > 0 && lengths[1] > 0))
+      m.fail("segment_lengths_mm", "two lengths > 0", m.raw("segment_lengths_mm"));
     if (gains[0] == 0 || gains[1] == 0)
       m.fail("nominal_bend_gain_rad_per_mm", "two non-zero gains", m.raw("nominal_bend_gain_rad_per_mm"));
     teleop::CatheterParameters cc;
@@ -86,7 +88,8 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
 
   if (r.has("spring_deflection")) {
     const Reader d = r.child("spring_deflection");
-    s.deflection.node_id = static_cast<std::uint8_t>(d.integer_in_or("node_id", 1, 127, s.deflection.node_id));
+    s.deflection.node_id =
+        static_cast<std::uint8_t>(d.integer_in_or("node_id", 1, 127, s.deflection.node_id));
     s.deflection.volts_per_mm = d.positive_or("volts_per_mm", s.deflection.volts_per_mm);
     s.deflection.limit_mm = d.positive_or("limit_mm", s.deflection.limit_mm);
     s.deflection.stale_ms = d.positive_or("stale_ms", s.deflection.stale_ms);
@@ -109,15 +112,17 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
       a.fail("", std::string("settings that work (") + e.what() + ")", rc.catheter["active_compliance"]);
     }
     if (c.max_deflection > s.deflection.limit_mm)
-      a.fail("max_deflection_mm", "at most spring_deflection.limit_mm (" + std::to_string(s.deflection.limit_mm) +
-                                      "), or compliance would saturate only after the hold",
+      a.fail("max_deflection_mm",
+             "at most spring_deflection.limit_mm (" + std::to_string(s.deflection.limit_mm) +
+                 "), or compliance would saturate only after the hold",
              a.raw("max_deflection_mm"));
   }
 
   if (r.has("telemanipulation")) {
     const Reader t = r.child("telemanipulation");
     const auto& speeds = t.array("max_speed", true);
-    if (speeds.size() != 4) t.fail("max_speed", "4 speeds (insertion mm/s, roll rad/s, bend mm/s, bend mm/s)", speeds);
+    if (speeds.size() != 4)
+      t.fail("max_speed", "4 speeds (insertion mm/s, roll rad/s, bend mm/s, bend mm/s)", speeds);
     for (std::size_t i = 0; i < 4; ++i) {
       if (!speeds[i].is_number() || !(speeds[i].get<double>() >= 0) ||
           speeds[i].get<double>() > rc.joints[i].max_velocity)
@@ -152,7 +157,9 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
       for (const auto& axis : o.mapping.axes) {
         bool known = false;
         for (const auto& joint : rc.joints) known = known || joint.name == axis.output;
-        if (!known) e.fail("axes", "each axis to name a joint of this robot (unknown: " + axis.output + ")", e.raw("axes"));
+        if (!known)
+          e.fail("axes", "each axis to name a joint of this robot (unknown: " + axis.output + ")",
+                 e.raw("axes"));
       }
       s.evdev_joystick = std::move(o);
     }
@@ -179,13 +186,15 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
       if (tube.turn_deg > 180) v.fail("turn_deg", "a turn of at most 180 degrees", v.raw("turn_deg"));
       tube.lumen_radius_mm = v.positive_or("lumen_radius_mm", tube.lumen_radius_mm);
       if (tube.lumen_radius_mm <= sim.catheter_outer_radius_mm)
-        v.fail("lumen_radius_mm", "a lumen wider than the catheter (outer radius " +
-                                      std::to_string(sim.catheter_outer_radius_mm) + " mm)",
+        v.fail("lumen_radius_mm",
+               "a lumen wider than the catheter (outer radius " +
+                   std::to_string(sim.catheter_outer_radius_mm) + " mm)",
                v.raw("lumen_radius_mm"));
       try {
         (void)vessel_centerline(tube);
       } catch (const std::exception& e) {
-        v.fail("centerline", std::string("a readable centerline file (") + e.what() + ")", v.raw("centerline"));
+        v.fail("centerline", std::string("a readable centerline file (") + e.what() + ")",
+               v.raw("centerline"));
       }
       sim.vessel = tube;
     }

@@ -23,10 +23,10 @@
 namespace tendril::server {
 
 struct SpringDeflectionSensorSettings {
-  std::uint8_t node_id = 0x31;   // CiA 401 ADC node with the two linear potentiometers
-  double volts_per_mm = 0.5;     // potentiometer gain around the 2.5 V centre (±5 mm over 0–5 V)
-  double limit_mm = 1.5;         // |deflection| beyond this holds the robot
-  double stale_ms = 100.0;       // no reading for this long: the sensor is stale (hold)
+  std::uint8_t node_id = 0x31;  // CiA 401 ADC node with the two linear potentiometers
+  double volts_per_mm = 0.5;    // potentiometer gain around the 2.5 V centre (±5 mm over 0–5 V)
+  double limit_mm = 1.5;        // |deflection| beyond this holds the robot
+  double stale_ms = 100.0;      // no reading for this long: the sensor is stale (hold)
 };
 
 struct VesselTubeSettings {
@@ -42,7 +42,7 @@ struct CatheterSimulationSettings {
   double spring_stiffness_n_per_mm = 0.2;
   double tube_stiffness_n_per_mm = 0.0;
   double potentiometer_noise_mm = 0.005;
-  double wall_stiffness_n_per_mm = 0.01;    // per backbone point: a compliant vessel wall
+  double wall_stiffness_n_per_mm = 0.01;      // per backbone point: a compliant vessel wall
   double carriage_damping_n_s_per_mm = 0.02;  // tendon and rail friction, viscous
   double catheter_outer_radius_mm = 0.6;
   std::optional<VesselTubeSettings> vessel;  // none: the catheter moves in free space

@@ -38,8 +38,8 @@ std::unique_ptr<CatheterUnit> make_catheter_unit(const RobotConfig& rc, BusUnit&
     c->psi_max_velocity[i] = j.max_velocity * slope;
     c->psi_max_acceleration[i] = j.max_acceleration * slope;
   }
-  c->configuration =
-      std::make_unique<teleop::ConfigurationSpaceController>(*c->map, c->psi_max_velocity, c->psi_max_acceleration);
+  c->configuration = std::make_unique<teleop::ConfigurationSpaceController>(*c->map, c->psi_max_velocity,
+                                                                            c->psi_max_acceleration);
 
   // Spring-deflection potentiometers and the analog joystick: CiA 401 ADC nodes on the bend drives' bus.
   const auto& d = c->settings.deflection;
@@ -50,24 +50,26 @@ std::unique_ptr<CatheterUnit> make_catheter_unit(const RobotConfig& rc, BusUnit&
   if (c->settings.analog_joystick)
     c->joystick_receiver = std::make_unique<input::AnalogJoystickReceiver>(*c->settings.analog_joystick);
   CatheterUnit* unit = c.get();
-  bus.frame_listeners.emplace_back([unit](const can::Frame& frame, std::chrono::steady_clock::time_point now) {
-    const std::int64_t now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
-    if (unit->deflection_receiver->handle(frame, now_ns)) {
-      const auto reading = unit->deflection_receiver->reading(now_ns);
-      DeflectionReading out;
-      const double centre = 0.5 * canopen::AnalogInputSetup{}.supply_volts;
-      const double gain = unit->settings.deflection.volts_per_mm;
-      out.valid = true;
-      for (std::size_t i = 0; i < 2; ++i) {
-        out.mm[i] = (reading.volts[i] - centre) / gain;
-        out.valid = out.valid && !reading.wiring_fault[i];
-      }
-      out.stamp_ns = now_ns;
-      unit->deflection.store(out);
-    } else if (unit->joystick_receiver && unit->joystick_receiver->handle(frame, now_ns)) {
-      unit->analog_joystick.store(unit->joystick_receiver->state(now_ns));
-    }
-  });
+  bus.frame_listeners.emplace_back(
+      [unit](const can::Frame& frame, std::chrono::steady_clock::time_point now) {
+        const std::int64_t now_ns =
+            std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
+        if (unit->deflection_receiver->handle(frame, now_ns)) {
+          const auto reading = unit->deflection_receiver->reading(now_ns);
+          DeflectionReading out;
+          const double centre = 0.5 * canopen::AnalogInputSetup{}.supply_volts;
+          const double gain = unit->settings.deflection.volts_per_mm;
+          out.valid = true;
+          for (std::size_t i = 0; i < 2; ++i) {
+            out.mm[i] = (reading.volts[i] - centre) / gain;
+            out.valid = out.valid && !reading.wiring_fault[i];
+          }
+          out.stamp_ns = now_ns;
+          unit->deflection.store(out);
+        } else if (unit->joystick_receiver && unit->joystick_receiver->handle(frame, now_ns)) {
+          unit->analog_joystick.store(unit->joystick_receiver->state(now_ns));
+        }
+      });
 
   if (c->settings.evdev_joystick) {
     const auto& o = *c->settings.evdev_joystick;

@@ -36,20 +36,23 @@ void attach_catheter_simulation(CatheterUnit& c, const RobotConfig& rc, BusUnit&
   for (std::size_t j = 0; j < 4; ++j) {
     drives[j] = bindings[j].sim;
     if (!drives[j] || bindings[j].bus != &bus)
-      throw ConfigError(file + ": catheter.simulation: the simulated plant needs all four drives simulated on bus '" +
-                        bus.config.name + "'");
+      throw ConfigError(
+          file + ": catheter.simulation: the simulated plant needs all four drives simulated on bus '" +
+          bus.config.name + "'");
   }
 
   sim::AnalogInputNodeParameters sensor;
   sensor.node_id = s.deflection.node_id;
   simulation->sensor_endpoint = bus.virtual_bus->attach("sim:spring-deflection-adc");
-  simulation->sensor_node = std::make_unique<sim::SimulatedAnalogInputNode>(*simulation->sensor_endpoint, sensor);
+  simulation->sensor_node =
+      std::make_unique<sim::SimulatedAnalogInputNode>(*simulation->sensor_endpoint, sensor);
 
   sim::SrmcPlantParameters p;
   p.spring_stiffness = s.simulation.spring_stiffness_n_per_mm;
   p.tube_stiffness = s.simulation.tube_stiffness_n_per_mm;
   p.potentiometer_noise = s.simulation.potentiometer_noise_mm;
-  p.coupling_mm_per_rad = s.rates.coupling_enabled ? s.rates.proximal_outer_radius * std::cos(s.rates.plane_offset) : 0.0;
+  p.coupling_mm_per_rad =
+      s.rates.coupling_enabled ? s.rates.proximal_outer_radius * std::cos(s.rates.plane_offset) : 0.0;
   p.potentiometer_volts_per_mm = s.deflection.volts_per_mm;
   p.carriage_damping = s.simulation.carriage_damping_n_s_per_mm;
   p.shape = assembled_shape(s);
@@ -71,7 +74,8 @@ void attach_catheter_simulation(CatheterUnit& c, const RobotConfig& rc, BusUnit&
     sim::AnalogJoystickNodeParameters j;
     j.node_id = s.analog_joystick->node_id;
     simulation->joystick_endpoint = bus.virtual_bus->attach("sim:joystick-adc");
-    simulation->joystick_node = std::make_unique<sim::SimulatedAnalogJoystick>(*simulation->joystick_endpoint, j);
+    simulation->joystick_node =
+        std::make_unique<sim::SimulatedAnalogJoystick>(*simulation->joystick_endpoint, j);
     bus.plants.push_back(simulation->joystick_node.get());
   }
   c.simulation = std::move(simulation);
@@ -94,13 +98,15 @@ namespace tendril::server {
 
 sim::SimulatedAnalogJoystick* RobotRuntime::simulated_analog_joystick(const std::string& robot) {
   auto it = impl_->by_name.find(robot);
-  if (it == impl_->by_name.end() || !it->second->catheter || !it->second->catheter->simulation) return nullptr;
+  if (it == impl_->by_name.end() || !it->second->catheter || !it->second->catheter->simulation)
+    return nullptr;
   return it->second->catheter->simulation->joystick_node.get();
 }
 
 sim::SimulatedAnalogInputNode* RobotRuntime::simulated_spring_sensor(const std::string& robot) {
   auto it = impl_->by_name.find(robot);
-  if (it == impl_->by_name.end() || !it->second->catheter || !it->second->catheter->simulation) return nullptr;
+  if (it == impl_->by_name.end() || !it->second->catheter || !it->second->catheter->simulation)
+    return nullptr;
   return it->second->catheter->simulation->sensor_node.get();
 }
 

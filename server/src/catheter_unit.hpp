@@ -47,7 +47,7 @@ struct CatheterUnit {
   CatheterSettings settings;
   std::unique_ptr<teleop::CatheterConfigurationMap> map;
   std::unique_ptr<teleop::ConfigurationSpaceController> configuration;  // control thread
-  Eigen::Vector4d psi_max_velocity, psi_max_acceleration;              // its quintic's bounds in ψ
+  Eigen::Vector4d psi_max_velocity, psi_max_acceleration;               // its quintic's bounds in ψ
   std::unique_ptr<canopen::AnalogInputReceiver> deflection_receiver;    // bus thread
   std::unique_ptr<input::AnalogJoystickReceiver> joystick_receiver;     // bus thread
   teleop::LatestValue<DeflectionReading> deflection;

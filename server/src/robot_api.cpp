@@ -329,7 +329,8 @@ ApiResult RobotRuntime::mode(const std::string& robot, const nlohmann::json& bod
   // Every refusal is kept for operating_state, so a console that did not send the switch sees why.
   auto refuse = [&](int status, const std::string& code, const std::string& why) {
     std::lock_guard lock(r.refusal_mutex);
-    r.mode_refusal = {{"mode", m}, {"code", code}, {"reason", why}, {"timestamp", impl_->wall_offset + s.time}};
+    r.mode_refusal = {
+        {"mode", m}, {"code", code}, {"reason", why}, {"timestamp", impl_->wall_offset + s.time}};
     return ApiResult::error(status, code, why);
   };
   if (s.estop)
@@ -352,8 +353,8 @@ ApiResult RobotRuntime::mode(const std::string& robot, const nlohmann::json& bod
     std::lock_guard lock(r.path_mutex);
     if (!r.path)
       return refuse(409, "no_plan",
-                    "no plan is loaded for robot '" + robot + "'; load one first (POST /api/v1/robots/" + robot +
-                        "/path_following {\"plan\": \"<job id>\"})");
+                    "no plan is loaded for robot '" + robot + "'; load one first (POST /api/v1/robots/" +
+                        robot + "/path_following {\"plan\": \"<job id>\"})");
   }
   if (to == ControlMode::active_compliance && r.catheter && !s.deflection_fresh)
     return refuse(409, "sensor_stale",

@@ -57,7 +57,8 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         s.servo_active = false;
         r.interpolator->reset({s.q_des.data(), r.n}, t);
         if (r.catheter)
-          r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+          r.catheter->configuration->reset(t,
+                                           Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
       }
       // Resuming or disabling is the operator's acknowledgement of a hold.
       if (c.state != safety::StateCommand::kPause && sup.state() != OperatingState::kPaused) {
@@ -84,12 +85,13 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       // Joint mode: every joint. Active compliance: insertion and roll (the bends comply). Held with
       // retraction allowed: insertion backwards only.
       const bool bends_still = c.count == 4 && values[2] == 0.0 && values[3] == 0.0;
-      const bool allowed =
-          (s.mode == ControlMode::joint && sup.state() == OperatingState::kEnabled) ||
-          (s.mode == ControlMode::active_compliance && sup.state() == OperatingState::kEnabled && bends_still) ||
-          (s.retraction_only && sup.state() == OperatingState::kPaused && bends_still && values[1] == 0.0 &&
-           values[0] <= 0.0);
-      if (!allowed || !s.drives_ready || sup.check_velocity(values) || !within_operating_velocity(s.limits, values))
+      const bool allowed = (s.mode == ControlMode::joint && sup.state() == OperatingState::kEnabled) ||
+                           (s.mode == ControlMode::active_compliance &&
+                            sup.state() == OperatingState::kEnabled && bends_still) ||
+                           (s.retraction_only && sup.state() == OperatingState::kPaused && bends_still &&
+                            values[1] == 0.0 && values[0] <= 0.0);
+      if (!allowed || !s.drives_ready || sup.check_velocity(values) ||
+          !within_operating_velocity(s.limits, values))
         break;
       for (std::size_t i = 0; i < r.n; ++i) s.servo_velocity[i] = values[i];
       s.servo_active = true;
@@ -122,7 +124,8 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         s.mode = to;
         s.path_target = s.path_step;
         if (r.catheter) {
-          r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+          r.catheter->configuration->reset(t,
+                                           Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
           s.console_deadman = false;  // a stream for the old mode must not carry over
           s.joystick_deadman = false;
           s.joystick_source = 0;
@@ -135,7 +138,8 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       if (!r.catheter || s.mode != ControlMode::configuration || sup.state() != OperatingState::kEnabled ||
           !s.drives_ready)
         break;
-      r.catheter->configuration->retarget(t, Eigen::Vector4d(c.values[0], c.values[1], c.values[2], c.values[3]));
+      r.catheter->configuration->retarget(
+          t, Eigen::Vector4d(c.values[0], c.values[1], c.values[2], c.values[3]));
       break;
     case CommandKind::joystick:
       for (std::size_t i = 0; i < 4; ++i) s.console_axes[i] = c.values[i];
@@ -271,9 +275,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     catheter_sensors(r, t, state);
     state = sup.state();
   }
-  const bool catheter_mode = r.catheter && (s.mode == ControlMode::configuration ||
-                                            s.mode == ControlMode::active_compliance ||
-                                            s.mode == ControlMode::telemanipulation);
+  const bool catheter_mode =
+      r.catheter && (s.mode == ControlMode::configuration || s.mode == ControlMode::active_compliance ||
+                     s.mode == ControlMode::telemanipulation);
   if (state == OperatingState::kEnabled && s.drives_ready && catheter_mode) {
     catheter_mid_level(r, t);
   } else if (state == OperatingState::kEnabled && s.drives_ready) {
@@ -302,7 +306,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     }
     s.servo_active = false;
     r.interpolator->reset(q_des, t);
-    if (r.catheter) r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+    if (r.catheter)
+      r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
   }
   if ((state == OperatingState::kEnabled || (state == OperatingState::kPaused && s.retraction_only)) &&
       s.drives_ready) {

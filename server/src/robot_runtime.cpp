@@ -161,6 +161,19 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
       if (unit->n != 4)
         throw ConfigError(file + ": catheter: settings for a steerable catheter need its 4 joints");
       unit->catheter = make_catheter_unit(rc, *unit->bindings[2].bus, unit->bindings);
+      // Its ADC nodes share the bus: each sends a 7-byte TPDO at 100 Hz and a heartbeat at 10 Hz.
+      auto& bus = *unit->bindings[2].bus;
+      const int nodes = unit->catheter->settings.analog_joystick ? 2 : 1;
+      const double bits =
+          nodes * (100.0 * canopen::worst_case_frame_bits(7) + 10.0 * canopen::worst_case_frame_bits(1));
+      bus.load += bits / bus.config.bitrate;
+      bus.load_breakdown +=
+          "; " + std::to_string(nodes) + " ADC node(s): " + std::to_string(static_cast<int>(bits)) + " bit/s";
+      if (bus.load > bus.config.max_load)
+        throw ConfigError(file + ": buses: bus '" + bus.config.name + "' would run at " +
+                          std::to_string(bus.load * 100.0) + " % load with the catheter's ADC nodes (" +
+                          bus.load_breakdown + "), over its ceiling of " +
+                          std::to_string(bus.config.max_load * 100.0) + " %");
     }
     unit->config = std::move(rc);
     im.by_name[unit->config.name] = unit.get();

@@ -36,9 +36,9 @@ enum class CommandKind : std::uint8_t {
   estop,
   estop_reset,
   hold,
-  mode,         // index = ControlMode; applied only while holding
-  path_loaded,  // a new plan was loaded: no step reached yet
-  path_step,    // index = step; values = the step's joint configuration
+  mode,                // index = ControlMode; applied only while holding
+  path_loaded,         // a new plan was loaded: no step reached yet
+  path_step,           // index = step; values = the step's joint configuration
   move_configuration,  // values = goal ψ (insertion, roll, θ_L1, θ_L2), steerable catheter only
   joystick             // console joystick: values = axes per joint (−1..1), index = deadman held
 };
@@ -51,7 +51,13 @@ enum class CommandKind : std::uint8_t {
 //   active_compliance (catheter): the bend drives yield to their spring deflection (eqs. 4.24–4.26);
 //     insertion and roll follow servo_jv or a joystick;
 //   telemanipulation (catheter): joint velocities from a joystick while its deadman is held.
-enum class ControlMode : std::uint8_t { joint, path_following, configuration, active_compliance, telemanipulation };
+enum class ControlMode : std::uint8_t {
+  joint,
+  path_following,
+  configuration,
+  active_compliance,
+  telemanipulation
+};
 const char* to_string(ControlMode mode) noexcept;
 bool parse_control_mode(const std::string& name, ControlMode& mode) noexcept;
 struct CatheterUnit;
@@ -105,13 +111,13 @@ struct RobotSnapshot {
   // Steerable catheter (zeros otherwise).
   std::array<double, 2> spring_deflection{};  // mm, drive − carriage
   bool deflection_fresh = false;
-  bool retraction_only = false;      // held after a limit: only insertion withdrawal may move
+  bool retraction_only = false;  // held after a limit: only insertion withdrawal may move
   safety::FaultCode hold_code = safety::FaultCode::kNone;
   std::array<double, 4> configuration_goal{};  // ψ goal of the configuration controller
   bool configuration_moving = false;
   std::uint8_t joystick_source = 0;  // JoystickSource
   bool joystick_deadman = false;
-  bool joystick_conflict = false;    // more than one source held its deadman: no motion
+  bool joystick_conflict = false;  // more than one source held its deadman: no motion
   std::array<double, 4> joystick_axes{};
 };
 

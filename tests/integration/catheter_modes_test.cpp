@@ -63,12 +63,17 @@ class CatheterTest : public ::testing::Test {
     }
     return pred();
   }
-  std::vector<double> setpoint() { return runtime->setpoint_js("srmc").body["position"].get<std::vector<double>>(); }
-  std::vector<double> measured() { return runtime->measured_js("srmc").body["position"].get<std::vector<double>>(); }
+  std::vector<double> setpoint() {
+    return runtime->setpoint_js("srmc").body["position"].get<std::vector<double>>();
+  }
+  std::vector<double> measured() {
+    return runtime->measured_js("srmc").body["position"].get<std::vector<double>>();
+  }
   nlohmann::json op() { return runtime->operating_state("srmc").body; }
   void enable() {
     ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
-    ASSERT_TRUE(step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
+    ASSERT_TRUE(
+        step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
         << op().dump();
   }
   void mode(const std::string& m) {
@@ -147,7 +152,8 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   const double duration = r.body["duration_s"].get<double>();
   EXPECT_GT(duration, 0.5);
   steps(5);
-  ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, static_cast<int>(duration * 1000) + 3000));
+  ASSERT_TRUE(
+      step_until([&] { return !op()["is_busy"].get<bool>(); }, static_cast<int>(duration * 1000) + 3000));
   const auto psi = op()["configuration"];
   EXPECT_NEAR(psi[0].get<double>(), 20.0, 0.05);
   EXPECT_NEAR(psi[2].get<double>(), 30 * kDeg, 0.5 * kDeg) << psi.dump();
@@ -213,8 +219,10 @@ TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
 // to 9.5 mm (the passive catheter ends near 6 mm; the seed's passive run had no such bound).
 RobotConfig channel_srmc(double deflection_limit_mm) {
   auto c = load_robot_config(kSrmc);
-  c.catheter["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in}, {"bend_radius_mm", kChannel.bend_radius},
-                                        {"turn_deg", kChannel.turn_deg}, {"lumen_radius_mm", kChannel.lumen}};
+  c.catheter["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in},
+                                        {"bend_radius_mm", kChannel.bend_radius},
+                                        {"turn_deg", kChannel.turn_deg},
+                                        {"lumen_radius_mm", kChannel.lumen}};
   c.catheter["spring_deflection"]["limit_mm"] = deflection_limit_mm;
   // A potentiometer range that can read the passive run's deflection (±10 mm over 0–5 V).
   c.catheter["spring_deflection"]["volts_per_mm"] = 0.24;
@@ -272,8 +280,8 @@ TEST_F(ChannelTest, SpringDeflectionOverItsBoundHoldsAndAllowsOnlyRetraction) {
   auto s = op();
   EXPECT_EQ(s["hold_reason"], "spring deflection over its bound");
   EXPECT_TRUE(s["retraction_only"].get<bool>());
-  const double deflection =
-      std::max(std::abs(s["spring_deflection_mm"][0].get<double>()), std::abs(s["spring_deflection_mm"][1].get<double>()));
+  const double deflection = std::max(std::abs(s["spring_deflection_mm"][0].get<double>()),
+                                     std::abs(s["spring_deflection_mm"][1].get<double>()));
   EXPECT_GT(deflection, 1.4);
   // Forward is refused with the reason; so is a mode switch.
   const auto forward = runtime->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}});

@@ -88,3 +88,47 @@ TEST(Config, NothingAssumesFourJoints) {
 
 }  // namespace
 }  // namespace tendril::server
+
+namespace tendril::server {
+namespace {
+
+TEST(CatheterConfig, MistakesInTheCatheterSettingsNameTheKey) {
+  auto j = srmc();
+  j["catheter"]["simulation"]["vessel"]["lumen_radius_mm"] = 0.5;  // narrower than the 0.6 mm catheter
+  auto e = error_of(j);
+  EXPECT_NE(e.find("catheter.simulation.vessel.lumen_radius_mm"), std::string::npos) << e;
+  EXPECT_NE(e.find("wider than the catheter"), std::string::npos) << e;
+
+  j = srmc();
+  j["catheter"]["active_compliance"]["max_deflection_mm"] = 2.0;  // beyond the 1.5 mm hold bound
+  e = error_of(j);
+  EXPECT_NE(e.find("catheter.active_compliance.max_deflection_mm"), std::string::npos) << e;
+
+  j = srmc();
+  j["catheter"]["telemanipulation"]["max_speed"] = {3.0, 0.5, 1.0};
+  EXPECT_NE(error_of(j).find("catheter.telemanipulation.max_speed: expected 4 speeds"), std::string::npos);
+
+  j = srmc();
+  j["catheter"]["telemanipulation"]["max_speed"] = {30.0, 0.5, 1.0, 1.0};  // insertion limit is 10 mm/s
+  EXPECT_NE(error_of(j).find("max_velocity"), std::string::npos);
+
+  j = srmc();
+  j["catheter"]["spring_deflection"]["limit_mm"] = 6.0;  // 3 V off centre: the potentiometer cannot read it
+  EXPECT_NE(error_of(j).find("catheter.spring_deflection.limit_mm"), std::string::npos);
+
+  j = srmc();
+  j["catheter"]["joysticks"]["analog"]["node_id"] = 49;  // the deflection sensor's node
+  EXPECT_NE(error_of(j).find("catheter.joysticks.analog.node_id"), std::string::npos);
+
+  j = srmc();
+  j["catheter"]["joysticks"]["evdev"] = {{"device", "name:Gamepad"},
+                                         {"axes", {{{"joint", "yaw"}, {"code", 0}}}}};
+  EXPECT_NE(error_of(j).find("unknown: yaw"), std::string::npos) << error_of(j);
+
+  j = srmc();
+  j["catheter"]["model"]["proximal_loss"] = {0.0, 0.1};
+  EXPECT_NE(error_of(j).find("catheter.model.proximal_loss"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace tendril::server

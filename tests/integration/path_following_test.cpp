@@ -98,8 +98,8 @@ TEST_F(PathFollowingTest, ModeSwitchNeedsALoadedPlan) {
   EXPECT_NE(refused.message.find("load one first"), std::string::npos) << refused.message;
   EXPECT_EQ(runtime->mode("srmc", {{"mode", "cartesian"}}).status, 422);
   const auto robots = runtime->robots();
-  EXPECT_EQ(robots[0]["modes"], nlohmann::json({"joint", "configuration", "active_compliance", "telemanipulation",
-                                               "path_following"}));
+  EXPECT_EQ(robots[0]["modes"], nlohmann::json({"joint", "configuration", "active_compliance",
+                                                "telemanipulation", "path_following"}));
 }
 
 TEST_F(PathFollowingTest, LoadRejectsAStepOutsideTheJointLimitsNamingIt) {
