@@ -114,6 +114,8 @@ export class Api {
   }
   releaseLease() { return this.del('/lease'); }
   setMode(robot, mode) { return this.post(`/robots/${encodeURIComponent(robot)}/mode`, {mode}); }
+  moveConfiguration(robot, goal) { return this.post(`/robots/${encodeURIComponent(robot)}/move_configuration`, {goal}); }
+  joystick(robot, axes, deadman) { return this.post(`/robots/${encodeURIComponent(robot)}/joystick`, {axes, deadman}); }
   health() { return this.get('/health'); }
   // Prometheus text of GET /metrics (outside /api/v1).
   metricsText() { return this.request('GET', '/metrics', undefined, {text: true, absolute: true}); }

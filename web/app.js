@@ -4,6 +4,7 @@
 // Terms: CRTK measured_js / setpoint_js / move_jp (see API.md); lease = the right to command.
 import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';
+import {CatheterPanel} from './catheter.js';
 import {buildJointPanel} from './joints.js';
 import {ImagePanel} from './images.js';
 import {PlanPanel} from './plan.js';
@@ -40,6 +41,8 @@ const ui = {
   scene: $('#scene'),
   modeButtons: $('#mode-buttons'),
   modeBar: $('[data-testid="mode-bar"]'),
+  modeRefusal: $('[data-testid="mode-refusal"]'),
+  catheterTab: $('#tab-catheter'),
   tabs: [...document.querySelectorAll('[role="tab"]')],
   eventCount: $('[data-testid="event-count"]'),
   configTip: $('[data-testid="config-tip"]'),
@@ -71,6 +74,7 @@ const state = {
 let joints = null;      // joint panel controller
 let view = null;        // CatheterView, loaded lazily so a WebGL/three failure cannot break the controls
 let plan = null;        // PlanPanel
+let catheter = null;    // CatheterPanel, for robots with a configuration space
 let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
 const images = {
@@ -137,6 +141,7 @@ function applyOperatingState(os) {
   updateControls();
   updateModeBar();
   plan?.updateButtons();
+  if (catheter && os.configuration) catheter.update(os);
 }
 
 // The cause the server gives with the state (operating_state.fault), else the newest safety event.
@@ -413,7 +418,7 @@ function connectWebSocket(robotName) {
   const t = {
     joints: `/${robotName}/joint_states`, operating: `/${robotName}/operating_state`, scene: `/${robotName}/scene`,
     diagnostics: `/${robotName}/diagnostics`, events: '/safety/events', ap: '/imaging/ap', lateral: '/imaging/lateral',
-    map: '/maps/vessel',
+    map: '/maps/vessel', catheter: `/${robotName}/catheter`,
   };
   const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, Object.values(t), {
     onOpen: () => {
@@ -440,6 +445,7 @@ function connectWebSocket(robotName) {
           applyJointState(msg, true);
           break;
         case t.operating: applyOperatingState(msg); break;
+        case t.catheter: catheter?.update(msg); break;
         case t.scene: view?.applySceneUpdate(msg); break;
         case t.events: addEvents(Array.isArray(msg.events) ? msg.events : [msg]); break;
         case t.diagnostics: applyDiagnostics(msg); break;
@@ -640,12 +646,18 @@ function updateModeBar() {
     b.classList.toggle('active', active);
   }
   ui.modeBar.dataset.currentMode = os?.mode ?? '';
+  // The last refused switch, as the server keeps it (whoever asked for it).
+  const refusal = os?.mode_refusal;
+  ui.modeRefusal.textContent = refusal ? `${prettyMode(refusal.mode)} refused: ${refusal.reason}` : '';
+  ui.modeRefusal.hidden = !refusal;
   const path = plan?.path;
   ui.configStep.textContent = path && path.loaded ? (path.step >= 0 ? `${path.step} / ${path.steps - 1}` : `— / ${path.steps - 1}`) : '—';
 }
 
 async function refreshStateSoon() {
-  if (!state.robot) return;
+  // With the stream live it is the authority: it sends every change, and a REST answer that was
+  // read before the control loop took the command would overwrite a newer streamed state.
+  if (!state.robot || state.wsLive) return;
   try {
     applyOperatingState(await api.operatingState(state.robot.name));
   } catch {
@@ -714,9 +726,10 @@ function wireCommands() {
     tab.addEventListener('click', () => selectTab(tab));
     tab.addEventListener('keydown', (ev) => {
       // Arrow keys move between tabs (WAI-ARIA tabs pattern).
-      const i = ui.tabs.indexOf(tab);
-      const next = ev.key === 'ArrowRight' ? ui.tabs[(i + 1) % ui.tabs.length]
-                 : ev.key === 'ArrowLeft' ? ui.tabs[(i + ui.tabs.length - 1) % ui.tabs.length] : null;
+      const shown = ui.tabs.filter((t) => !t.hidden);
+      const i = shown.indexOf(tab);
+      const next = ev.key === 'ArrowRight' ? shown[(i + 1) % shown.length]
+                 : ev.key === 'ArrowLeft' ? shown[(i + shown.length - 1) % shown.length] : null;
       if (next) {
         ev.preventDefault();
         selectTab(next);
@@ -763,6 +776,11 @@ function selectRobot(name) {
   document.title = `${robot.name.toUpperCase()} · tendril console`;
   joints = buildJointPanel(ui.form, robot.joints, () => updateControls());
   buildModeBar(robot);
+  ui.catheterTab.hidden = !robot.configuration;
+  if (robot.configuration) {
+    catheter ??= new CatheterPanel($('#panel-catheter'), api, {robotName: robot.name, showStatus});
+    catheter.setRobot(robot);
+  }
   ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${j.unit})`, j.name)));
   const first = robot.joints[0];
   trackingPlot?.configure({unit: first?.unit || '', minSpan: first?.unit === 'rad' ? 0.01 : 0.1});

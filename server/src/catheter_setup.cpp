@@ -21,7 +21,7 @@ std::unique_ptr<CatheterUnit> make_catheter_unit(const RobotConfig& rc, BusUnit&
   }
   // ψ bounds for the configuration quintic: insertion and roll as configured; a bend angle may move as
   // fast as its drive's limit allows through the map's slope at the straight pose (the slope is
-  // constant for the m = 2 models of the seed), so eq. 4.21 never asks a drive for more.
+  // constant for the m = 2 models of the seed), less 10 % for the coupling.
   const Eigen::Vector4d zero = Eigen::Vector4d::Zero();
   const Eigen::Vector4d base = c->map->configuration(zero);
   for (Eigen::Index i = 0; i < 4; ++i) {
@@ -35,8 +35,10 @@ std::unique_ptr<CatheterUnit> make_catheter_unit(const RobotConfig& rc, BusUnit&
         throw ConfigError(file + ": catheter.model: the bend of joint '" + j.name +
                           "' does not change with its drive (zero slope): configuration control cannot work");
     }
-    c->psi_max_velocity[i] = j.max_velocity * slope;
-    c->psi_max_acceleration[i] = j.max_acceleration * slope;
+    // 10 % headroom on the bends: the coupling term adds to the distal drive's rate.
+    const double headroom = i >= 2 ? 0.9 : 1.0;
+    c->psi_max_velocity[i] = headroom * j.max_velocity * slope;
+    c->psi_max_acceleration[i] = headroom * j.max_acceleration * slope;
   }
   c->configuration = std::make_unique<teleop::ConfigurationSpaceController>(*c->map, c->psi_max_velocity,
                                                                             c->psi_max_acceleration);

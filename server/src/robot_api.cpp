@@ -911,6 +911,7 @@ std::vector<std::string> RobotRuntime::topics() const {
     t.push_back("/" + r->config.name + "/operating_state");
     t.push_back("/" + r->config.name + "/scene");
     t.push_back("/" + r->config.name + "/diagnostics");
+    if (r->catheter) t.push_back("/" + r->config.name + "/catheter");
   }
   t.push_back("/safety/events");
   return t;
@@ -1057,6 +1058,16 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
     msg["setpoint"] = sp;
   } else if (leaf == "operating_state") {
     msg = operating_state(r.config.name).body;
+    // The catheter's measured values (deflection, configuration, wall force) change with sensor noise
+    // every tick: they go out on /{robot}/catheter at 10 Hz, so this topic still changes only when
+    // the state does.
+    if (r.catheter) {
+      for (const char* k : {"configuration", "spring_deflection_mm", "contact_force_n", "simulation"})
+        msg.erase(k);
+      msg["joystick"].erase("axes");
+    }
+  } else if (leaf == "catheter" && r.catheter) {
+    msg = operating_state(r.config.name).body;
   } else if (leaf == "scene") {
     const auto q = positions(r, s);
     msg = scene_update(r, r.kinematics->shape(q), r.kinematics->tip(q), im.wall_offset + s.time);
@@ -1068,9 +1079,16 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
     return std::nullopt;
   }
   // Change detection: only send what differs from the last message of this topic; diagnostics at 10 Hz.
-  const auto key = leaf == "joint_states"  ? std::to_string(s.tick)
-                   : leaf == "diagnostics" ? std::to_string(static_cast<std::int64_t>(s.time * 10.0))
-                                           : msg.dump();
+  std::string key;
+  if (leaf == "joint_states") {
+    key = std::to_string(s.tick);
+  } else if (leaf == "diagnostics") {
+    key = std::to_string(static_cast<std::int64_t>(s.time * 10.0));
+  } else if (leaf == "catheter") {
+    key = std::to_string(static_cast<std::int64_t>(s.time * 10.0));
+  } else {
+    key = msg.dump();
+  }
   std::lock_guard lock(im.topic_mutex);
   auto& cached = im.topic_cache[topic];
   if (cached.first != key) {

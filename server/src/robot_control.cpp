@@ -311,6 +311,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   }
   if ((state == OperatingState::kEnabled || (state == OperatingState::kPaused && s.retraction_only)) &&
       s.drives_ready) {
+    const JointArray unclamped = s.q_des;
     auto clamp = sup.clamp_setpoint(q_des, qd_des);
     // Tightened operating limits: the setpoint stops at the boundary. A setpoint already outside (the
     // robot was moved while disabled) is never pulled in with a jump: it may only move back inwards.
@@ -328,7 +329,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     if (clamp.clamped_joints > 0 && !s.servo_active) {
       // The interpolator must not keep pulling against a clamped setpoint.
       r.interpolator->reset(q_des, t);
-      if (r.catheter && s.mode == ControlMode::configuration)
+      // Only a clamped position stops a configuration move; a clamped velocity (the coupling term of
+      // eq. 4.21 on top of a quintic at its bound) leaves the setpoint where the controller put it.
+      if (r.catheter && s.mode == ControlMode::configuration && unclamped != s.q_des)
         r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
     }
   }

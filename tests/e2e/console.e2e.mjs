@@ -132,7 +132,8 @@ test('every control has an accessible name and a data-testid', async () => {
                                'radio', 'tab', 'switch', 'menuitem', 'link', 'searchbox']);
   const offenders = new Set();
   let checked = 0;
-  for (const tab of ['tab-plan', 'tab-events', 'tab-joints']) {
+  for (const tab of ['tab-catheter', 'tab-plan', 'tab-events', 'tab-joints']) {
+    if (!(await page.locator(tid(tab)).isVisible())) continue;
     await page.click(tid(tab));
     const {nodes} = await cdp.send('Accessibility.getFullAXTree');
     for (const node of nodes) {
@@ -228,8 +229,13 @@ async function enableFromConsole() {
                   `robot in FAULT before enabling: ${(await page.locator(tid('banner')).textContent()).trim()}`);
   await page.waitForFunction(() => !document.querySelector('[data-testid="enable-button"]').disabled, null, WAIT);
   await page.click(tid('enable-button'));
-  await page.waitForFunction(() => ['ENABLED', 'FAULT'].includes(
+  // The command's answer shows ENABLED at once; the stream may still show DISABLED until the control
+  // loop has taken the command (slow under load), so wait for the stream to agree.
+  const settled = () => page.waitForFunction(() => ['ENABLED', 'FAULT'].includes(
       document.querySelector('[data-testid="state-badge"]').dataset.state), null, WAIT);
+  await settled();
+  await page.waitForTimeout(300);
+  await settled();
   assert.equal(await badgeState(), 'ENABLED',
                `enable ended in ${await badgeState()}: ${(await page.locator(tid('banner')).textContent()).trim()}`);
   await page.waitForFunction(() => !document.querySelector('[data-testid="move-button"]').disabled, null, WAIT);
@@ -317,11 +323,105 @@ test('switching mode: accepted while holding, a refused switch shows the reason'
   await page.screenshot({path: path.join(ARTIFACTS, '05b-mode-refused.png')});
 });
 
+async function measuredJs() {
+  return (await (await otherOperatorAs('e2e-probe', 'GET', '/robots/srmc/measured_js')).json()).position;
+}
+
+async function waitHolding() {
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').title.includes('busy false'),
+                             null, WAIT);
+}
+
+// Switches mode from the mode bar once the server says the robot holds; a switch refused because
+// the robot was still settling is tried again (bounded), and the last refusal is reported.
+async function switchMode(mode) {
+  for (let attempt = 0; attempt < 5; ++attempt) {
+    for (let i = 0; i < 50; ++i) {
+      const os = await (await otherOperatorAs('e2e-probe', 'GET', '/robots/srmc/operating_state')).json();
+      if (!os.is_busy) break;
+      await page.waitForTimeout(100);
+    }
+    await page.click(tid(`mode-${mode}`));
+    try {
+      await page.waitForFunction((m) => document.querySelector(`[data-testid="mode-${m}"]`).getAttribute('aria-pressed') === 'true',
+                                 mode, {timeout: 5000});
+      return;
+    } catch {
+      // refused or not yet streamed: look again
+    }
+  }
+  assert.fail(`mode ${mode} not reached: ${await page.locator(tid('command-status')).textContent()}`);
+}
+
+test('catheter: configuration sliders in degrees move the catheter; the joystick moves it only with the deadman held', async (t) => {
+  const modes = await page.locator('[data-testid^="mode-"][data-mode]').evaluateAll((els) => els.map((e) => e.dataset.mode));
+  if (!modes.includes('configuration')) {
+    t.skip(`this robot offers only ${modes.join(', ')}`);
+    return;
+  }
+  await page.click(tid('tab-catheter'));
+  await page.waitForFunction(() => /mm$/.test(document.querySelector('[data-testid="gauge-proximal"] .gauge-value').textContent),
+                             null, WAIT);
+  await waitHolding();
+  await switchMode('configuration');
+  await page.fill(tid('cfg-theta-proximal-num'), '15');
+  await page.fill(tid('cfg-theta-distal-num'), '-20');
+  await page.click(tid('cfg-move-button'));
+  try {
+    await page.waitForFunction(() => {
+      const now = (id) => parseFloat(document.querySelector(`[data-testid="${id}"]`).textContent);
+      return Math.abs(now('cfg-theta-proximal-now') - 15) < 0.6 && Math.abs(now('cfg-theta-distal-now') + 20) < 0.6;
+    }, null, {timeout: 40000});
+  } catch (err) {
+    await page.screenshot({path: path.join(ARTIFACTS, 'fail-configuration.png')});
+    const shown = await page.evaluate(() => ({
+      status: document.querySelector('[data-testid="command-status"]').textContent,
+      proximal: document.querySelector('[data-testid="cfg-theta-proximal-now"]').textContent,
+      distal: document.querySelector('[data-testid="cfg-theta-distal-now"]').textContent,
+      badge: document.querySelector('[data-testid="state-badge"]').title,
+    }));
+    err.message += ` page showed ${JSON.stringify(shown)}`;
+    throw err;
+  }
+  await page.screenshot({path: path.join(ARTIFACTS, '05c-configuration.png')});
+
+  await waitHolding();
+  await switchMode('telemanipulation');
+  const before = await measuredJs();
+  await page.focus(tid('stick-pad'));
+  for (let i = 0; i < 4; ++i) await page.keyboard.press('ArrowUp');  // full distal bend, deadman not held
+  await page.waitForTimeout(600);
+  const still = await measuredJs();
+  assert.ok(Math.abs(still[3] - before[3]) < 0.01, `moved without the deadman: ${before[3]} -> ${still[3]}`);
+  await page.keyboard.down('Space');
+  await page.waitForFunction(() => /moving from console/.test(document.querySelector('[data-testid="joystick-status"]').textContent),
+                             null, WAIT);
+  await page.waitForTimeout(800);
+  await page.screenshot({path: path.join(ARTIFACTS, '05d-joystick.png')});
+  await page.keyboard.up('Space');
+  await waitHolding();
+  const after = await measuredJs();
+  assert.ok(after[3] - before[3] > 0.2, `the distal bend moved with the deadman held: ${before[3]} -> ${after[3]}`);
+  await page.locator(tid('stick-pad')).blur();
+  await switchMode('joint');
+  // Back to the start pose (through the console's own session) so the tests after this one begin
+  // where they always did.
+  const back = await page.evaluate(async () => (await fetch('/api/v1/robots/srmc/move_jp', {
+    method: 'POST', headers: {'Content-Type': 'application/json'}, credentials: 'same-origin',
+    body: JSON.stringify({goal: [10, 0, 0, 0]}),
+  })).status);
+  assert.equal(back, 202);
+  await page.waitForTimeout(300);
+  await waitHolding();
+  await page.click(tid('tab-joints'));
+});
+
 test('E-STOP button latches the e-stop, the badge and banner show it', async () => {
   await page.click(tid('estop-button'));
   await waitForBadge(() => {
     const badge = document.querySelector('[data-testid="state-badge"]');
-    return badge.dataset.estop === 'true' && /E-STOP/.test(badge.textContent);
+    return badge.dataset.estop === 'true' && /E-STOP/.test(badge.textContent) &&
+        document.querySelector('[data-testid="banner"]').dataset.level === 'estop';
   });
   assert.equal(await page.locator(tid('banner')).getAttribute('data-level'), 'estop', 'the banner shows the e-stop');
   assert.match(await page.locator(tid('banner')).textContent(), /emergency stop/i);
@@ -446,7 +546,20 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
                              null, WAIT);
   await page.waitForFunction(() => !document.querySelector('[data-testid="step-next-button"]').disabled, null, WAIT);
   await page.click(tid('step-next-button'));
-  await page.waitForFunction(() => document.querySelector('[data-testid="path-status"]').dataset.step === '0', null, {timeout: 30000});
+  try {
+    await page.waitForFunction(() => document.querySelector('[data-testid="path-status"]').dataset.step === '0', null,
+                               {timeout: 30000});
+  } catch (err) {
+    await page.screenshot({path: path.join(ARTIFACTS, 'fail-path-step.png')});
+    const shown = await page.evaluate(() => ({
+      path: document.querySelector('[data-testid="path-status"]').textContent,
+      status: document.querySelector('[data-testid="command-status"]').textContent,
+      badge: document.querySelector('[data-testid="state-badge"]').title,
+      banner: document.querySelector('[data-testid="banner"]').textContent,
+    }));
+    err.message += ` page showed ${JSON.stringify(shown)}`;
+    throw err;
+  }
   await page.screenshot({path: path.join(ARTIFACTS, '13-path-following.png')});
   await page.click(tid('tab-joints'));
 });

@@ -139,6 +139,10 @@ TEST_F(CatheterTest, ModeSwitchesOnlyWhileHoldingAndSaysWhyNot) {
 TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   start(free_space_srmc());
   enable();
+  // Start bent and rolled: the coupling term then rides on a quintic at its speed bound.
+  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {20.0, 0.3, 2.0, -1.0}}}).status, 202);
+  steps(5);
+  ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
   // Joint commands are for joint mode; configuration goals for configuration mode.
   EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 0.2}}}}).status, 409);
   mode("configuration");
@@ -147,7 +151,9 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"yaw", 0.1}}}}).status, 400);
   max_step = {};
   const auto r = runtime->move_configuration(
-      "srmc", {{"goal", {{"theta_proximal", 30 * kDeg}, {"theta_distal", -40 * kDeg}, {"insertion", 20.0}}}});
+      "srmc",
+      {{"goal",
+        {{"theta_proximal", 30 * kDeg}, {"theta_distal", -40 * kDeg}, {"insertion", 20.0}, {"roll", 0.0}}}});
   ASSERT_EQ(r.status, 202) << r.message;
   const double duration = r.body["duration_s"].get<double>();
   EXPECT_GT(duration, 0.5);
@@ -156,6 +162,7 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
       step_until([&] { return !op()["is_busy"].get<bool>(); }, static_cast<int>(duration * 1000) + 3000));
   const auto psi = op()["configuration"];
   EXPECT_NEAR(psi[0].get<double>(), 20.0, 0.05);
+  EXPECT_NEAR(psi[1].get<double>(), 0.0, 1e-3);
   EXPECT_NEAR(psi[2].get<double>(), 30 * kDeg, 0.5 * kDeg) << psi.dump();
   EXPECT_NEAR(psi[3].get<double>(), -40 * kDeg, 0.5 * kDeg) << psi.dump();
   // Smooth: no joint setpoint moved faster than its velocity limit in any tick.

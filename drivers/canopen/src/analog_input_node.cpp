@@ -6,7 +6,8 @@
 
 namespace tendril::canopen {
 
-std::optional<AnalogInputPdo> decode_analog_input_pdo(const can::Frame& frame, std::uint8_t node_id) noexcept {
+std::optional<AnalogInputPdo> decode_analog_input_pdo(const can::Frame& frame,
+                                                      std::uint8_t node_id) noexcept {
   if (frame.extended || frame.rtr || frame.error) return std::nullopt;
   if (frame.id != 0x180U + node_id || frame.len < 2 * kAnalogInputChannels) return std::nullopt;
   AnalogInputPdo pdo;
@@ -21,7 +22,8 @@ std::optional<AnalogInputPdo> decode_analog_input_pdo(const can::Frame& frame, s
   return pdo;
 }
 
-can::Frame encode_analog_input_pdo(std::uint8_t node_id, const std::array<double, kAnalogInputChannels>& volts,
+can::Frame encode_analog_input_pdo(std::uint8_t node_id,
+                                   const std::array<double, kAnalogInputChannels>& volts,
                                    std::optional<std::uint8_t> digital_inputs) noexcept {
   can::Frame frame;
   frame.id = 0x180U + node_id;
@@ -46,7 +48,8 @@ AnalogInputReceiver::AnalogInputReceiver(AnalogInputSetup setup) : setup_(setup)
     throw std::invalid_argument("analog input node: supply_volts must be positive");
   if (!std::isfinite(setup_.fault_margin_volts) || setup_.fault_margin_volts < 0.0)
     throw std::invalid_argument("analog input node: fault_margin_volts must not be negative");
-  if (setup_.stale_after_ns <= 0) throw std::invalid_argument("analog input node: stale_after must be positive");
+  if (setup_.stale_after_ns <= 0)
+    throw std::invalid_argument("analog input node: stale_after must be positive");
 }
 
 bool AnalogInputReceiver::handle(const can::Frame& frame, std::int64_t now_ns) noexcept {

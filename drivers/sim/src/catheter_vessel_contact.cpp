@@ -10,12 +10,14 @@ CatheterVesselContact::CatheterVesselContact(std::vector<Eigen::Vector3d> center
                                              const teleop::ModalCatheterParameters& shape,
                                              CatheterVesselContactParameters parameters)
     : centerline_(std::move(centerline)), shape_(shape), parameters_(parameters) {
-  if (centerline_.size() < 2) throw std::invalid_argument("vessel contact: the centerline needs at least 2 points");
+  if (centerline_.size() < 2)
+    throw std::invalid_argument("vessel contact: the centerline needs at least 2 points");
   for (const auto& p : centerline_)
     if (!p.allFinite()) throw std::invalid_argument("vessel contact: a centerline point is not finite");
   if (!(parameters_.catheter_radius > 0) || !(parameters_.lumen_radius > parameters_.catheter_radius))
     throw std::invalid_argument("vessel contact: the lumen must be wider than the catheter");
-  if (!(parameters_.wall_stiffness > 0)) throw std::invalid_argument("vessel contact: wall_stiffness must be > 0");
+  if (!(parameters_.wall_stiffness > 0))
+    throw std::invalid_argument("vessel contact: wall_stiffness must be > 0");
   if (parameters_.points_per_segment < 2 || parameters_.points_per_segment > 64)
     throw std::invalid_argument("vessel contact: points_per_segment must be 2..64");
   backbone_.resize(shape_.backbone_point_count(parameters_.points_per_segment));

@@ -87,8 +87,10 @@ void SimulatedAnalogInputNode::step(double dt) noexcept {
     if (next_heartbeat_s_ < time_s_) next_heartbeat_s_ = time_s_ + heartbeat_period;
   }
   if (operational_ && time_s_ >= next_pdo_s_) {
-    const auto digital = parameters_.digital_inputs ? std::optional<std::uint8_t>(digital_.load()) : std::nullopt;
-    if (bus_.send(canopen::encode_analog_input_pdo(parameters_.node_id, sampled, digital)) == can::SendResult::ok) {
+    const auto digital =
+        parameters_.digital_inputs ? std::optional<std::uint8_t>(digital_.load()) : std::nullopt;
+    if (bus_.send(canopen::encode_analog_input_pdo(parameters_.node_id, sampled, digital)) ==
+        can::SendResult::ok) {
       pdos_sent_.fetch_add(1, std::memory_order_relaxed);
     }
     next_pdo_s_ += pdo_period;

@@ -4,8 +4,8 @@
 #include "tendril/drivers/sim/simulated_analog_input_node.hpp"
 
 #include <algorithm>
-#include <numbers>
 #include <cmath>
+#include <numbers>
 #include <string>
 
 namespace tendril::sim {
@@ -56,7 +56,8 @@ void SrmcPlant::validate() {
 }
 
 void SrmcPlant::set_vessel(CatheterVesselContact* vessel) {
-  if (vessel && !shape_) throw SimulationSetupError("SRMC plant: a vessel needs the catheter's shape (params.shape)");
+  if (vessel && !shape_)
+    throw SimulationSetupError("SRMC plant: a vessel needs the catheter's shape (params.shape)");
   vessel_ = vessel;
 }
 
@@ -106,15 +107,19 @@ void SrmcPlant::step(double dt) noexcept {
   // What reaches the tubes: the proximal carriage, and the distal carriage shifted by the coupling.
   out.distal_actuation = out.carriage[1];
   if (shape_) {
-    out.bend[0] = std::numbers::pi / 2.0 - shape_->tip_angle(teleop::CatheterSegment::kProximal, out.carriage[0]);
+    out.bend[0] =
+        std::numbers::pi / 2.0 - shape_->tip_angle(teleop::CatheterSegment::kProximal, out.carriage[0]);
     out.distal_actuation += params_.coupling_mm_per_rad * out.bend[0];
-    out.bend[1] = std::numbers::pi / 2.0 - shape_->tip_angle(teleop::CatheterSegment::kDistal, out.distal_actuation);
-    out.tip_bend = sim::tip_bend(*shape_, Eigen::Vector4d(out.q[0], out.q[1], out.carriage[0], out.distal_actuation));
+    out.bend[1] =
+        std::numbers::pi / 2.0 - shape_->tip_angle(teleop::CatheterSegment::kDistal, out.distal_actuation);
+    out.tip_bend =
+        sim::tip_bend(*shape_, Eigen::Vector4d(out.q[0], out.q[1], out.carriage[0], out.distal_actuation));
   }
   if (vessel_ && dt > 0) {
     // The wall forces of this pose act on the carriages over the next step (the wall is far slower
     // than a 1 ms step). The distal generalised force reaches carriage 2 directly (∂q4_eff/∂c2 = 1).
-    const auto f = vessel_->evaluate(Eigen::Vector4d(out.q[0], out.q[1], out.carriage[0], out.distal_actuation));
+    const auto f =
+        vessel_->evaluate(Eigen::Vector4d(out.q[0], out.q[1], out.carriage[0], out.distal_actuation));
     wall_force_ = {f.generalised[2], f.generalised[3]};
     drives_[kInsertion]->set_external_load(f.generalised[0]);
     // The contact force reported is the largest local wall load (one backbone point's spring),
@@ -128,7 +133,8 @@ void SrmcPlant::step(double dt) noexcept {
   if (potentiometers_) {
     const double centre = 0.5 * potentiometers_->parameters().supply_volts;
     potentiometers_->set_input_volts({centre + out.deflection[0] * params_.potentiometer_volts_per_mm,
-                                      centre + out.deflection[1] * params_.potentiometer_volts_per_mm, centre});
+                                      centre + out.deflection[1] * params_.potentiometer_volts_per_mm,
+                                      centre});
   }
   state_.store(out);
 }

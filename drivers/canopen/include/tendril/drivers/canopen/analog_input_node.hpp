@@ -27,7 +27,8 @@ struct AnalogInputPdo {
 // This node's TPDO1 decoded, or nothing when the frame is another node's, too short, RTR or error.
 std::optional<AnalogInputPdo> decode_analog_input_pdo(const can::Frame& frame, std::uint8_t node_id) noexcept;
 // Builds that TPDO; with digital inputs the frame has 7 bytes, else 6.
-can::Frame encode_analog_input_pdo(std::uint8_t node_id, const std::array<double, kAnalogInputChannels>& volts,
+can::Frame encode_analog_input_pdo(std::uint8_t node_id,
+                                   const std::array<double, kAnalogInputChannels>& volts,
                                    std::optional<std::uint8_t> digital_inputs = std::nullopt) noexcept;
 
 struct AnalogInputSetup {

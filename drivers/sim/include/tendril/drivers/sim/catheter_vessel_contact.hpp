@@ -63,6 +63,7 @@ double tip_bend(const teleop::ModalCatheterKinematics& shape, const Eigen::Vecto
 
 // A channel for experiments: straight along +z from the origin for lead_in mm, then a circular arc
 // of bend_radius turning by turn_rad toward +x, sampled about every step mm.
-std::vector<Eigen::Vector3d> arc_channel(double lead_in, double bend_radius, double turn_rad, double step = 0.5);
+std::vector<Eigen::Vector3d> arc_channel(double lead_in, double bend_radius, double turn_rad,
+                                         double step = 0.5);
 
 }  // namespace tendril::sim

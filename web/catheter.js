@@ -1,0 +1,294 @@
+// Steerable-catheter panel: spring-deflection gauges and wall force, configuration sliders in degrees
+// (move_configuration), and the operator's joystick: an on-screen pad plus sliders and the browser
+// Gamepad API, both publishing {axes: [insertion, roll, proximal, distal], deadman} at 30 Hz, and only
+// while the operator-presence (deadman) control is held. Releasing it, leaving the page or losing
+// focus sends deadman:false at once and stops sending.
+const DEG = Math.PI / 180;
+const SEND_PERIOD_MS = 33;  // 30 Hz: well inside the 150 ms command timeout
+// Standard Gamepad mapping (https://w3c.github.io/gamepad/#remapping): left stick x/y, right stick x/y,
+// shoulder buttons 4 (LB) and 5 (RB).
+const GAMEPAD_MAP = 'left stick ↔ proximal, ↕ distal · right stick ↔ roll, ↕ insertion · hold LB or RB';
+
+const clamp1 = (v) => Math.max(-1, Math.min(1, Number.isFinite(v) ? v : 0));
+const fmt = (v, digits = 1) => (Number.isFinite(v) ? v.toFixed(digits) : '—');
+
+export class CatheterPanel {
+  constructor(root, api, {robotName, showStatus}) {
+    this.root = root;
+    this.api = api;
+    this.robotName = robotName;
+    this.showStatus = showStatus;
+    this.operating = null;
+    this.deadmanPointer = false;
+    this.deadmanKey = false;
+    this.deadmanGamepad = false;
+    this.pad = {x: 0, y: 0};
+    this.sending = false;
+    this.filled = false;  // sliders set from the robot's configuration once it is known
+    this.lastError = '';
+    this.timer = null;
+    const q = (id) => root.querySelector(`[data-testid="${id}"]`);
+    this.el = {
+      hold: q('hold-banner'),
+      gauges: [q('gauge-proximal'), q('gauge-distal')],
+      contact: q('contact-force'),
+      bend: q('tip-bend'),
+      pad: q('stick-pad'),
+      knob: root.querySelector('.stick-knob'),
+      insertion: q('stick-insertion'),
+      roll: q('stick-roll'),
+      deadman: q('deadman-button'),
+      status: q('joystick-status'),
+      gamepad: q('gamepad-status'),
+      move: q('cfg-move-button'),
+      fromCurrent: q('cfg-from-current-button'),
+    };
+    this.sliders = ['theta-proximal', 'theta-distal', 'insertion', 'roll'].map((name) => ({
+      name,
+      range: root.querySelector(`#cfg-${name}`),
+      number: root.querySelector(`#cfg-${name}-num`),
+      now: q(`cfg-${name}-now`),
+    }));
+    this.wire();
+  }
+
+  // Slider ranges from GET /robots: configuration bounds (rad) shown in degrees.
+  setRobot(robot) {
+    this.robotName = robot.name;
+    const c = robot.configuration;
+    if (!c) return;
+    const toUi = (i, v) => (i === 0 ? v : v / DEG);
+    const order = [2, 3, 0, 1];  // slider order: θ proximal, θ distal, insertion, roll
+    this.sliders.forEach((s, k) => {
+      const i = order[k];
+      for (const input of [s.range, s.number]) {
+        input.min = String(Math.ceil(toUi(i, c.lower[i]) * 2) / 2);
+        input.max = String(Math.floor(toUi(i, c.upper[i]) * 2) / 2);
+      }
+      s.index = i;
+    });
+    this.limit = robot.spring_deflection_limit_mm;
+    this.filled = false;
+    this.fillFromCurrent();
+  }
+
+  wire() {
+    for (const s of this.sliders) {
+      s.range.addEventListener('input', () => { s.number.value = s.range.value; });
+      s.number.addEventListener('input', () => { s.range.value = s.number.value; });
+    }
+    this.el.fromCurrent.addEventListener('click', () => this.fillFromCurrent());
+    this.el.move.addEventListener('click', () => this.moveConfiguration());
+
+    // Deadman: held by pointer (button), Space key, or a gamepad shoulder button.
+    const d = this.el.deadman;
+    d.addEventListener('pointerdown', (ev) => {
+      ev.preventDefault();
+      d.setPointerCapture?.(ev.pointerId);
+      this.deadmanPointer = true;
+      this.refresh();
+    });
+    for (const type of ['pointerup', 'pointercancel', 'lostpointercapture']) {
+      d.addEventListener(type, () => { this.deadmanPointer = false; this.refresh(); });
+    }
+    document.addEventListener('keydown', (ev) => {
+      if (ev.code !== 'Space' || ev.repeat || this.root.hidden) return;
+      const t = ev.target;
+      if (t && (t.tagName === 'INPUT' || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA' || t.isContentEditable)) return;
+      ev.preventDefault();
+      this.deadmanKey = true;
+      this.refresh();
+    });
+    document.addEventListener('keyup', (ev) => {
+      if (ev.code !== 'Space') return;
+      this.deadmanKey = false;
+      this.refresh();
+    });
+    const releaseAll = () => {
+      this.deadmanPointer = this.deadmanKey = this.deadmanGamepad = false;
+      this.centre();
+      this.refresh();
+    };
+    window.addEventListener('blur', releaseAll);
+    document.addEventListener('visibilitychange', () => { if (document.hidden) releaseAll(); });
+
+    // On-screen pad: drag; x = proximal, y (up) = distal; springs back to the centre on release.
+    const pad = this.el.pad;
+    const fromEvent = (ev) => {
+      const r = pad.getBoundingClientRect();
+      this.pad.x = clamp1(((ev.clientX - r.left) / r.width) * 2 - 1);
+      this.pad.y = clamp1(1 - ((ev.clientY - r.top) / r.height) * 2);
+      this.drawKnob();
+    };
+    pad.addEventListener('pointerdown', (ev) => {
+      pad.setPointerCapture?.(ev.pointerId);
+      fromEvent(ev);
+    });
+    pad.addEventListener('pointermove', (ev) => { if (ev.buttons) fromEvent(ev); });
+    for (const type of ['pointerup', 'pointercancel']) {
+      pad.addEventListener(type, () => { this.pad = {x: 0, y: 0}; this.drawKnob(); });
+    }
+    pad.addEventListener('keydown', (ev) => {
+      const step = 0.25;
+      const moves = {ArrowLeft: [-step, 0], ArrowRight: [step, 0], ArrowUp: [0, step], ArrowDown: [0, -step]};
+      if (!moves[ev.key]) return;
+      ev.preventDefault();
+      this.pad.x = clamp1(this.pad.x + moves[ev.key][0]);
+      this.pad.y = clamp1(this.pad.y + moves[ev.key][1]);
+      this.drawKnob();
+    });
+    pad.addEventListener('blur', () => { this.pad = {x: 0, y: 0}; this.drawKnob(); });
+    for (const slider of [this.el.insertion, this.el.roll]) {
+      // Speed sliders spring back to zero when let go, like a stick.
+      for (const type of ['pointerup', 'pointercancel', 'blur']) slider.addEventListener(type, () => { slider.value = '0'; });
+    }
+    this.timer = setInterval(() => this.tick(), SEND_PERIOD_MS);
+  }
+
+  centre() {
+    this.pad = {x: 0, y: 0};
+    this.el.insertion.value = '0';
+    this.el.roll.value = '0';
+    this.drawKnob();
+  }
+
+  drawKnob() {
+    this.el.knob.style.left = `${50 + this.pad.x * 45}%`;
+    this.el.knob.style.top = `${50 - this.pad.y * 45}%`;
+    this.el.pad.setAttribute('aria-valuenow', fmt(this.pad.x, 2));
+    this.el.pad.setAttribute('aria-valuetext', `proximal ${fmt(this.pad.x, 2)}, distal ${fmt(this.pad.y, 2)}`);
+  }
+
+  get deadman() { return this.deadmanPointer || this.deadmanKey || this.deadmanGamepad; }
+
+  readGamepad() {
+    const pads = typeof navigator.getGamepads === 'function' ? [...navigator.getGamepads()].filter(Boolean) : [];
+    const gp = pads[0];
+    if (!gp) {
+      this.deadmanGamepad = false;
+      this.el.gamepad.textContent = 'gamepad: none connected';
+      return null;
+    }
+    this.el.gamepad.textContent = `gamepad: ${gp.id.slice(0, 40)} — ${GAMEPAD_MAP}`;
+    const pressed = (i) => !!(gp.buttons[i] && gp.buttons[i].pressed);
+    this.deadmanGamepad = pressed(4) || pressed(5);
+    const dead = (v) => (Math.abs(v) < 0.08 ? 0 : v);  // stick rest noise
+    return [-dead(gp.axes[3] ?? 0), dead(gp.axes[2] ?? 0), dead(gp.axes[0] ?? 0), -dead(gp.axes[1] ?? 0)];
+  }
+
+  axes(gamepadAxes) {
+    const screen = [Number(this.el.insertion.value), Number(this.el.roll.value), this.pad.x, this.pad.y];
+    // The on-screen controls win when touched; otherwise the gamepad.
+    const touched = screen.some((v) => v !== 0);
+    return (touched || !gamepadAxes ? screen : gamepadAxes).map(clamp1);
+  }
+
+  // 30 Hz: publish while the deadman is held; one deadman:false when it is let go.
+  async tick() {
+    if (this.root.hidden && !this.sending) return;  // nothing to read or send while the panel is closed
+    const gamepadAxes = this.readGamepad();
+    const mode = this.operating?.mode;
+    const movable = mode === 'telemanipulation' || mode === 'active_compliance' || this.operating?.retraction_only;
+    const held = this.deadman && movable && !this.root.hidden;
+    this.el.deadman.setAttribute('aria-pressed', String(this.deadman));
+    this.el.deadman.classList.toggle('held', this.deadman);
+    if (!held && !this.sending) return;
+    const axes = this.axes(gamepadAxes);
+    this.sending = held;
+    try {
+      await this.api.joystick(this.robotName, axes, held);
+      this.lastError = '';
+    } catch (err) {
+      const text = `Joystick: ${err.message || err}`;
+      if (text !== this.lastError) this.showStatus(text, 'error');
+      this.lastError = text;
+    }
+  }
+
+  refresh() {
+    this.el.deadman.setAttribute('aria-pressed', String(this.deadman));
+    this.el.deadman.classList.toggle('held', this.deadman);
+  }
+
+  fillFromCurrent() {
+    const c = this.operating?.configuration;
+    if (!Array.isArray(c)) return;
+    this.filled = true;
+    for (const s of this.sliders) {
+      const v = s.index === 0 ? c[0] : c[s.index] / DEG;
+      s.range.value = s.number.value = fmt(v, 1);
+    }
+  }
+
+  async moveConfiguration() {
+    const goal = {};
+    const names = ['insertion', 'roll', 'theta_proximal', 'theta_distal'];
+    for (const s of this.sliders) {
+      if (s.number.value.trim() === '') continue;  // left empty: keeps its current value
+      const v = Number(s.number.value);
+      if (!Number.isFinite(v)) {
+        this.showStatus(`Configuration: ${s.name.replace('-', ' ')} is not a number`, 'error');
+        return;
+      }
+      goal[names[s.index]] = s.index === 0 ? v : v * DEG;
+    }
+    try {
+      const answer = await this.api.moveConfiguration(this.robotName, goal);
+      this.showStatus(`Moving to the configuration (${fmt(answer.duration_s, 1)} s)`, 'ok');
+    } catch (err) {
+      this.showStatus(`Configuration refused: ${err.message || err}`, 'error');
+    }
+  }
+
+  update(os) {
+    this.operating = os;
+    if (!this.filled && Array.isArray(os.configuration)) this.fillFromCurrent();
+    const limit = os.spring_deflection_limit_mm || this.limit || 1;
+    const d = Array.isArray(os.spring_deflection_mm) ? os.spring_deflection_mm : null;
+    this.el.gauges.forEach((g, i) => {
+      const track = g.querySelector('.gauge-track');
+      const bar = g.querySelector('.gauge-bar');
+      const value = g.querySelector('.gauge-value');
+      if (!d) {
+        g.dataset.level = 'stale';
+        bar.style.width = '0';
+        value.textContent = 'no reading';
+        track.setAttribute('aria-valuetext', 'no reading');
+        return;
+      }
+      const f = Math.max(-1, Math.min(1, d[i] / limit));
+      bar.style.left = f >= 0 ? '50%' : `${50 + f * 50}%`;
+      bar.style.width = `${Math.abs(f) * 50}%`;
+      g.dataset.level = Math.abs(f) >= 1 ? 'over' : Math.abs(f) > 0.66 ? 'high' : 'ok';
+      value.textContent = `${fmt(d[i], 2)} mm`;
+      track.setAttribute('aria-valuenow', fmt(f, 2));
+      track.setAttribute('aria-valuetext', `${fmt(d[i], 2)} mm of ±${fmt(limit, 1)} mm`);
+    });
+    const contact = os.contact_force_n;
+    this.el.contact.textContent = contact === null || contact === undefined
+        ? 'wall force: not measured'
+        : `wall force ${fmt(contact, 3)} N (bound ${fmt(os.max_contact_force_n, 2)} N, simulated)`;
+    this.el.contact.dataset.over = String(Number(contact) > Number(os.max_contact_force_n));
+    const bend = os.simulation?.tip_bend_rad;
+    this.el.bend.textContent = Number.isFinite(bend) ? `tip bend ${fmt(bend / DEG, 1)}° (simulated)` : '';
+    const c = os.configuration;
+    if (Array.isArray(c)) {
+      for (const s of this.sliders) s.now.textContent = s.index === 0 ? `${fmt(c[0], 1)} mm` : `${fmt(c[s.index] / DEG, 1)}°`;
+    }
+    if (os.retraction_only || os.hold_reason) {
+      this.el.hold.hidden = false;
+      this.el.hold.textContent = `Held: ${os.hold_reason || 'safety limit'}.` +
+          (os.retraction_only ? ' Only withdrawal moves now (insertion backwards); Resume when clear.' : ' Resume when clear.');
+    } else {
+      this.el.hold.hidden = true;
+    }
+    const j = os.joystick || {};
+    this.el.status.textContent = j.conflict ? 'two joysticks hold their deadman: nothing moves'
+        : j.source ? `moving from ${j.source} joystick` + (j.deadman ? '' : ' (deadman released)')
+        : this.deadman ? 'deadman held — waiting for the robot (telemanipulation or active compliance mode)'
+        : 'no joystick input';
+    const configurationMode = os.mode === 'configuration';
+    this.el.move.disabled = !configurationMode || os.state !== 'ENABLED';
+    this.el.move.title = configurationMode ? '' : 'Switch to Configuration mode to move in bend angles';
+  }
+}
