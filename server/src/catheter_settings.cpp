@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "config_reader.hpp"
+#include "tendril/drivers/sim/catheter_vessel_contact.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::server {
@@ -217,7 +218,6 @@ teleop::ModalCatheterParameters assembled_shape(const CatheterSettings& settings
 }
 
 std::vector<Eigen::Vector3d> vessel_centerline(const VesselTubeSettings& vessel) {
-  std::vector<Eigen::Vector3d> points;
   if (!vessel.centerline_file.empty()) {
     std::ifstream in(vessel.centerline_file);
     if (!in) throw ConfigError(vessel.centerline_file + ": cannot open the vessel centerline");
@@ -228,15 +228,8 @@ std::vector<Eigen::Vector3d> vessel_centerline(const VesselTubeSettings& vessel)
   }
   // Arc channel: straight along +z, then a circular arc in the x–z plane turning toward +x (the way
   // the proximal segment bends at zero roll), sampled every 0.5 mm.
-  constexpr double ds = 0.5;
-  for (double z = 0; z < vessel.lead_in_mm; z += ds) points.emplace_back(0.0, 0.0, z);
-  const double turn = vessel.turn_deg * std::numbers::pi / 180.0, r = vessel.bend_radius_mm;
-  const int n = std::max(2, static_cast<int>(std::ceil(turn * r / ds)));
-  for (int i = 0; i <= n; ++i) {
-    const double a = turn * i / n;
-    points.emplace_back(r * (1.0 - std::cos(a)), 0.0, vessel.lead_in_mm + r * std::sin(a));
-  }
-  return points;
+  return sim::arc_channel(vessel.lead_in_mm, vessel.bend_radius_mm,
+                          vessel.turn_deg * std::numbers::pi / 180.0);
 }
 
 }  // namespace tendril::server

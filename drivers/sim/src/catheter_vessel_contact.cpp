@@ -78,8 +78,9 @@ std::vector<Eigen::Vector3d> arc_channel(double lead_in, double bend_radius, dou
     throw std::invalid_argument("arc channel: lead-in >= 0, radius, turn and step > 0");
   std::vector<Eigen::Vector3d> points;
   const int straight = static_cast<int>(std::ceil(lead_in / step));
-  for (int i = 0; i < straight; ++i) points.emplace_back(0.0, 0.0, lead_in * i / straight);
   const int n = std::max(2, static_cast<int>(std::ceil(turn_rad * bend_radius / step)));
+  points.reserve(static_cast<std::size_t>(straight) + static_cast<std::size_t>(n) + 1);
+  for (int i = 0; i < straight; ++i) points.emplace_back(0.0, 0.0, lead_in * i / straight);
   for (int i = 0; i <= n; ++i) {
     const double a = turn_rad * i / n;
     points.emplace_back(bend_radius * (1.0 - std::cos(a)), 0.0, lead_in + bend_radius * std::sin(a));
