@@ -528,7 +528,8 @@ int run(const Options& options) {
   Options o = options;
   RobotConfig robot = load_robot_config(o.robot_file);
   // Latency is measured in free space: the simulated vessel would hold the robot on wall contact.
-  if (robot.catheter.is_object() && robot.catheter.contains("simulation")) robot.catheter["simulation"].erase("vessel");
+  if (robot.catheter.is_object() && robot.catheter.contains("simulation"))
+    robot.catheter["simulation"].erase("vessel");
   if (o.robot.empty()) o.robot = robot.name;
   if (o.robot != robot.name)
     throw std::runtime_error("--robot " + o.robot + ": the robot file defines '" + robot.name + "'");

@@ -139,13 +139,12 @@ const std::map<std::string, Getter>& robot_getters() {
   return getters;
 }
 const std::map<std::string, Command>& robot_commands() {
-  static const std::map<std::string, Command> commands = {
-      {"state_command", Command::kStateCommand},
-      {"mode", Command::kMode},
-      {"move_jp", Command::kMoveJp},
-      {"servo_jv", Command::kServoJv},
-      {"move_configuration", Command::kMoveConfiguration},
-      {"joystick", Command::kJoystick}};
+  static const std::map<std::string, Command> commands = {{"state_command", Command::kStateCommand},
+                                                          {"mode", Command::kMode},
+                                                          {"move_jp", Command::kMoveJp},
+                                                          {"servo_jv", Command::kServoJv},
+                                                          {"move_configuration", Command::kMoveConfiguration},
+                                                          {"joystick", Command::kJoystick}};
   return commands;
 }
 
@@ -688,7 +687,8 @@ class FrontEndWsSession : public std::enable_shared_from_this<FrontEndWsSession>
         send_text(fg::status(fg::StatusLevel::kError, "advertise: at most 64 client channels"));
         return;
       }
-      client_channels_[channel.id] = {segments[0], segments[1] == "joystick" ? Command::kJoystick : Command::kServoJv};
+      client_channels_[channel.id] = {segments[0],
+                                      segments[1] == "joystick" ? Command::kJoystick : Command::kServoJv};
     }
   }
 

@@ -19,7 +19,7 @@ namespace tendril::sim {
 class SimulatedCia402Drive;
 class SimulatedAnalogJoystick;
 class SimulatedAnalogInputNode;
-}
+}  // namespace tendril::sim
 
 namespace tendril::server {
 
