@@ -1078,13 +1078,12 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
   } else {
     return std::nullopt;
   }
-  // Change detection: only send what differs from the last message of this topic; diagnostics at 10 Hz.
+  // Change detection: only send what differs from the last message of this topic; diagnostics and the
+  // catheter's measured values at 10 Hz.
   std::string key;
   if (leaf == "joint_states") {
     key = std::to_string(s.tick);
-  } else if (leaf == "diagnostics") {
-    key = std::to_string(static_cast<std::int64_t>(s.time * 10.0));
-  } else if (leaf == "catheter") {
+  } else if (leaf == "diagnostics" || leaf == "catheter") {
     key = std::to_string(static_cast<std::int64_t>(s.time * 10.0));
   } else {
     key = msg.dump();
