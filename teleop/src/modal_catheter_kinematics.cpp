@@ -103,12 +103,18 @@ Eigen::Vector3d ModalCatheterKinematics::integrate(const SegmentModel& m, double
   s = std::clamp(s, 0.0, m.length);
   if (s == 0.0) return Eigen::Vector3d::Zero();
   // Keep the step roughly that of a full segment: intervals ∝ s/L, rounded up to even, at least 2.
-  int intervals = static_cast<int>(std::ceil(simpson_intervals_ * s / m.length));
+  const int intervals = static_cast<int>(std::ceil(simpson_intervals_ * s / m.length));
+  return integrate_between(m, 0.0, s, q, intervals, derivative_in_q);
+}
+
+Eigen::Vector3d ModalCatheterKinematics::integrate_between(const SegmentModel& m, double from, double to,
+                                                           double q, int intervals,
+                                                           bool derivative_in_q) const noexcept {
   intervals = std::max(2, intervals + (intervals % 2));
-  const double h = s / intervals;
+  const double h = (to - from) / intervals;
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   for (int k = 0; k <= intervals; ++k) {
-    const double sk = k * h;
+    const double sk = from + k * h;
     const double theta = evaluate(m, sk, q, false);
     Eigen::Vector3d f;
     if (derivative_in_q) {
@@ -185,15 +191,26 @@ std::size_t ModalCatheterKinematics::backbone(const JointVector& q, std::size_t 
   Eigen::Matrix3d R = rot_z(q[1]);
   Eigen::Vector3d base(0.0, 0.0, q[0]);
   out[n++] = base;
+  // Piece by piece from the last point (not from the base each time): the same Simpson step as a
+  // whole segment, at a fraction of the cost — the simulated vessel contact calls this 5000 times a
+  // second.
+  const int piece_intervals = static_cast<int>(std::ceil(static_cast<double>(simpson_intervals_) / count));
+  Eigen::Vector3d d = Eigen::Vector3d::Zero();
   for (std::size_t i = 1; i <= points_per_segment; ++i) {
-    out[n++] =
-        base + R * integrate(proximal_, proximal_.length * (static_cast<double>(i) / count), q[2], false);
+    const double from = proximal_.length * (static_cast<double>(i - 1) / count);
+    const double to = proximal_.length * (static_cast<double>(i) / count);
+    d += integrate_between(proximal_, from, to, q[2], piece_intervals, false);
+    out[n++] = base + R * d;
   }
   base = out[n - 1];
   R = R * rot_y(half_pi - tip_angle(CatheterSegment::kProximal, q[2])) * rot_z(plane_offset_) *
       rot_x(flexure_);
+  d.setZero();
   for (std::size_t i = 1; i <= points_per_segment; ++i) {
-    out[n++] = base + R * integrate(distal_, distal_.length * (static_cast<double>(i) / count), q[3], false);
+    const double from = distal_.length * (static_cast<double>(i - 1) / count);
+    const double to = distal_.length * (static_cast<double>(i) / count);
+    d += integrate_between(distal_, from, to, q[3], piece_intervals, false);
+    out[n++] = base + R * d;
   }
   return n;
 }

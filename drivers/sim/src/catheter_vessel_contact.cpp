@@ -2,9 +2,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace tendril::sim {
+
+namespace {
+constexpr std::size_t kSegmentsPerGroup = 8;
+// Central-difference step of the bend actuations (mm): far below the contact's length scale.
+constexpr double kBendStep = 1e-2;
+}  // namespace
 
 CatheterVesselContact::CatheterVesselContact(std::vector<Eigen::Vector3d> centerline,
                                              const teleop::ModalCatheterParameters& shape,
@@ -20,18 +27,65 @@ CatheterVesselContact::CatheterVesselContact(std::vector<Eigen::Vector3d> center
     throw std::invalid_argument("vessel contact: wall_stiffness must be > 0");
   if (parameters_.points_per_segment < 2 || parameters_.points_per_segment > 64)
     throw std::invalid_argument("vessel contact: points_per_segment must be 2..64");
-  backbone_.resize(shape_.backbone_point_count(parameters_.points_per_segment));
+  const std::size_t segments = centerline_.size() - 1;
+  for (std::size_t first = 0; first < segments; first += kSegmentsPerGroup) {
+    SegmentGroup g;
+    g.first = first;
+    g.last = std::min(segments, first + kSegmentsPerGroup);
+    Eigen::Vector3d lo = centerline_[first], hi = lo;
+    for (std::size_t i = first; i <= g.last; ++i) {
+      lo = lo.cwiseMin(centerline_[i]);
+      hi = hi.cwiseMax(centerline_[i]);
+    }
+    g.centre = 0.5 * (lo + hi);
+    for (std::size_t i = first; i <= g.last; ++i)
+      g.radius = std::max(g.radius, (centerline_[i] - g.centre).norm());
+    groups_.push_back(g);
+  }
+  const std::size_t n = shape_.backbone_point_count(parameters_.points_per_segment);
+  backbone_.resize(n);
+  for (auto& b : perturbed_) b.resize(n);
+  nearest_.assign(n, 0);
+}
+
+Eigen::Vector3d CatheterVesselContact::point_on_segment(std::size_t i,
+                                                        const Eigen::Vector3d& p) const noexcept {
+  const Eigen::Vector3d& a = centerline_[i];
+  const Eigen::Vector3d ab = centerline_[i + 1] - a;
+  const double len2 = ab.squaredNorm();
+  const double u = len2 > 0 ? std::clamp((p - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+  return a + u * ab;
+}
+
+Eigen::Vector3d CatheterVesselContact::nearest_point(const Eigen::Vector3d& p,
+                                                     std::size_t& segment) const noexcept {
+  const std::size_t segments = centerline_.size() - 1;
+  double best = std::numeric_limits<double>::infinity();
+  Eigen::Vector3d nearest = centerline_.front();
+  const auto consider = [&](std::size_t i) {
+    const Eigen::Vector3d c = point_on_segment(i, p);
+    const double d2 = (c - p).squaredNorm();
+    if (d2 < best) {
+      best = d2;
+      nearest = c;
+      segment = i;
+    }
+  };
+  // Warm start: last tick's nearest segment and its neighbours make `best` tight at once.
+  const std::size_t hint = std::min(segment, segments - 1);
+  for (std::size_t i = hint > 2 ? hint - 2 : 0; i < std::min(segments, hint + 3); ++i) consider(i);
+  // Exact: every other segment lies in a group whose bounding sphere is no nearer than `best`.
+  for (const auto& g : groups_) {
+    const double lower = (p - g.centre).norm() - g.radius;
+    if (lower > 0 && lower * lower >= best) continue;
+    for (std::size_t i = g.first; i < g.last; ++i) consider(i);
+  }
+  return nearest;
 }
 
 double CatheterVesselContact::distance_to_centerline(const Eigen::Vector3d& p) const noexcept {
-  double best = std::numeric_limits<double>::infinity();
-  for (std::size_t i = 0; i + 1 < centerline_.size(); ++i) {
-    const Eigen::Vector3d a = centerline_[i], ab = centerline_[i + 1] - a;
-    const double len2 = ab.squaredNorm();
-    const double u = len2 > 0 ? std::clamp((p - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
-    best = std::min(best, (a + u * ab - p).squaredNorm());
-  }
-  return std::sqrt(best);
+  std::size_t segment = 0;
+  return (nearest_point(p, segment) - p).norm();
 }
 
 double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* stats) noexcept {
@@ -40,7 +94,7 @@ double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* st
   const double k = parameters_.wall_stiffness;
   double e = 0.0;
   for (std::size_t i = 1; i < n; ++i) {  // the base point sits on the insertion axis, outside the model
-    const double d = distance_to_centerline(backbone_[i]) - free;
+    const double d = (nearest_point(backbone_[i], nearest_[i]) - backbone_[i]).norm() - free;
     if (d <= 0) continue;
     e += 0.5 * k * d * d;
     if (stats) {
@@ -54,15 +108,33 @@ double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* st
 
 ContactForces CatheterVesselContact::evaluate(const Eigen::Vector4d& q) noexcept {
   ContactForces out;
-  (void)energy(q, &out);
-  if (out.points_in_contact == 0) return out;
-  // Central differences: 0.01 mm (or rad) is far below the contact's length scale.
-  constexpr double h = 1e-2;
-  for (int j = 0; j < 4; ++j) {
-    Eigen::Vector4d plus = q, minus = q;
-    plus[j] += h;
-    minus[j] -= h;
-    out.generalised[static_cast<std::size_t>(j)] = -(energy(plus) - energy(minus)) / (2.0 * h);
+  const std::size_t n = shape_.backbone(q, parameters_.points_per_segment, backbone_);
+  const double free = parameters_.lumen_radius - parameters_.catheter_radius;
+  const double k = parameters_.wall_stiffness;
+  bool have_bend_rates = false;
+  for (std::size_t i = 1; i < n; ++i) {  // the base point sits on the insertion axis, outside the model
+    const Eigen::Vector3d& p = backbone_[i];
+    const Eigen::Vector3d outward = p - nearest_point(p, nearest_[i]);
+    const double distance = outward.norm();
+    const double d = distance - free;
+    if (d <= 0) continue;    // distance > free > 0 from here on
+    if (!have_bend_rates) {  // only in contact: four more backbones
+      for (std::size_t j = 0; j < 4; ++j) {
+        Eigen::Vector4d qj = q;
+        qj[static_cast<Eigen::Index>(2 + j / 2)] += j % 2 == 0 ? kBendStep : -kBendStep;
+        (void)shape_.backbone(qj, parameters_.points_per_segment, perturbed_[j]);
+      }
+      have_bend_rates = true;
+    }
+    // E = Σ ½·k·d², ∂d/∂p = n: Q_j = −k·d·nᵀ·∂p/∂q_j.
+    const Eigen::Vector3d push = -k * d / distance * outward;
+    out.generalised[0] += push.z();                                     // ∂p/∂q1 = ẑ
+    out.generalised[1] += push.dot(Eigen::Vector3d::UnitZ().cross(p));  // ∂p/∂q2 = ẑ × p
+    out.generalised[2] += push.dot(perturbed_[0][i] - perturbed_[1][i]) / (2.0 * kBendStep);
+    out.generalised[3] += push.dot(perturbed_[2][i] - perturbed_[3][i]) / (2.0 * kBendStep);
+    out.total_force += k * d;
+    out.max_force = std::max(out.max_force, k * d);
+    ++out.points_in_contact;
   }
   return out;
 }

@@ -1,8 +1,11 @@
 // SIMULATED catheter-vessel contact and the SRMC plant's coupling and potentiometer output.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
+#include <random>
 
 #include "tendril/drivers/can/virtual_bus.hpp"
 #include "tendril/drivers/canopen/analog_input_node.hpp"
@@ -48,6 +51,45 @@ TEST(CatheterVesselContact, ACurvedWallPushesTheProximalCarriageTowardTheCurve) 
   // A little bend with the channel lowers the wall energy (the force is its slope).
   EXPECT_LT(contact.energy(Eigen::Vector4d(20.0, 0.0, 0.3, 0.0)),
             contact.energy(Eigen::Vector4d(20.0, 0.0, 0.0, 0.0)));
+}
+
+// The pruned nearest-segment search must be exact: compared with every segment, for points around
+// a hairpin (the vessel folds back, so a remote part of the centerline is often the nearest).
+TEST(CatheterVesselContact, PrunedDistanceEqualsTheDistanceToEverySegment) {
+  const auto hairpin = arc_channel(30.0, 4.0, std::numbers::pi * 1.5, 0.5);
+  CatheterVesselContact contact(hairpin, shape(), {});
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> x(-6.0, 14.0), y(-3.0, 3.0), z(-5.0, 40.0);
+  for (int trial = 0; trial < 2000; ++trial) {
+    const Eigen::Vector3d p(x(rng), y(rng), z(rng));
+    double brute = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i + 1 < hairpin.size(); ++i) {
+      const Eigen::Vector3d ab = hairpin[i + 1] - hairpin[i];
+      const double u = std::clamp((p - hairpin[i]).dot(ab) / ab.squaredNorm(), 0.0, 1.0);
+      brute = std::min(brute, (hairpin[i] + u * ab - p).norm());
+    }
+    ASSERT_NEAR(contact.distance_to_centerline(p), brute, 1e-12) << p.transpose();
+  }
+}
+
+// The generalised forces are the slope of the wall energy: −∂E/∂q by central differences of energy()
+// on every joint, at poses pressed into the curved wall.
+TEST(CatheterVesselContact, GeneralisedForcesAreMinusTheEnergyGradient) {
+  CatheterVesselContact contact(arc_channel(45.0, 20.0, 2.0), shape(), {});
+  for (const Eigen::Vector4d q : {Eigen::Vector4d(20.0, 0.0, 0.0, 0.0), Eigen::Vector4d(24.0, 0.4, -1.0, 2.0),
+                                  Eigen::Vector4d(27.0, -0.3, 3.0, -2.0)}) {
+    const auto f = contact.evaluate(q);
+    ASSERT_GT(f.points_in_contact, 0) << q.transpose();
+    for (int j = 0; j < 4; ++j) {
+      constexpr double h = 1e-5;
+      Eigen::Vector4d plus = q, minus = q;
+      plus[j] += h;
+      minus[j] -= h;
+      const double slope = -(contact.energy(plus) - contact.energy(minus)) / (2.0 * h);
+      EXPECT_NEAR(f.generalised[static_cast<std::size_t>(j)], slope, 1e-6 + 1e-4 * std::abs(slope))
+          << "joint " << j << " at " << q.transpose();
+    }
+  }
 }
 
 TEST(CatheterVesselContact, RejectsAVesselItCannotModel) {

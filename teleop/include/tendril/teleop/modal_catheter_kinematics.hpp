@@ -104,6 +104,9 @@ class ModalCatheterKinematics {
   double evaluate(const SegmentModel& m, double s, double q, bool derivative_in_q) const noexcept;
   // ∫₀^s of [cos θ, 0, sin θ] (or, with derivative, [−sin θ, 0, cos θ]·∂θ/∂q).
   Eigen::Vector3d integrate(const SegmentModel& m, double s, double q, bool derivative_in_q) const noexcept;
+  // The same over [from, to] with `intervals` Simpson intervals (rounded up to even, at least 2).
+  Eigen::Vector3d integrate_between(const SegmentModel& m, double from, double to, double q, int intervals,
+                                    bool derivative_in_q) const noexcept;
 
   SegmentModel proximal_;
   SegmentModel distal_;

@@ -3,8 +3,13 @@
 // its assembled shape model at the actuation that reaches the tubes (insertion, roll, proximal
 // carriage, effective distal actuation). A backbone point whose distance from the centerline plus
 // the catheter radius exceeds the lumen penetrates the wall by d and stores ½·k_wall·d² of elastic
-// energy. The generalised wall forces on insertion and the two carriages are −∂E/∂q (central
-// differences), i.e. what a compliant wall pushes back with through the catheter's kinematics.
+// energy. The generalised wall forces are Q = −∂E/∂q = −Σ k·d_i·n_iᵀ·∂p_i/∂q (n_i the outward unit
+// normal from the nearest centerline point), i.e. what a compliant wall pushes back with through the
+// catheter's kinematics: ∂p/∂q is exact for insertion (a translation along z) and roll (a rotation
+// about the insertion axis) and a central difference of the backbone for the two bend actuations.
+// Distances come from a pruned search: the previous tick's nearest segment bounds the answer, and
+// groups of consecutive segments whose bounding sphere lies farther away are skipped, so a point
+// costs a few segment projections instead of the whole centerline (it runs 1000 times a second).
 // Allocation-free after construction; one instance per plant (it keeps scratch buffers).
 #pragma once
 
@@ -48,14 +53,29 @@ class CatheterVesselContact {
   const teleop::ModalCatheterKinematics& shape() const noexcept { return shape_; }
   const std::vector<Eigen::Vector3d>& centerline() const noexcept { return centerline_; }
   const CatheterVesselContactParameters& parameters() const noexcept { return parameters_; }
-  // Distance (mm) from p to the centerline polyline.
+  // Distance (mm) from p to the centerline polyline (exact; the pruned search).
   double distance_to_centerline(const Eigen::Vector3d& p) const noexcept;
 
  private:
+  // Consecutive centerline segments [first, last) inside a sphere: a lower bound on their distance.
+  struct SegmentGroup {
+    Eigen::Vector3d centre;
+    double radius = 0.0;
+    std::size_t first = 0, last = 0;
+  };
+  // Nearest point on the polyline to p; `segment` is a hint (any valid index) and returns the
+  // nearest segment.
+  Eigen::Vector3d nearest_point(const Eigen::Vector3d& p, std::size_t& segment) const noexcept;
+  Eigen::Vector3d point_on_segment(std::size_t i, const Eigen::Vector3d& p) const noexcept;
+
   std::vector<Eigen::Vector3d> centerline_;
+  std::vector<SegmentGroup> groups_;
   teleop::ModalCatheterKinematics shape_;
   CatheterVesselContactParameters parameters_;
   std::vector<Eigen::Vector3d> backbone_;  // scratch, sized at construction
+  // Backbones at q3 + h, q3 − h, q4 + h, q4 − h: ∂p/∂q of the bends by central differences.
+  std::array<std::vector<Eigen::Vector3d>, 4> perturbed_;
+  std::vector<std::size_t> nearest_;  // per backbone point: last nearest segment (warm start)
 };
 
 // Bend of the catheter tip relative to its base axis (rad), from the assembled shape at q.
