@@ -19,7 +19,7 @@ if [ "$(id -u)" != 0 ]; then
   sudo_cmd=(sudo)
 fi
 
-packages=(build-essential cmake ninja-build pkg-config git ca-certificates curl
+packages=(build-essential cmake ninja-build pkg-config git ca-certificates curl jq
   libboost-system-dev libboost-dev libeigen3-dev nlohmann-json3-dev libssl-dev openssl libopencv-dev)
 # Node.js may come from Debian (nodejs + npm) or from a vendor package that bundles npm.
 command -v node >/dev/null || packages+=(nodejs)

@@ -80,10 +80,10 @@ if [ "$quick" = 0 ]; then
   step "fuzzing (libFuzzer, bounded)"
   CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_FUZZ=ON \
     -DTENDRIL_BUILD_TESTS=ON -DTENDRIL_BUILD_BENCHMARKS=OFF -DTENDRIL_CAN_VM_TESTS=OFF >/dev/null &&
-    cmake --build build-fuzz -j "$jobs" --target fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo
+    cmake --build build-fuzz -j "$jobs" --target fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo fuzz_calibration_request
   status=$?
   if [ $status -eq 0 ]; then
-    for target in fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo; do
+    for target in fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo fuzz_calibration_request; do
       corpus_dir=$(mktemp -d)
       cp -r tests/fuzz/corpus/"$target"/. "$corpus_dir"/ 2>/dev/null || true
       if build-fuzz/tests/fuzz/$target -max_total_time="${TENDRIL_FUZZ_SECONDS:-60}" -rss_limit_mb=2048 -print_final_stats=1 \
@@ -109,7 +109,8 @@ if [ "$quick" = 0 ]; then
   fi
 
   step "clang-tidy"
-  mapfile -t tidy_sources < <(git ls-files 'teleop/src/*.cpp' 'safety/src/*.cpp' 'drivers/*/src/*.cpp' 'server/src/*.cpp' 'server/src/**/*.cpp')
+  mapfile -t tidy_sources < <(git ls-files 'teleop/src/*.cpp' 'safety/src/*.cpp' 'drivers/*/src/*.cpp' 'server/src/*.cpp' 'server/src/**/*.cpp' \
+    'calibration/src/*.cpp' 'drivers/sim/imaging/src/simulated_side_view_camera.cpp')
   if printf '%s\n' "${tidy_sources[@]}" | xargs -P "$jobs" -n 4 clang-tidy -p build --quiet 2>build/clang-tidy.log >build/clang-tidy.out; then
     echo "clang-tidy: clean (${#tidy_sources[@]} files)"; record clang-tidy 0 1 0
   else

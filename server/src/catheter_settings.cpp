@@ -23,6 +23,25 @@ std::array<double, 2> pair(const Reader& r, const std::string& key, std::array<d
   return {v[0].get<double>(), v[1].get<double>()};
 }
 
+// A shape matrix A (n×m, rows = powers of s, columns = powers of q, mm): n rows of m finite numbers.
+Eigen::MatrixXd shape_matrix(const Reader& r, const std::string& key) {
+  const auto& v = r.raw(key);
+  const char* expected = "a shape matrix: 1 to 6 rows of 1 to 6 finite numbers each, all rows alike";
+  if (!v.is_array() || v.empty() || v.size() > teleop::kMaxModalOrder || !v[0].is_array() || v[0].empty() ||
+      v[0].size() > teleop::kMaxModalOrder)
+    r.fail(key, expected, v);
+  Eigen::MatrixXd A(static_cast<Eigen::Index>(v.size()), static_cast<Eigen::Index>(v[0].size()));
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    if (!v[i].is_array() || v[i].size() != v[0].size()) r.fail(key, expected, v);
+    for (std::size_t j = 0; j < v[i].size(); ++j) {
+      const auto& x = v[i][j];
+      if (!x.is_number() || !std::isfinite(x.get<double>())) r.fail(key, expected, v);
+      A(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = x.get<double>();
+    }
+  }
+  return A;
+}
+
 input::JoystickMapping evdev_mapping(const Reader& r) {
   input::JoystickMapping m;
   const auto& axes = r.array("axes", true);
@@ -75,7 +94,15 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     cc.proximal_curvature_gain = gains[0];
     cc.distal_curvature_gain = gains[1];
     s.nominal = teleop::constant_curvature_modal_parameters(cc);
-    s.nominal_gain = gains;
+    // A calibrated tip-only model (§4.5.2, written by a calibration job) replaces constant curvature.
+    if (m.has("proximal_shape_matrix"))
+      s.nominal.proximal.shape_matrix = shape_matrix(m, "proximal_shape_matrix");
+    if (m.has("distal_shape_matrix")) s.nominal.distal.shape_matrix = shape_matrix(m, "distal_shape_matrix");
+    try {
+      (void)teleop::ModalCatheterKinematics(s.nominal);
+    } catch (const std::invalid_argument& e) {
+      m.fail("", std::string("a model that works (") + e.what() + ")", rc.catheter["model"]);
+    }
     const auto proximal = pair(m, "proximal_loss", {0.063, -0.049});
     const auto distal = pair(m, "distal_loss", {0.17, 0.019});
     if (proximal[0] == 0 || distal[0] == 0)
@@ -204,16 +231,23 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
 }
 
 teleop::ModalCatheterParameters assembled_shape(const CatheterSettings& settings) {
-  teleop::CatheterParameters cc;
-  cc.proximal_length = settings.nominal.proximal.length;
-  cc.distal_length = settings.nominal.distal.length;
-  cc.plane_offset = settings.nominal.plane_offset;
-  cc.proximal_curvature_gain = settings.rates.proximal_loss.slope * settings.nominal_gain[0];
-  cc.distal_curvature_gain = settings.rates.distal_loss.slope * settings.nominal_gain[1];
-  auto p = teleop::constant_curvature_modal_parameters(cc);
-  // θ(s, q) = π/2 − (a·k·q + b)·s/L: the offset b enters the s¹ row of A with η = [1, q].
-  p.proximal.shape_matrix(1, 0) -= settings.rates.proximal_loss.offset / cc.proximal_length;
-  p.distal.shape_matrix(1, 0) -= settings.rates.distal_loss.offset / cc.distal_length;
+  // The loss line θ_L = a·θ*_L + b (bend angles, 0 = straight) applied along the segment: the bend
+  // so far, π/2 − θ(s), is scaled by a and b is spread linearly over s, so the tip gets exactly the
+  // loss line. In the [1, s, …] × [1, q, …] basis: A = a·A* + (1 − a)·π/2·e₁e₁ᵀ − (b/L)·e₂e₁ᵀ, which
+  // for the constant-curvature A* is constant curvature with gain a·k and offset b.
+  auto p = settings.nominal;
+  const auto assemble = [](teleop::ModalSegmentShape& segment, const teleop::ActuationLoss& loss) {
+    Eigen::MatrixXd A = loss.slope * segment.shape_matrix;
+    if (A.rows() < 2) {  // n = 1: room for the s¹ row
+      A.conservativeResize(2, Eigen::NoChange);
+      A.row(1).setZero();
+    }
+    A(0, 0) += (1.0 - loss.slope) * std::numbers::pi / 2.0;
+    A(1, 0) -= loss.offset / segment.length;
+    segment.shape_matrix = A;
+  };
+  assemble(p.proximal, settings.rates.proximal_loss);
+  assemble(p.distal, settings.rates.distal_loss);
   return p;
 }
 

@@ -50,11 +50,10 @@ struct CatheterSimulationSettings {
 };
 
 struct CatheterSettings {
-  // Nominal (tip-only) model of the two bending segments and the assembled-catheter loss lines.
+  // Tip-only model of the two bending segments (constant curvature k = nominal_bend_gain, or the
+  // calibrated <segment>_shape_matrix) and the assembled-catheter loss lines.
   teleop::ModalCatheterParameters nominal;
   teleop::ConfigurationRateParameters rates;
-  std::array<double, 2> nominal_gain{1.4, 1.4};  // k_i, rad/mm (constant-curvature nominal model)
-  // Shape for display and scene: the assembled bend per mm of effective actuation.
   SpringDeflectionSensorSettings deflection;
   teleop::ActiveComplianceParameters compliance;
   std::array<double, 4> telemanipulation_max_speed{2.0, 0.5, 1.0, 1.0};  // per joint, at full stick
@@ -69,9 +68,8 @@ struct CatheterSettings {
 // robot file's folder.
 CatheterSettings parse_catheter_settings(const RobotConfig& rc);
 
-// The assembled catheter's shape for the simulated plant: constant curvature with the bend
-// a_i·k_i·q + b_i at the tip (the nominal model through the loss lines), so that the plant bends as
-// the configuration map predicts.
+// The assembled catheter's shape for the simulated plant and the display: the tip-only model through
+// the loss lines (tip bend a_i·θ*_L + b_i), so that the plant bends as the configuration map predicts.
 teleop::ModalCatheterParameters assembled_shape(const CatheterSettings& settings);
 
 // The vessel centerline of the simulation (mm): loaded or built as an arc channel.

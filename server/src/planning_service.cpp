@@ -1,6 +1,7 @@
 #include "tendril/server/planning_service.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cctype>
 #include <chrono>
 #include <cmath>
@@ -11,6 +12,10 @@
 #include <sstream>
 #include <variant>
 
+#include "catheter_settings.hpp"
+#include "tendril/drivers/sim/simulated_side_view_camera.hpp"
+#include "tendril/server/calibration_job.hpp"
+#include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/job_queue.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
 #include "tendril/teleop/shape_error_planner.hpp"
@@ -289,6 +294,7 @@ struct PlanningService::Impl {
   std::map<std::string, std::shared_ptr<const StoredVessel>> vessels;
   std::deque<std::string> vessel_order;
   std::uint64_t next_vessel = 1;
+  std::atomic<std::uint64_t> side_view_frames{0};  // fresh camera noise for every picture
 
   Impl(std::vector<RobotConfig> configs, PlanningOptions o)
       : options(o), queue(JobQueueOptions{o.workers, o.max_pending_jobs, o.max_finished_jobs}) {
@@ -668,6 +674,69 @@ ApiResult PlanningService::plan_result(const std::string& job_id) const {
                                 (j->state == JobState::kFailed ? " (" + j->message + ")" : std::string{}) +
                                 "; only a succeeded plan can be loaded");
   return ApiResult::success(*j->result);
+}
+
+ApiResult PlanningService::submit_calibration(const std::string& robot, const json& request) {
+  const auto it = std::find_if(impl_->robots.begin(), impl_->robots.end(),
+                               [&](const RobotModel& m) { return m.config.name == robot; });
+  if (it == impl_->robots.end())
+    return ApiResult::error(404, "unknown_robot",
+                            "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
+  auto work = make_calibration_job(it->config, request);
+  if (auto* err = std::get_if<ApiResult>(&work)) return *err;
+  const auto info = impl_->queue.submit("calibration", std::move(std::get<JobQueue::Work>(work)));
+  if (!info)
+    return ApiResult::error(503, "queue_full",
+                            "the job queue is full (" + std::to_string(impl_->queue.options().max_pending) +
+                                " jobs queued or running); wait for one to finish or cancel one");
+  return ApiResult::success(info->to_json(true), 202);
+}
+
+ApiResult PlanningService::simulated_side_view(const std::string& robot, const QueryParameters& query) {
+  const auto it = std::find_if(impl_->robots.begin(), impl_->robots.end(),
+                               [&](const RobotModel& m) { return m.config.name == robot; });
+  if (it == impl_->robots.end())
+    return ApiResult::error(404, "unknown_robot",
+                            "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
+  const RobotConfig& rc = it->config;
+  const bool simulated =
+      !rc.buses.empty() && std::all_of(rc.buses.begin(), rc.buses.end(),
+                                       [](const BusConfig& b) { return b.interface == "virtual"; });
+  if (rc.catheter.is_null() || !simulated)
+    return ApiResult::error(
+        409, "not_simulated",
+        "robot '" + robot +
+            "' has no SIMULATED calibration camera (only a steerable catheter on a "
+            "virtual bus has one); photograph the real segment and send the pictures instead");
+  json q = json::object();
+  for (const auto& [k, v] : query) q[k] = v;
+  const auto segment = q.value("segment", std::string("proximal"));
+  if (segment != "proximal" && segment != "distal")
+    return bad_request("segment: expected proximal or distal");
+  auto actuation = read_number(q, "actuation_mm", -2.0, 2.0, "mm (the bare tip's calibration range)");
+  if (auto* err = std::get_if<ApiResult>(&actuation)) return *err;
+  const double q_mm = std::get<std::optional<double>>(actuation).value_or(0.0);
+  // The bare tip's true shape in simulation: the robot file's tip-only (nominal or calibrated) model.
+  const CatheterSettings settings = parse_catheter_settings(rc);
+  sim::SideViewCameraOptions o;
+  // 800×1100 pixels at 0.025 mm: 3 mm of straight tube and the 22 mm proximal segment bent ±160°.
+  o.base_column = q_mm >= 0 ? 150.0 : o.width - 150.0;
+  o.noise_seed += impl_->side_view_frames.fetch_add(1);
+  sim::SimulatedSideViewCamera camera(settings.nominal, o);
+  const auto png = camera.capture_png(
+      segment == "proximal" ? teleop::CatheterSegment::kProximal : teleop::CatheterSegment::kDistal, q_mm);
+  std::string data;
+  append_base64(png.data(), png.size(), data);
+  return ApiResult::success({{"simulated", true},
+                             {"segment", segment},
+                             {"actuation_mm", q_mm},
+                             {"format", "png"},
+                             {"width", o.width},
+                             {"height", o.height},
+                             {"mm_per_pixel", o.mm_per_pixel},
+                             {"straight_mm", o.straight_mm},
+                             {"entry", "bottom"},
+                             {"data", std::move(data)}});
 }
 
 }  // namespace tendril::server

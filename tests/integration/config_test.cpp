@@ -128,6 +128,17 @@ TEST(CatheterConfig, MistakesInTheCatheterSettingsNameTheKey) {
   j = srmc();
   j["catheter"]["model"]["proximal_loss"] = {0.0, 0.1};
   EXPECT_NE(error_of(j).find("catheter.model.proximal_loss"), std::string::npos);
+
+  // A calibrated shape matrix: rows of equal length, finite, at most 6×6.
+  j = srmc();
+  j["catheter"]["model"]["distal_shape_matrix"] = {{1.57, 0.0}, {0.0}};
+  EXPECT_NE(error_of(j).find("catheter.model.distal_shape_matrix: expected a shape matrix"),
+            std::string::npos)
+      << error_of(j);
+  j["catheter"]["model"]["distal_shape_matrix"] = {{1.57, 0.0}, {0.0, "x"}};
+  EXPECT_NE(error_of(j).find("catheter.model.distal_shape_matrix"), std::string::npos);
+  j["catheter"]["model"]["distal_shape_matrix"] = {{1.57, 0.0}, {0.0, -0.07}, {0.0, 0.0}, {0.0, 0.0}};
+  EXPECT_EQ(error_of(j), "");
 }
 
 }  // namespace

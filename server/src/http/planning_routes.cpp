@@ -84,6 +84,29 @@ std::optional<PlanningReply> route_path_following(PlanningApi* planning, Control
   return reply(api.load_path(robot, plan.body, id));
 }
 
+// Shape calibration: a fit job from tangent data, outlines or pictures, and the SIMULATED camera.
+std::optional<PlanningReply> route_calibration(PlanningApi* planning, ControlApi& api,
+                                               const PlanningCall& call) {
+  const Route& r = call.route;
+  const std::string& robot = r[1];
+  if (!api.has_robot(robot))
+    return reply(ApiResult::error(404, "unknown_robot",
+                                  "no robot named \"" + robot + "\"; GET /api/v1/robots lists them"));
+  if (r.size() == 4) {
+    if (call.method != "GET") return method_not_allowed(call, "GET");
+    if (planning == nullptr) return reply(no_planning());
+    return reply(planning->simulated_side_view(robot, call.query));
+  }
+  if (call.method != "POST") return method_not_allowed(call, "POST");
+  if (!call.operator_role)
+    return reply(ApiResult::error(403, "forbidden_role",
+                                  "this session is a viewer (read-only); only operators calibrate"));
+  if (planning == nullptr) return reply(no_planning());
+  const ApiResult body = parse_json_body(call.body, planning->max_vessel_bytes());
+  if (!body.ok()) return reply(body);
+  return job_reply(planning->submit_calibration(robot, body.body));
+}
+
 }  // namespace
 
 std::optional<PlanningReply> route_planning(PlanningApi* planning, ControlApi& api,
@@ -93,6 +116,9 @@ std::optional<PlanningReply> route_planning(PlanningApi* planning, ControlApi& a
   if (r[0] == "robots" && (r.size() == 3 || r.size() == 4) && r[2] == "path_following" &&
       (r.size() == 3 || r[3] == "step"))
     return route_path_following(planning, api, call);
+  if (r[0] == "robots" && ((r.size() == 3 && r[2] == "calibrations") ||
+                           (r.size() == 4 && r[2] == "calibration" && r[3] == "side_view")))
+    return route_calibration(planning, api, call);
   const bool ours = r[0] == "vessels" || r[0] == "plans" || r[0] == "designs" || r[0] == "jobs";
   if (!ours || r.size() > 2) return std::nullopt;
   if (planning == nullptr) return reply(no_planning());
@@ -149,7 +175,9 @@ std::vector<std::pair<std::string, std::string>> planning_route_list() {
           {"DELETE", "/api/v1/jobs/{id}"},
           {"GET", "/api/v1/robots/{robot}/path_following"},
           {"POST", "/api/v1/robots/{robot}/path_following"},
-          {"POST", "/api/v1/robots/{robot}/path_following/step"}};
+          {"POST", "/api/v1/robots/{robot}/path_following/step"},
+          {"POST", "/api/v1/robots/{robot}/calibrations"},
+          {"GET", "/api/v1/robots/{robot}/calibration/side_view"}};
 }
 
 bool takes_large_body(std::string_view method, std::string_view path) {
@@ -157,8 +185,9 @@ bool takes_large_body(std::string_view method, std::string_view path) {
   const auto segments = split_path(path);
   if (segments.size() == 3 && segments[0] == "api" && segments[1] == "v1")
     return segments[2] == "vessels" || segments[2] == "plans";
+  // Whole plans, and calibration pictures (base64 in JSON).
   return segments.size() == 5 && segments[0] == "api" && segments[1] == "v1" && segments[2] == "robots" &&
-         segments[4] == "path_following";
+         (segments[4] == "path_following" || segments[4] == "calibrations");
 }
 
 }  // namespace tendril::server::http

@@ -1,6 +1,7 @@
-// Planning service behind /api/v1/vessels, /plans, /designs and /jobs: a bounded store of uploaded
-// vessel centerlines (CSV, or STL meshes whose centerline is extracted) and path-plan / design jobs
-// on a JobQueue. Everything here runs on network or worker threads, never on the real-time thread.
+// Planning service behind /api/v1/vessels, /plans, /designs, /jobs and the shape calibration jobs:
+// a bounded store of uploaded vessel centerlines (CSV, or STL meshes whose centerline is extracted) and
+// path-plan / design jobs on a JobQueue. Everything here runs on network or worker threads, never on the
+// real-time thread.
 //
 // PlanningApi is what the HTTP front end calls (it only needs this header, which pulls in no
 // algorithm headers); PlanningService implements it with the teleop planner.
@@ -51,6 +52,12 @@ class PlanningApi {
   // The result of a succeeded plan job, for loading into path following: 404 unknown job, 409 not
   // finished or not succeeded, 422 not a plan job.
   virtual ApiResult plan_result(const std::string& job_id) const = 0;
+
+  // POST /robots/{robot}/calibrations (calibration_job.hpp). 202 job.
+  virtual ApiResult submit_calibration(const std::string& robot, const nlohmann::json& request) = 0;
+  // GET /robots/{robot}/calibration/side_view?segment=&actuation_mm=: a picture of the SIMULATED
+  // calibration camera (robots on a virtual bus only), base64 PNG in JSON, ready for "images".
+  virtual ApiResult simulated_side_view(const std::string& robot, const QueryParameters& query) = 0;
 };
 
 struct PlanningOptions {
@@ -84,6 +91,8 @@ class PlanningService final : public PlanningApi {
   ApiResult job(const std::string& id) const override;
   ApiResult cancel_job(const std::string& id) override;
   ApiResult plan_result(const std::string& job_id) const override;
+  ApiResult submit_calibration(const std::string& robot, const nlohmann::json& request) override;
+  ApiResult simulated_side_view(const std::string& robot, const QueryParameters& query) override;
 
   // Stops the workers (running jobs are cancelled). Called before the runtime goes away.
   void shutdown();
