@@ -161,7 +161,9 @@ TEST(ModalCatheterKinematics, EvaluationDoesNotAllocate) {
   EXPECT_EQ(after, before);
   EXPECT_EQ(written, 21u);
   EXPECT_TRUE(tip.position.allFinite() && J.allFinite() && std::isfinite(angle));
-  EXPECT_LT((backbone.back() - tip.position).norm(), 1e-12);
+  // The backbone integrates piece by piece with at least a whole segment's Simpson step (here 4 of
+  // 10 pieces' intervals against 32 for the tip), so the two quadratures agree far below a nanometre.
+  EXPECT_LT((backbone.back() - tip.position).norm(), 1e-7);
 }
 
 TEST(ModalCatheterKinematics, BackboneRejectsTooSmallOutput) {
