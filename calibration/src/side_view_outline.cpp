@@ -5,6 +5,8 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <optional>
+#include <utility>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -83,6 +85,37 @@ std::vector<cv::Point> longest_path(const cv::Mat& skeleton, cv::Point start) {
   return path;
 }
 
+// (width, height) from a PNG IHDR or a JPEG start-of-frame marker; nullopt for anything else.
+std::optional<std::pair<long, long>> image_size(std::span<const std::uint8_t> data) {
+  const auto be16 = [&](std::size_t i) { return (long{data[i]} << 8) | data[i + 1]; };
+  const auto be32 = [&](std::size_t i) { return (be16(i) << 16) | be16(i + 2); };
+  constexpr std::array<std::uint8_t, 8> kPng{0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (data.size() >= 24 && std::equal(kPng.begin(), kPng.end(), data.begin())) {
+    if (!std::equal(data.begin() + 12, data.begin() + 16, "IHDR")) return std::nullopt;
+    return std::pair{be32(16), be32(20)};
+  }
+  if (data.size() < 4 || data[0] != 0xff || data[1] != 0xd8) return std::nullopt;
+  // JPEG: walk the marker segments to the first SOFn (C0–CF but C4 DHT, C8 JPG, CC DAC).
+  std::size_t i = 2;
+  while (i + 9 < data.size()) {
+    if (data[i] != 0xff) return std::nullopt;
+    const std::uint8_t marker = data[i + 1];
+    if (marker == 0xff) {  // fill byte
+      ++i;
+      continue;
+    }
+    if (marker >= 0xc0 && marker <= 0xcf && marker != 0xc4 && marker != 0xc8 && marker != 0xcc)
+      return std::pair{be16(i + 7), be16(i + 5)};
+    if (marker == 0xd8 || marker == 0x01 || (marker >= 0xd0 && marker <= 0xd7)) {  // no length
+      i += 2;
+      continue;
+    }
+    if (marker == 0xd9 || marker == 0xda) return std::nullopt;  // end, or scan data before a frame
+    i += 2 + static_cast<std::size_t>(be16(i + 2));
+  }
+  return std::nullopt;
+}
+
 }  // namespace
 
 SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_image,
@@ -92,6 +125,17 @@ SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_
   if (options.threshold < -1 || options.threshold > 255)
     throw SideViewImageError("threshold: expected a grey level 0..255, or -1 for Otsu's automatic level");
   if (encoded_image.empty()) throw SideViewImageError("the image is empty");
+  // Only PNG and JPEG, and their size is read from the header before anything is decoded, so a
+  // small file that claims a huge picture cannot make the decoder allocate it.
+  const auto size = image_size(encoded_image);
+  if (!size)
+    throw SideViewImageError(
+        "the image is neither PNG nor JPEG, or its header is cut short (send PNG or JPEG)");
+  if (size->first <= 0 || size->second <= 0 ||
+      static_cast<std::size_t>(size->first) * static_cast<std::size_t>(size->second) > options.max_pixels)
+    throw SideViewImageError("the image says it has " + std::to_string(size->first) + "×" +
+                             std::to_string(size->second) + " pixels; 1 to " +
+                             std::to_string(options.max_pixels) + " are accepted");
   const cv::Mat buffer(1, static_cast<int>(encoded_image.size()), CV_8U,
                        const_cast<std::uint8_t*>(encoded_image.data()));
   cv::Mat gray;
@@ -100,11 +144,8 @@ SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_
   } catch (const cv::Exception&) {
     gray.release();
   }
-  if (gray.empty())
-    throw SideViewImageError("the image could not be decoded (send PNG, JPEG or another 8-bit image format)");
-  if (static_cast<std::size_t>(gray.total()) > options.max_pixels)
-    throw SideViewImageError("the image has " + std::to_string(gray.cols) + "×" + std::to_string(gray.rows) +
-                             " pixels; at most " + std::to_string(options.max_pixels) + " are accepted");
+  if (gray.empty() || gray.cols != size->first || gray.rows != size->second)
+    throw SideViewImageError("the image could not be decoded (a damaged PNG or JPEG)");
   // Normalise: the catheter enters from the bottom, a bend toward +x shows to the right.
   switch (options.entry) {
     case ImageEdge::kBottom:
@@ -179,7 +220,7 @@ SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_
   const int radius = static_cast<int>(std::ceil(half_width)) + 2;
   const double level = out.threshold;
   double column0 = std::numeric_limits<double>::quiet_NaN();
-  Eigen::Vector2d previous;
+  Eigen::Vector2d previous = Eigen::Vector2d::Zero();
   double length_px = 0.0;
   for (const auto& p : path) {
     if (p.y >= bottom_row) continue;  // extension below the picture

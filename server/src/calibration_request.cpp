@@ -107,8 +107,8 @@ std::optional<ApiResult> read_pictures(const json& r, CalibrationRequest& out) {
     *flag = r[name].get<bool>();
   }
   if (r.contains("threshold")) {
-    if (!r["threshold"].is_number_integer() || r["threshold"].get<long>() < -1 ||
-        r["threshold"].get<long>() > 255)
+    if (!r["threshold"].is_number_integer() || r["threshold"].get<double>() < -1 ||
+        r["threshold"].get<double>() > 255)
       return bad_request("threshold: expected a grey level 0..255, or -1 for Otsu's automatic level");
     io.threshold = r["threshold"].get<int>();
   }
@@ -131,7 +131,8 @@ std::variant<CalibrationRequest, ApiResult> read_calibration_request(
   for (const auto& [key, order] : {std::pair{"modal_order", &out.fit.modal_order},
                                    std::pair{"actuation_order", &out.fit.actuation_order}}) {
     if (!r.contains(key)) continue;
-    if (!r[key].is_number_integer() || r[key].get<long>() < 1 || r[key].get<long>() > teleop::kMaxModalOrder)
+    if (!r[key].is_number_integer() || r[key].get<double>() < 1 ||
+        r[key].get<double>() > teleop::kMaxModalOrder)
       return bad_request(std::string(key) + ": expected an integer from 1 to " +
                          std::to_string(teleop::kMaxModalOrder) + " (the seed uses n = 4, m = 2)");
     *order = r[key].get<int>();

@@ -76,6 +76,20 @@ TEST(SideViewOutline, TheSkeletonFollowsTheTrueBackbone) {
   EXPECT_EQ(outline.width, 560);
 }
 
+TEST(SideViewOutline, AJpegOfThePictureGivesTheSameBackbone) {
+  sim::SimulatedSideViewCamera camera(true_shape(), camera_options());
+  const auto png = camera.capture_png(CatheterSegment::kProximal, 0.8);
+  std::vector<std::uint8_t> jpeg;
+  cv::imencode(".jpg", cv::imdecode(png, cv::IMREAD_GRAYSCALE), jpeg, {cv::IMWRITE_JPEG_QUALITY, 90});
+  SideViewImageOptions o;
+  o.mm_per_pixel = 0.025;
+  const auto from_png = extract_side_view_outline(png, o);
+  const auto from_jpeg = extract_side_view_outline(jpeg, o);
+  EXPECT_EQ(from_jpeg.width, 560);
+  EXPECT_EQ(from_jpeg.height, 620);
+  EXPECT_LT(worst_distance(from_jpeg.points, from_png.points), 0.025);
+}
+
 TEST(SideViewOutline, EntryEdgeAndMirrorNormaliseTheView) {
   sim::SimulatedSideViewCamera camera(true_shape(), camera_options());
   const auto png = camera.capture_png(CatheterSegment::kProximal, 0.5);
@@ -122,6 +136,23 @@ TEST(SideViewOutline, RefusesWhatIsNotACatheterPicture) {
   } catch (const SideViewImageError& e) {
     EXPECT_NE(std::string(e.what()).find("entry edge"), std::string::npos) << e.what();
   }
+  // Only PNG and JPEG; the size is taken from the header, so a file claiming a huge picture is
+  // refused before it is decoded, and a cut-short one says it is damaged.
+  std::vector<std::uint8_t> bmp;
+  cv::imencode(".bmp", blank, bmp);
+  EXPECT_THROW(extract_side_view_outline(bmp, o), SideViewImageError);
+  auto huge = png;
+  for (std::size_t i : {16U, 20U}) {  // IHDR width and height: 0x00100000 = 1 048 576 each
+    huge[i] = 0x00, huge[i + 1] = 0x10, huge[i + 2] = 0x00, huge[i + 3] = 0x00;
+  }
+  try {
+    extract_side_view_outline(huge, o);
+    FAIL() << "a PNG claiming 2^40 pixels was accepted";
+  } catch (const SideViewImageError& e) {
+    EXPECT_NE(std::string(e.what()).find("1048576×1048576"), std::string::npos) << e.what();
+  }
+  const std::vector<std::uint8_t> cut(png.begin(), png.begin() + 40);
+  EXPECT_THROW(extract_side_view_outline(cut, o), SideViewImageError);
   SideViewImageOptions no_scale;
   EXPECT_THROW(extract_side_view_outline(png, no_scale), SideViewImageError);
   EXPECT_THROW(parse_image_edge("diagonal"), SideViewImageError);

@@ -3,7 +3,7 @@
 // for teleop::extract_tangent_angles (smoothing, truncation of the straight part, θ(s) by forward
 // differences) and the least-squares fit of the shape matrix.
 //
-// Steps: decode (PNG, JPEG, any 8-bit image OpenCV reads; colour is turned to grey), threshold
+// Steps: decode (PNG or JPEG, sized from the header first; colour is turned to grey), threshold
 // (Otsu unless a level is given), keep the largest connected catheter region that touches the edge
 // the catheter enters from, thin it to a one-pixel skeleton (Zhang–Suen, with the entry edge
 // extended so the skeleton reaches it), and walk the skeleton's longest path from the entry edge, so
@@ -50,7 +50,7 @@ class SideViewImageError : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
-// Throws SideViewImageError with a message for a person: undecodable or oversized data, a bad
+// Throws SideViewImageError with a message for a person: not PNG/JPEG, damaged or oversized, a bad
 // option, no catheter region touching the entry edge, or a skeleton too short to use (< 8 points).
 SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_image,
                                           const SideViewImageOptions& options);
