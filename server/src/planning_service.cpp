@@ -513,12 +513,23 @@ struct PlanningService::Impl {
                       {"compute_s", compute_s}}}};
       };
     }
+    return queued(kind, std::move(work));
+  }
+
+  // 202 with the job, or 503 when the queue is full.
+  ApiResult queued(const std::string& kind, JobQueue::Work work) {
     const auto info = queue.submit(kind, std::move(work));
     if (!info)
       return ApiResult::error(503, "queue_full",
-                              "the planning queue is full (" + std::to_string(queue.options().max_pending) +
+                              "the job queue is full (" + std::to_string(queue.options().max_pending) +
                                   " jobs queued or running); wait for one to finish or cancel one");
     return ApiResult::success(info->to_json(true), 202);
+  }
+
+  const RobotModel* find_robot(const std::string& name) const {
+    for (const auto& m : robots)
+      if (m.config.name == name) return &m;
+    return nullptr;
   }
 };
 
@@ -677,25 +688,18 @@ ApiResult PlanningService::plan_result(const std::string& job_id) const {
 }
 
 ApiResult PlanningService::submit_calibration(const std::string& robot, const json& request) {
-  const auto it = std::find_if(impl_->robots.begin(), impl_->robots.end(),
-                               [&](const RobotModel& m) { return m.config.name == robot; });
-  if (it == impl_->robots.end())
+  const RobotModel* it = impl_->find_robot(robot);
+  if (it == nullptr)
     return ApiResult::error(404, "unknown_robot",
                             "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
   auto work = make_calibration_job(it->config, request);
   if (auto* err = std::get_if<ApiResult>(&work)) return *err;
-  const auto info = impl_->queue.submit("calibration", std::move(std::get<JobQueue::Work>(work)));
-  if (!info)
-    return ApiResult::error(503, "queue_full",
-                            "the job queue is full (" + std::to_string(impl_->queue.options().max_pending) +
-                                " jobs queued or running); wait for one to finish or cancel one");
-  return ApiResult::success(info->to_json(true), 202);
+  return impl_->queued("calibration", std::move(std::get<JobQueue::Work>(work)));
 }
 
 ApiResult PlanningService::simulated_side_view(const std::string& robot, const QueryParameters& query) {
-  const auto it = std::find_if(impl_->robots.begin(), impl_->robots.end(),
-                               [&](const RobotModel& m) { return m.config.name == robot; });
-  if (it == impl_->robots.end())
+  const RobotModel* it = impl_->find_robot(robot);
+  if (it == nullptr)
     return ApiResult::error(404, "unknown_robot",
                             "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
   const RobotConfig& rc = it->config;

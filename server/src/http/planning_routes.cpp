@@ -26,6 +26,11 @@ ApiResult viewer_refused() {
   return ApiResult::error(403, "forbidden_role", "this session is a viewer (read-only); only operators plan");
 }
 
+ApiResult unknown_robot(const std::string& robot) {
+  return ApiResult::error(404, "unknown_robot",
+                          "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
+}
+
 ApiResult no_planning() {
   return ApiResult::error(503, "planning_unavailable", "this server runs no planning service");
 }
@@ -50,9 +55,7 @@ std::optional<PlanningReply> route_path_following(PlanningApi* planning, Control
                                                   const PlanningCall& call) {
   const Route& r = call.route;
   const std::string& robot = r[1];
-  if (!api.has_robot(robot))
-    return reply(ApiResult::error(404, "unknown_robot",
-                                  "no robot named \"" + robot + "\"; GET /api/v1/robots lists them"));
+  if (!api.has_robot(robot)) return reply(unknown_robot(robot));
   if (r.size() == 3) {
     if (call.method == "GET") return reply(api.path_following(robot));
     if (call.method != "POST") return method_not_allowed(call, "GET, POST");
@@ -89,9 +92,7 @@ std::optional<PlanningReply> route_calibration(PlanningApi* planning, ControlApi
                                                const PlanningCall& call) {
   const Route& r = call.route;
   const std::string& robot = r[1];
-  if (!api.has_robot(robot))
-    return reply(ApiResult::error(404, "unknown_robot",
-                                  "no robot named \"" + robot + "\"; GET /api/v1/robots lists them"));
+  if (!api.has_robot(robot)) return reply(unknown_robot(robot));
   if (r.size() == 4) {
     if (call.method != "GET") return method_not_allowed(call, "GET");
     if (planning == nullptr) return reply(no_planning());
