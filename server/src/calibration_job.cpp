@@ -50,8 +50,10 @@ json write_robot_file(const RobotConfig& robot, const CalibrationRequest& reques
                                                        {"from", robot.file.filename().string()}};
   const std::string text = file.dump(2) + "\n";
   // "x": fail if the file exists, so a file that appeared since the request is not replaced either.
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> out(std::fopen(request.save_as.c_str(), "wx"),
-                                                      &std::fclose);
+  struct Close {
+    void operator()(std::FILE* f) const { std::fclose(f); }
+  };
+  std::unique_ptr<std::FILE, Close> out(std::fopen(request.save_as.c_str(), "wx"));
   if (!out)
     throw std::runtime_error("cannot create " + request.save_as.string() + ": " + std::strerror(errno) +
                              " (an existing file is never replaced)");
