@@ -78,23 +78,37 @@ if [ "$quick" = 0 ]; then
   record sanitizers "$status" "$p" "$f"
 
   step "fuzzing (libFuzzer, bounded)"
+  fuzz_targets=(fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo fuzz_calibration_request)
   CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_FUZZ=ON \
     -DTENDRIL_BUILD_TESTS=ON -DTENDRIL_BUILD_BENCHMARKS=OFF -DTENDRIL_CAN_VM_TESTS=OFF >/dev/null &&
-    cmake --build build-fuzz -j "$jobs" --target fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo fuzz_calibration_request
+    cmake --build build-fuzz -j "$jobs" --target "${fuzz_targets[@]}"
   status=$?
   if [ $status -eq 0 ]; then
-    for target in fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo fuzz_calibration_request; do
+    fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-60}
+    run_fuzz() {  # run_fuzz <target>: its log and exit status land in build-fuzz/
+      local corpus_dir
       corpus_dir=$(mktemp -d)
-      cp -r tests/fuzz/corpus/"$target"/. "$corpus_dir"/ 2>/dev/null || true
-      if build-fuzz/tests/fuzz/$target -max_total_time="${TENDRIL_FUZZ_SECONDS:-60}" -rss_limit_mb=2048 -print_final_stats=1 \
-        "$corpus_dir" >build-fuzz/$target.log 2>&1; then
-        echo "$target: no crash in ${TENDRIL_FUZZ_SECONDS:-60} s ($(grep -Eo 'stat::number_of_executed_units: [0-9]+' build-fuzz/$target.log | awk '{print $2}') runs)"
+      cp -r tests/fuzz/corpus/"$1"/. "$corpus_dir"/ 2>/dev/null || true
+      build-fuzz/tests/fuzz/"$1" -max_total_time="$fuzz_seconds" -rss_limit_mb=2048 -print_final_stats=1 \
+        "$corpus_dir" >build-fuzz/"$1".log 2>&1
+      echo $? >build-fuzz/"$1".status
+      rm -rf "$corpus_dir"
+    }
+    rm -f build-fuzz/*.status
+    # One target per core at a time (each fuzzer is single-threaded).
+    for target in "${fuzz_targets[@]}"; do
+      while [ "$(jobs -rp | wc -l)" -ge "$jobs" ]; do wait -n; done
+      run_fuzz "$target" &
+    done
+    wait
+    for target in "${fuzz_targets[@]}"; do
+      if [ "$(cat build-fuzz/$target.status 2>/dev/null)" = 0 ]; then
+        echo "$target: no crash in $fuzz_seconds s ($(grep -Eo 'stat::number_of_executed_units: [0-9]+' build-fuzz/$target.log | awk '{print $2}') runs)"
         record "$target" 0 1 0
       else
         echo "$target: FAILED"; tail -n 40 build-fuzz/$target.log
         record "$target" 1 0 1
       fi
-      rm -rf "$corpus_dir"
     done
   else
     record fuzz-build 1 0 1
