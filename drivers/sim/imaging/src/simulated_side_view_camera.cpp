@@ -29,11 +29,12 @@ SimulatedSideViewCamera::SimulatedSideViewCamera(const teleop::ModalCatheterPara
 std::vector<Eigen::Vector2d> SimulatedSideViewCamera::true_backbone(teleop::CatheterSegment segment,
                                                                     double actuation_mm,
                                                                     double spacing_mm) const {
-  std::vector<Eigen::Vector2d> points;
   const double length = shape_.length(segment);
   const int straight = static_cast<int>(std::ceil(options_.straight_mm / spacing_mm));
-  for (int i = 0; i < straight; ++i) points.emplace_back(0.0, -options_.straight_mm + i * spacing_mm);
   const int n = std::max(2, static_cast<int>(std::ceil(length / spacing_mm)));
+  std::vector<Eigen::Vector2d> points;
+  points.reserve(static_cast<std::size_t>(straight) + static_cast<std::size_t>(n) + 1);
+  for (int i = 0; i < straight; ++i) points.emplace_back(0.0, -options_.straight_mm + i * spacing_mm);
   for (int i = 0; i <= n; ++i) {
     const Eigen::Vector3d d = shape_.segment_displacement(segment, length * i / n, actuation_mm);
     points.emplace_back(d.x(), d.z());
