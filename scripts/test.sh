@@ -67,11 +67,18 @@ record e2e "$status" "$p" "$f"
 
 if [ "$quick" = 0 ]; then
   step "sanitizers: unit and integration tests under ASan + UBSan"
+  # Left out here, run in the release ctest above: long numeric reproductions that take minutes
+  # unoptimised (the §4.10.2 channel experiment, about 45 000 simulated ticks with vessel contact, and
+  # the Table 4.1 design optimisation). Their code runs under the sanitizers in the contact, plant,
+  # planner and catheter-mode tests. (Building this tree at -O1 instead made it 1.8x slower to compile
+  # and the whole suite too long for CI.)
+  sanitizer_skip='^(ChannelTest\.|DesignOptimiser\.ReproducesTable41Ordering$)'
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DTENDRIL_SANITIZE=ON -DTENDRIL_BUILD_BENCHMARKS=OFF \
     -DTENDRIL_CAN_VM_TESTS=OFF >/dev/null &&
     cmake --build build-asan -j "$jobs" &&
     ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
-      ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 900 2>&1 | tee build-asan/ctest.log
+      ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 900 -E "$sanitizer_skip" 2>&1 |
+      tee build-asan/ctest.log
   status=${PIPESTATUS[0]}
   [ -f build-asan/ctest.log ] || status=1
   read -r p f < <(ctest_counts build-asan/ctest.log 2>/dev/null || echo "0 0")
