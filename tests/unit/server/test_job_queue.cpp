@@ -40,8 +40,8 @@ struct Gate {
 };
 
 TEST(JobQueue, RunsAJobThroughQueuedRunningSucceededWithProgressAndResult) {
-  JobQueue q({1, 8, 32});
   Gate gate;
+  JobQueue q({1, 8, 32});
   const auto job = q.submit("plan", gate.work(0.25));
   ASSERT_TRUE(job);
   EXPECT_EQ(job->kind, "plan");
@@ -74,8 +74,8 @@ TEST(JobQueue, AFailingJobEndsFailedWithTheReason) {
 }
 
 TEST(JobQueue, CancelsARunningJobThroughJobControl) {
-  JobQueue q;
   Gate gate;
+  JobQueue q;
   const auto job = q.submit("plan", gate.work());
   ASSERT_TRUE(eventually([&] { return gate.started.load(); }));
   const auto cancelled = q.cancel(job->id);
@@ -108,8 +108,8 @@ TEST(JobQueue, CancellingAFinishedJobLeavesItAsItWas) {
 }
 
 TEST(JobQueue, RefusesJobsBeyondThePendingBound) {
-  JobQueue q({1, 2, 32});
   Gate gate;
+  JobQueue q({1, 2, 32});
   ASSERT_TRUE(q.submit("plan", gate.work()));
   ASSERT_TRUE(q.submit("plan", gate.work()));
   EXPECT_FALSE(q.submit("plan", gate.work()));
@@ -135,8 +135,8 @@ TEST(JobQueue, ForgetsTheOldestFinishedJobsFirst) {
 }
 
 TEST(JobQueue, ShutdownCancelsRunningAndQueuedJobs) {
-  JobQueue q({1, 8, 32});
   Gate gate;
+  JobQueue q({1, 8, 32});
   const auto a = q.submit("plan", gate.work());
   const auto b = q.submit("plan", gate.work());
   ASSERT_TRUE(eventually([&] { return gate.started.load(); }));
@@ -147,8 +147,8 @@ TEST(JobQueue, ShutdownCancelsRunningAndQueuedJobs) {
 }
 
 TEST(JobQueue, RunsJobsInParallelOnSeveralWorkers) {
+  Gate a, b;  // outlive the queue, whose workers read them until they finish
   JobQueue q({2, 8, 32});
-  Gate a, b;
   q.submit("plan", a.work());
   q.submit("plan", b.work());
   EXPECT_TRUE(eventually([&] { return a.started && b.started; }));
