@@ -22,6 +22,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <stdexcept>
@@ -60,6 +61,9 @@ struct HttpOptions {
   double ws_client_burst = 400;
   int ws_max_violations = 20;
   std::size_t ws_max_control_queue = 256;  // queued JSON messages per connection before it is closed
+  // A connection whose write has waited this long has stopped reading (its backlog is full): it is
+  // closed and counted rather than later flushing seconds of stale frames from the kernel buffer.
+  std::chrono::milliseconds ws_stalled_write_timeout{5000};
   std::size_t ws_max_subscriptions = 256;
   std::size_t max_sessions = 1024;  // cookie sessions kept; the oldest is forgotten first
   // Planning, jobs and vessel uploads (planning_routes.hpp); null = those routes answer 503. Vessel
@@ -68,6 +72,8 @@ struct HttpOptions {
   // Topics from outside ControlApi (imaging, maps), advertised and published next to the robots'
   // with the same newest-only backpressure; a source's ready callback publishes its topics at once.
   std::vector<std::shared_ptr<TopicSource>> topic_sources;
+  // Where the front end logs (refused connections, contained exceptions); null = standard error.
+  std::function<void(const std::string&)> log;
 };
 
 // Set-up failure (port taken, bad address, missing token). The message is written for a person.

@@ -1,0 +1,255 @@
+// Private parts of the HTTP/WebSocket front end shared by its source files (one idea each):
+//   http_server.cpp      the public HttpServer: start/stop, listener, I/O threads, publisher thread
+//   http_session.hpp     one HTTP connection (read with limits, write, upgrade), a template on the
+//                        byte stream, instantiated in http_session_plain.cpp and http_session_tls.cpp
+//   request_reader.cpp   the bounded request parser every connection reads with
+//   rest_routes.cpp      REST routing: a request and a caller in, a response out (no sockets)
+//   auth.cpp             token, cookie sessions, roles and client names -> Identity
+//   commands.cpp         command preamble (role, robot, lease), lease actions, parameters
+//   ws_connection.cpp    Foxglove protocol per WebSocket connection (no sockets)
+//   ws_session.hpp       the WebSocket transport, a template on the stream (ws_session_plain.cpp,
+//                        ws_session_tls.cpp)
+//   publisher.cpp        channels, topic publishing, status broadcasts, front-end metrics
+//   services.cpp         the Foxglove services that mirror the REST commands
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/ssl/context.hpp>
+#include <boost/beast/http/message.hpp>
+#include <boost/beast/http/string_body.hpp>
+#include <nlohmann/json.hpp>
+
+#include "tendril/server/http/foxglove_protocol.hpp"
+#include "tendril/server/http/http_server.hpp"
+#include "tendril/server/http/lease.hpp"
+#include "tendril/server/http/request_codec.hpp"
+
+namespace tendril::server {
+
+namespace net = boost::asio;
+namespace bhttp = boost::beast::http;
+namespace fg = tendril::server::http::foxglove;
+using tcp = net::ip::tcp;
+using SteadyClock = std::chrono::steady_clock;
+using Request = bhttp::request<bhttp::string_body>;
+
+inline constexpr std::string_view kCookieName = "tendril_session";
+
+enum class Role { kViewer, kOperator };
+
+// Who is calling: resolved once per request or per WebSocket connection.
+struct Identity {
+  Role role = Role::kOperator;
+  std::string lease_key;  // private: may embed the session id
+  std::string label;      // public name shown as lease holder
+};
+
+// Robot commands as the front end dispatches them. kAuthorizeOnly: the role and lease checks of a
+// robot command, for routes dispatched elsewhere (planning_routes.cpp); answers 200 {} when they pass.
+enum class Command {
+  kStateCommand,
+  kMode,
+  kMoveJp,
+  kServoJv,
+  kMoveConfiguration,
+  kJoystick,
+  kEstop,
+  kEstopReset,
+  kAuthorizeOnly
+};
+
+// Services mirror the REST commands (services.cpp). Request: {"robot":..., ...REST body}; response:
+// {"status":..,"body"|"error"}.
+struct ServiceDef {
+  std::uint32_t id;
+  const char* name;
+  std::optional<Command> command;  // nullopt = lease
+  bool needs_robot;
+};
+const std::vector<ServiceDef>& service_definitions();
+std::vector<fg::Service> service_list();
+
+std::string random_hex(std::size_t bytes);
+std::string dump(const nlohmann::json& value);
+std::uint64_t wall_time_ns();
+ApiResult unknown_robot(const std::string& robot);
+
+// What a WebSocket connection offers the rest of the front end (ws_connection.hpp implements it).
+class WsConnectionBase {
+ public:
+  virtual ~WsConnectionBase() = default;
+  virtual std::uint64_t id() const = 0;
+  virtual const Identity& identity() const = 0;
+  virtual void send_text(const nlohmann::json& message) = 0;
+  virtual void offer(std::uint32_t channel_id, const std::shared_ptr<const std::string>& payload,
+                     std::uint64_t time_ns,
+                     std::optional<std::uint32_t> only_subscription = std::nullopt) = 0;
+  virtual void offer_parameter_updates(const nlohmann::json& changed) = 0;
+  virtual void subscribed_channels(std::set<std::uint32_t>& out) const = 0;
+  virtual void drop_channels(const std::vector<std::uint32_t>& removed) = 0;
+  virtual HttpServer::ConnectionStats stats() const = 0;
+  virtual void hard_close() = 0;  // from any thread: posts to the connection's strand
+};
+
+class HttpServer::Impl {
+ public:
+  Impl(ControlApi& api_in, HttpOptions options_in);
+
+  ControlApi& api;
+  HttpOptions opts;
+  http::LeaseManager lease;
+  const std::vector<fg::Service> services;
+  const std::string server_session_id = random_hex(8);
+  const SteadyClock::time_point started_at = SteadyClock::now();
+  std::vector<std::string> allowed_origins;
+  unsigned short bound_port = 0;
+  std::string openapi_document;                    // served at GET /api/v1/openapi.json; read at start()
+  std::unique_ptr<net::ssl::context> tls_context;  // set when a certificate and key are configured
+
+  // Cookie sessions: random id -> role and public label. Bounded; the oldest is forgotten first.
+  struct CookieSession {
+    Role role;
+    std::string label;
+  };
+  mutable std::mutex sessions_mutex;
+  std::unordered_map<std::string, CookieSession> cookie_sessions;
+  std::deque<std::string> cookie_order;
+  std::uint64_t next_session_label = 1;
+
+  // Channels advertised to WebSocket clients; ids are never reused.
+  struct ChannelState {
+    fg::Channel channel;
+    std::uint64_t version = 0;
+    std::shared_ptr<const std::string> last_payload;
+    std::uint64_t last_time_ns = 0;
+    TopicSource* source = nullptr;  // null: the topic comes from ControlApi
+  };
+  // Topics of opts.topic_sources (fixed at construction: a source's topics are stable).
+  std::map<std::string, std::pair<TopicSource*, TopicInfo>> source_topics;
+  bool sources_ready = false;         // a source has a new message; guarded by lifecycle_mutex
+  mutable std::mutex channels_mutex;  // lock order: channels_mutex, then ws_mutex
+  std::map<std::uint32_t, ChannelState> channels;
+  std::map<std::string, std::uint32_t> topic_ids;
+  std::vector<std::string> last_topics;
+  std::uint32_t next_channel_id = 1;
+  std::mutex publish_mutex;
+
+  mutable std::mutex ws_mutex;
+  std::map<std::uint64_t, std::weak_ptr<WsConnectionBase>> ws_sessions;
+
+  // Metrics.
+  std::atomic<std::uint64_t> ws_sent{0}, ws_dropped{0}, ws_bytes{0}, ws_connections_total{0},
+      ws_client_messages{0}, ws_violations{0}, ws_closed_for_abuse{0}, ws_closed_for_backlog{0};
+  // Exceptions that reached a connection's handler (that connection was closed; the server went on).
+  std::atomic<std::uint64_t> connection_exceptions{0};
+  // Requests refused while being read (framing, size limits, trailers), by reason.
+  mutable std::mutex status_mutex;
+  std::map<int, std::uint64_t> http_by_status;
+  std::map<std::string, std::uint64_t> refused_requests;
+  std::atomic<std::uint64_t> next_connection_id{1};
+
+  // Runtime.
+  std::unique_ptr<net::io_context> ioc;
+  std::unique_ptr<tcp::acceptor> acceptor;
+  std::vector<std::thread> io_threads;
+  std::thread publisher;
+  std::mutex lifecycle_mutex;
+  std::condition_variable publisher_wake;
+  bool running = false;
+  bool stopping = false;
+
+  void count_status(int status) {
+    std::lock_guard lock(status_mutex);
+    ++http_by_status[status];
+  }
+  void count_refused(const std::string& reason) {
+    std::lock_guard lock(status_mutex);
+    ++refused_requests[reason];
+  }
+  // A connection's handler threw: count it and log it (the caller closes that connection).
+  void connection_failed(std::uint64_t connection_id, const char* where, const char* what) noexcept;
+  void log(const std::string& line) const noexcept;
+
+  struct AuthOutcome {
+    std::optional<ApiResult> error;
+    Identity identity;
+    std::optional<std::string> set_cookie;
+  };
+  AuthOutcome authenticate(const Request& req, const http::RequestTarget& target, std::uint64_t connection_id,
+                           bool accept_query_token, bool create_cookie_session, const char* connection_kind);
+
+  ApiResult execute(Command command, const std::string& robot, const nlohmann::json& body,
+                    const Identity& who);
+  // action: "acquire" (with an optional takeover token), "release" or "status".
+  ApiResult lease_action(const std::string& action, const Identity& who,
+                         const std::string& takeover_token = {});
+  nlohmann::json lease_description(const Identity& who, SteadyClock::time_point now) const;
+  // Sets parameters for `who` (operator with the lease) and pushes the new values to subscribers.
+  ApiResult set_parameters(const nlohmann::json& parameters, const Identity& who);
+  void publish_parameter_updates(const nlohmann::json& changed);
+
+  // Servo streaming, for the takeover rule: a holder who sent a servo command within the longest
+  // command timeout of any robot is streaming and cannot be displaced.
+  std::mutex servo_mutex;
+  std::string last_servo_key;
+  SteadyClock::time_point last_servo_time{};
+  std::chrono::milliseconds servo_window{150};
+  void note_servo(const std::string& key, SteadyClock::time_point now) {
+    std::lock_guard lock(servo_mutex);
+    last_servo_key = key;
+    last_servo_time = now;
+  }
+  bool servo_streaming(const std::string& key, SteadyClock::time_point now) {
+    std::lock_guard lock(servo_mutex);
+    return !last_servo_key.empty() && last_servo_key == key && now - last_servo_time <= servo_window;
+  }
+
+  // Status messages to WebSocket clients: to all, or only to the sockets of one lease identity.
+  void broadcast_status(const nlohmann::json& status, const std::string& only_lease_key = {});
+  // Faults and e-stops seen in ControlApi::faults() become status messages (newest seen so far).
+  std::optional<std::string> newest_event_seen;
+  void report_new_safety_events();
+
+  void refresh_channels();
+  bool channel_exists(std::uint32_t id) const {
+    std::lock_guard lock(channels_mutex);
+    return channels.count(id) != 0;
+  }
+  // Latest payload of a channel, for a new subscriber (null when none yet).
+  std::shared_ptr<const std::string> channel_payload(std::uint32_t id, std::uint64_t& time_ns) const;
+  void register_ws(std::uint64_t id, const std::weak_ptr<WsConnectionBase>& session,
+                   std::vector<fg::Channel>& channels_now);
+  void unregister_ws(std::uint64_t id);
+  std::vector<std::shared_ptr<WsConnectionBase>> live_sessions() const;
+  // only_sources: publish the topic sources' new messages only (a source said one is ready), so that
+  // robot topics keep their publish_rate_hz.
+  void publish_once(bool only_sources = false);
+  void do_accept();
+  void run_io() noexcept;  // an I/O thread: io_context::run(), re-entered after a stray exception
+  std::string metrics() const;
+  // The largest body any route takes (vessel files may exceed max_body_bytes).
+  std::size_t largest_body_limit() const;
+};
+
+// Start serving one accepted TCP connection (http_session_plain.cpp, http_session_tls.cpp).
+void start_plain_http_session(tcp::socket&& socket, HttpServer::Impl& server);
+void start_tls_http_session(tcp::socket&& socket, HttpServer::Impl& server);
+
+}  // namespace tendril::server

@@ -1,0 +1,183 @@
+// HttpSession<Stream>: one HTTP connection (Beast advanced-server pattern). Reads one request at a
+// time with BoundedRequestParser (requests pipelined behind it wait in the read buffer), answers it
+// through route_request(), and hands the stream to a WebSocket session on an upgrade to /ws.
+//
+// Containment: every completion handler runs inside contain(); an exception (from Beast, the routes or
+// ControlApi) closes this connection only, is counted and logged once, and the I/O thread goes on.
+//
+// Instantiated for plain TCP (http_session_plain.cpp) and TLS (http_session_tls.cpp), each in its own
+// translation unit, so the two sets of Beast operations compile in parallel.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <type_traits>
+
+#include <boost/asio/dispatch.hpp>
+#include <boost/beast/core/flat_buffer.hpp>
+#include <boost/beast/core/stream_traits.hpp>
+#include <boost/beast/core/tcp_stream.hpp>
+#include <boost/beast/http/read.hpp>
+#include <boost/beast/http/write.hpp>
+#include <boost/beast/ssl/ssl_stream.hpp>
+#include <boost/beast/websocket/rfc6455.hpp>
+
+#include "front_end.hpp"
+#include "request_reader.hpp"
+#include "rest_routes.hpp"
+#include "stream_socket.hpp"
+
+namespace tendril::server {
+
+namespace beast = boost::beast;
+
+template <class Stream>
+inline constexpr bool kIsTlsStream = std::is_same_v<Stream, beast::ssl_stream<beast::tcp_stream>>;
+
+// The WebSocket side of an upgrade (ws_session_*.cpp): takes over the stream and the upgrade request.
+template <class Stream>
+void start_ws_session(Stream&& stream, HttpServer::Impl& server, Identity identity, std::uint64_t id,
+                      Request request);
+
+template <class Stream>
+class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
+ public:
+  template <class... Args>
+  HttpSession(HttpServer::Impl& server, Args&&... stream_args)
+      : stream_(std::forward<Args>(stream_args)...),
+        buffer_(http::kReadBufferBytes),
+        server_(server),
+        connection_id_(server.next_connection_id++) {}
+
+  void run() {
+    auto self = this->shared_from_this();
+    net::dispatch(stream_.get_executor(), [self] {
+      self->contain("start", [&] {
+        if constexpr (kIsTlsStream<Stream>) {
+          // TLS first; a client that does not complete the handshake in time is dropped.
+          StreamSocket<Stream>::expires_after(self->stream_, std::chrono::seconds(30));
+          self->stream_.async_handshake(net::ssl::stream_base::server, [self](beast::error_code ec) {
+            self->contain("tls handshake", [&] {
+              if (!ec) self->do_read();
+            });
+          });
+        } else {
+          self->do_read();
+        }
+      });
+    });
+  }
+
+ private:
+  // Runs a handler body; an exception closes this connection and is counted and logged once.
+  template <class F>
+  void contain(const char* where, F&& body) noexcept {
+    try {
+      body();
+    } catch (const std::exception& e) {
+      failed(where, e.what());
+    } catch (...) {
+      failed(where, "an exception that is not a std::exception");
+    }
+  }
+  void failed(const char* where, const char* what) noexcept {
+    if (!failed_) server_.connection_failed(connection_id_, where, what);
+    failed_ = true;
+    StreamSocket<Stream>::close(stream_);
+  }
+
+  void do_read() {
+    // Beast checks Content-Length against the body limit while it parses the header, before the
+    // route is known: admit the largest body any route takes here, and narrow it in on_header.
+    body_limit_ = server_.largest_body_limit();
+    parser_.emplace(body_limit_);
+    StreamSocket<Stream>::expires_after(stream_, std::chrono::seconds(30));
+    bhttp::async_read_header(stream_, buffer_, *parser_,
+                             [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
+                               self->contain("read header", [&] { self->on_header(ec); });
+                             });
+  }
+
+  void on_header(beast::error_code ec) {
+    if (ec) return on_read(ec);
+    const auto& header = parser_->get();
+    // Large bodies (vessel files, plans) only for an authenticated caller on a route that takes them:
+    // before authentication, the whole request is bounded by the ordinary limits.
+    if (!admits_large_body(server_, header, connection_id_)) body_limit_ = server_.opts.max_body_bytes;
+    // A declared length over the route's limit is refused before the body is read; a chunked body
+    // is held to the limit chunk by chunk.
+    if (const auto declared = parser_->content_length(); declared && *declared > body_limit_) {
+      return on_read(bhttp::error::body_limit);
+    }
+    parser_->body_limit(body_limit_);
+    bhttp::async_read(stream_, buffer_, *parser_,
+                      [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
+                        self->contain("read body", [&] { self->on_read(ec); });
+                      });
+  }
+
+  void on_read(beast::error_code ec) {
+    if (ec) {
+      const auto refusal = http::refusal_for(ec, body_limit_);
+      if (!refusal) return do_close();
+      server_.count_refused(refusal->metric);
+      // The rest of the connection's bytes cannot be trusted to frame a next request: answer and close.
+      Request partial;
+      partial.version(parser_ && parser_->is_header_done() ? parser_->get().version() : 11);
+      partial.keep_alive(false);
+      return send(
+          error_response(partial, ApiResult::error(refusal->status, refusal->code, refusal->message)));
+    }
+    Request request = parser_->release();
+    if (boost::beast::websocket::is_upgrade(request)) return handle_upgrade(std::move(request));
+    RouteResult result = route_request(server_, request, connection_id_);
+    send(std::move(result));
+  }
+
+  void handle_upgrade(Request req) {
+    UpgradeDecision decision = decide_upgrade(server_, req, connection_id_);
+    if (decision.refusal) return send(std::move(*decision.refusal));
+    StreamSocket<Stream>::expires_never(stream_);
+    start_ws_session(std::move(stream_), server_, std::move(decision.identity), connection_id_,
+                     std::move(req));
+  }
+
+  void send(RouteResult&& result) {
+    std::visit([this](auto& response) { this->send(std::move(response)); }, result);
+  }
+
+  template <class Body>
+  void send(bhttp::response<Body>&& response) {
+    server_.count_status(response.result_int());
+    auto shared = std::make_shared<bhttp::response<Body>>(std::move(response));
+    bhttp::async_write(stream_, *shared,
+                       [self = this->shared_from_this(), shared](beast::error_code ec, std::size_t) {
+                         self->contain("write", [&] { self->on_write(ec, shared->need_eof()); });
+                       });
+  }
+
+  void on_write(beast::error_code ec, bool close) {
+    if (ec) return;
+    if (close) return do_close();
+    do_read();
+  }
+
+  void do_close() {
+    if constexpr (std::is_same_v<Stream, beast::ssl_stream<beast::tcp_stream>>) {
+      // TLS close_notify, then the socket goes with the session.
+      stream_.async_shutdown([self = this->shared_from_this()](beast::error_code) {});
+    } else {
+      StreamSocket<Stream>::shutdown_send(stream_);
+    }
+  }
+
+  Stream stream_;
+  beast::flat_buffer buffer_;
+  std::optional<http::BoundedRequestParser> parser_;
+  std::size_t body_limit_ = 0;  // of the request being read
+  HttpServer::Impl& server_;
+  const std::uint64_t connection_id_;
+  bool failed_ = false;
+};
+
+}  // namespace tendril::server

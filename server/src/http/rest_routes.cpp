@@ -1,0 +1,358 @@
+#include "rest_routes.hpp"
+
+#include <filesystem>
+
+#include "tendril/server/http/planning_routes.hpp"
+#include "tendril/server/version.hpp"
+
+namespace tendril::server {
+
+namespace beast = boost::beast;
+using nlohmann::json;
+using namespace tendril::server::http;
+
+StringResponse json_response(const Request& req, int status, const json& body) {
+  StringResponse res{static_cast<bhttp::status>(status), req.version()};
+  res.set(bhttp::field::server, "tendril");
+  res.set(bhttp::field::content_type, "application/json");
+  res.set(bhttp::field::cache_control, "no-store");
+  res.keep_alive(req.keep_alive());
+  res.body() = dump(body);
+  res.prepare_payload();
+  return res;
+}
+
+StringResponse error_response(const Request& req, const ApiResult& result) {
+  return json_response(req, result.status, result.error_json());
+}
+
+namespace {
+
+StringResponse result_response(const Request& req, const ApiResult& result) {
+  return result.ok() ? json_response(req, result.status, result.body) : error_response(req, result);
+}
+
+StringResponse method_not_allowed(const Request& req, const char* allow) {
+  auto res =
+      error_response(req, ApiResult::error(405, "method_not_allowed",
+                                           std::string(req.method_string()) + " is not allowed on " +
+                                               std::string(req.target().substr(0, req.target().find('?'))) +
+                                               "; allowed: " + allow));
+  res.set(bhttp::field::allow, allow);
+  return res;
+}
+
+bool origin_refused(const HttpServer::Impl& server, const Request& req) {
+  const auto origin = req.find(bhttp::field::origin);
+  return origin != req.end() && !origin_allowed(origin->value(), server.allowed_origins);
+}
+
+StringResponse origin_refusal(const Request& req) {
+  return error_response(req, ApiResult::error(403, "origin_not_allowed",
+                                              "Origin \"" + std::string(req[bhttp::field::origin]) +
+                                                  "\" is not in the allowlist"));
+}
+
+// REST getters and commands under /api/v1/robots/{robot}/...
+using Getter = ApiResult (ControlApi::*)(const std::string&) const;
+const std::map<std::string, Getter>& robot_getters() {
+  static const std::map<std::string, Getter> getters = {{"measured_js", &ControlApi::measured_js},
+                                                        {"setpoint_js", &ControlApi::setpoint_js},
+                                                        {"measured_cp", &ControlApi::measured_cp},
+                                                        {"shape", &ControlApi::shape},
+                                                        {"operating_state", &ControlApi::operating_state}};
+  return getters;
+}
+const std::map<std::string, Command>& robot_commands() {
+  static const std::map<std::string, Command> commands = {{"state_command", Command::kStateCommand},
+                                                          {"mode", Command::kMode},
+                                                          {"move_jp", Command::kMoveJp},
+                                                          {"servo_jv", Command::kServoJv},
+                                                          {"move_configuration", Command::kMoveConfiguration},
+                                                          {"joystick", Command::kJoystick}};
+  return commands;
+}
+
+RouteResult handle_metrics(HttpServer::Impl& server, const Request& req, const RequestTarget& target,
+                           std::uint64_t connection_id) {
+  if (req.method() != bhttp::verb::get) return method_not_allowed(req, "GET");
+  if (origin_refused(server, req)) return origin_refusal(req);
+  auto auth = server.authenticate(req, target, connection_id, false, false, "connection");
+  if (auth.error) return error_response(req, *auth.error);
+  StringResponse res{bhttp::status::ok, req.version()};
+  res.set(bhttp::field::content_type, "text/plain; version=0.0.4");
+  res.set(bhttp::field::cache_control, "no-store");
+  res.keep_alive(req.keep_alive());
+  std::string control = server.api.metrics();
+  if (!control.empty() && control.back() != '\n') control.push_back('\n');
+  res.body() = control + server.metrics();
+  res.prepare_payload();
+  return res;
+}
+
+StringResponse handle_lease(HttpServer::Impl& server, const Request& req, const Identity& who) {
+  const auto method = req.method();
+  if (method == bhttp::verb::get) return result_response(req, server.lease_action("status", who));
+  if (method == bhttp::verb::post) {
+    const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
+    if (!body.ok()) return error_response(req, body);
+    std::string takeover_token;
+    if (const auto it = body.body.find("takeover_token"); it != body.body.end()) {
+      if (!it->is_string()) {
+        return error_response(req,
+                              ApiResult::error(400, "bad_request",
+                                               "\"takeover_token\" must be the string from the 409 answer"));
+      }
+      takeover_token = it->get<std::string>();
+    }
+    return result_response(req, server.lease_action("acquire", who, takeover_token));
+  }
+  if (method == bhttp::verb::delete_) return result_response(req, server.lease_action("release", who));
+  return method_not_allowed(req, "GET, POST, DELETE");
+}
+
+RouteResult handle_api(HttpServer::Impl& server, const Request& req, const RequestTarget& target,
+                       std::uint64_t connection_id) {
+  const auto segments = split_path(target.path);
+  const auto method = req.method();
+  if (segments.size() < 2 || segments[1] != "v1") {
+    return error_response(req, ApiResult::error(404, "not_found", "the API lives under /api/v1"));
+  }
+  const std::vector<std::string> route(segments.begin() + 2, segments.end());
+  if (route == std::vector<std::string>{"health"}) {
+    if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
+    const double uptime = std::chrono::duration<double>(SteadyClock::now() - server.started_at).count();
+    return json_response(req, 200, {{"status", "ok"}, {"version", version()}, {"uptime_s", uptime}});
+  }
+  // Public like /health: it documents the interface (the same file is in the repository) and
+  // reveals no state, so API tools can read it before they have a token.
+  if (route == std::vector<std::string>{"openapi.json"}) {
+    if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
+    if (server.openapi_document.empty()) {
+      return error_response(req, ApiResult::error(404, "not_found",
+                                                  "the OpenAPI document is not installed with this server "
+                                                  "(server/openapi/openapi.json)"));
+    }
+    StringResponse res{bhttp::status::ok, req.version()};
+    res.set(bhttp::field::server, "tendril");
+    res.set(bhttp::field::content_type, "application/json");
+    res.set(bhttp::field::cache_control, "no-cache");
+    res.keep_alive(req.keep_alive());
+    res.body() = server.openapi_document;
+    res.prepare_payload();
+    return res;
+  }
+  // A browser page from another origin must not drive the robot with a stolen cookie or token.
+  if (origin_refused(server, req)) return origin_refusal(req);
+  auto auth = server.authenticate(req, target, connection_id, false, false, "connection");
+  if (auth.error) return error_response(req, *auth.error);
+  const Identity& who = auth.identity;
+  auto& api = server.api;
+
+  if (route == std::vector<std::string>{"robots"}) {
+    if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
+    return json_response(req, 200, api.robots());
+  }
+  if (route == std::vector<std::string>{"faults"}) {
+    if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
+    std::size_t max_events = 200;
+    if (const auto it = target.query.find("max"); it != target.query.end()) {
+      char* end = nullptr;
+      const long value = std::strtol(it->second.c_str(), &end, 10);
+      if (it->second.empty() || *end != '\0' || value < 1 || value > 10000) {
+        return error_response(req, ApiResult::error(400, "bad_parameter", "max must be an integer 1..10000"));
+      }
+      max_events = static_cast<std::size_t>(value);
+    }
+    return json_response(req, 200, api.faults(max_events));
+  }
+  if (route == std::vector<std::string>{"lease"}) return handle_lease(server, req, who);
+  if (route == std::vector<std::string>{"estop"} || route == std::vector<std::string>{"estop", "reset"}) {
+    if (method != bhttp::verb::post) return method_not_allowed(req, "POST");
+    if (route.size() == 1) {
+      // Safety first: the e-stop ignores the body and the lease, and works for viewers too.
+      return result_response(req, server.execute(Command::kEstop, {}, json::object(), who));
+    }
+    const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
+    if (!body.ok()) return error_response(req, body);
+    return result_response(req, server.execute(Command::kEstopReset, {}, body.body, who));
+  }
+  if (route.size() == 3 && route[0] == "robots") {
+    const std::string& robot = route[1];
+    const std::string& verb = route[2];
+    const auto& getters = robot_getters();
+    const auto& commands = robot_commands();
+    if (const auto getter = getters.find(verb); getter != getters.end()) {
+      if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
+      if (!api.has_robot(robot)) return error_response(req, unknown_robot(robot));
+      return result_response(req, (api.*(getter->second))(robot));
+    }
+    if (const auto command = commands.find(verb); command != commands.end()) {
+      if (method != bhttp::verb::post) return method_not_allowed(req, "POST");
+      if (!api.has_robot(robot)) return error_response(req, unknown_robot(robot));
+      const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
+      if (!body.ok()) return error_response(req, body);
+      return result_response(req, server.execute(command->second, robot, body.body, who));
+    }
+  }
+  const PlanningCall planning_call{req.method_string(),
+                                   route,
+                                   target.query,
+                                   req[bhttp::field::content_type],
+                                   req.body(),
+                                   server.opts.max_body_bytes,
+                                   who.role == Role::kOperator,
+                                   [&](const std::string& robot) -> std::optional<ApiResult> {
+                                     auto allowed = server.execute(Command::kAuthorizeOnly, robot, {}, who);
+                                     return allowed.ok() ? std::nullopt : std::optional<ApiResult>(allowed);
+                                   }};
+  if (auto planned = route_planning(server.opts.planning, api, planning_call)) {
+    auto res = result_response(req, planned->result);
+    if (!planned->location.empty()) res.set(bhttp::field::location, planned->location);
+    if (!planned->allow.empty()) res.set(bhttp::field::allow, planned->allow);
+    return res;
+  }
+  return error_response(
+      req, ApiResult::error(404, "not_found",
+                            "no endpoint " + std::string(req.method_string()) + " " + target.path));
+}
+
+RouteResult handle_static(HttpServer::Impl& server, const Request& req, const RequestTarget& target,
+                          std::uint64_t connection_id) {
+  if (req.method() != bhttp::verb::get && req.method() != bhttp::verb::head) {
+    return method_not_allowed(req, "GET, HEAD");
+  }
+  // Opening the console URL with ?token= turns the token into a session cookie.
+  std::optional<std::string> set_cookie;
+  if (target.query.count("token")) {
+    auto auth = server.authenticate(req, target, connection_id, true, true, "connection");
+    if (auth.error) return error_response(req, *auth.error);
+    set_cookie = auth.set_cookie;
+  }
+  // Longest matching mount wins; the web root serves everything else.
+  std::string prefix;
+  std::string root;
+  for (const auto& [mount, dir] : server.opts.static_mounts) {
+    if (target.path.rfind(mount, 0) == 0 && mount.size() > prefix.size()) {
+      prefix = mount;
+      root = dir;
+    }
+  }
+  if (root.empty() && !server.opts.web_root.empty()) {
+    prefix = "/";
+    root = server.opts.web_root;
+  }
+  std::optional<std::filesystem::path> file;
+  if (!root.empty()) file = resolve_static_path(root, target.path, prefix);
+  std::error_code fs_error;
+  if (file && std::filesystem::is_directory(*file, fs_error)) *file /= "index.html";
+  bhttp::file_body::value_type body;
+  beast::error_code ec;
+  if (file && std::filesystem::is_regular_file(*file, fs_error))
+    body.open(file->c_str(), beast::file_mode::scan, ec);
+  if (!file || !body.is_open() || ec) {
+    return error_response(req, ApiResult::error(404, "not_found", "no file at " + target.path));
+  }
+  const auto size = body.size();
+  const auto content_type = mime_type(file->string());
+  auto decorate = [&](auto& res) {
+    res.set(bhttp::field::server, "tendril");
+    res.set(bhttp::field::content_type, content_type);
+    res.set("X-Content-Type-Options", "nosniff");
+    res.set("Referrer-Policy", "no-referrer");
+    res.set(bhttp::field::cache_control, "no-cache");
+    if (set_cookie) res.set(bhttp::field::set_cookie, *set_cookie);
+    res.content_length(size);
+    res.keep_alive(req.keep_alive());
+  };
+  if (req.method() == bhttp::verb::head) {
+    bhttp::response<bhttp::empty_body> res{bhttp::status::ok, req.version()};
+    decorate(res);
+    return res;
+  }
+  bhttp::response<bhttp::file_body> res{std::piecewise_construct, std::make_tuple(std::move(body)),
+                                        std::make_tuple(bhttp::status::ok, req.version())};
+  decorate(res);
+  return res;
+}
+
+RouteResult dispatch(HttpServer::Impl& server, const Request& req, std::uint64_t connection_id) {
+  const RequestTarget target = parse_target(req.target());
+  if (!target.valid)
+    return error_response(req, ApiResult::error(400, "bad_request", "malformed request target"));
+  const std::string& path = target.path;
+  if (path == "/api" || path.rfind("/api/", 0) == 0) return handle_api(server, req, target, connection_id);
+  if (path == "/metrics") return handle_metrics(server, req, target, connection_id);
+  if (path == "/ws") {
+    return error_response(req, ApiResult::error(426, "upgrade_required",
+                                                "/ws is a WebSocket endpoint (foxglove.websocket.v1)"));
+  }
+  return handle_static(server, req, target, connection_id);
+}
+
+}  // namespace
+
+RouteResult route_request(HttpServer::Impl& server, const Request& req, std::uint64_t connection_id) {
+  try {
+    return dispatch(server, req, connection_id);
+  } catch (const std::exception& e) {
+    // A throwing ControlApi must not take the connection down with it.
+    return error_response(req, ApiResult::error(500, "internal_error", e.what()));
+  }
+}
+
+bool admits_large_body(HttpServer::Impl& server, const Request& header, std::uint64_t connection_id) {
+  if (server.opts.planning == nullptr) return false;
+  const RequestTarget target = parse_target(header.target());
+  if (!target.valid || !takes_large_body(header.method_string(), target.path)) return false;
+  if (origin_refused(server, header)) return false;
+  return !server.authenticate(header, target, connection_id, false, false, "connection").error;
+}
+
+UpgradeDecision decide_upgrade(HttpServer::Impl& server, const Request& req, std::uint64_t connection_id) {
+  UpgradeDecision out;
+  const RequestTarget target = parse_target(req.target());
+  if (!target.valid || target.path != "/ws") {
+    out.refusal = error_response(req, ApiResult::error(404, "not_found", "WebSocket endpoint is /ws"));
+    return out;
+  }
+  if (origin_refused(server, req)) {
+    out.refusal =
+        error_response(req, ApiResult::error(403, "origin_not_allowed",
+                                             "WebSocket Origin \"" + std::string(req[bhttp::field::origin]) +
+                                                 "\" is not in the allowlist"));
+    return out;
+  }
+  auto auth = server.authenticate(req, target, connection_id, /*accept_query_token=*/true,
+                                  /*create_cookie_session=*/false, "ws");
+  if (auth.error) {
+    out.refusal = error_response(req, *auth.error);
+    return out;
+  }
+  const auto offered = split_header_list(req[bhttp::field::sec_websocket_protocol]);
+  if (std::find(offered.begin(), offered.end(), fg::kSubprotocol) == offered.end()) {
+    out.refusal =
+        error_response(req, ApiResult::error(400, "subprotocol_required",
+                                             "offer WebSocket subprotocol \"foxglove.websocket.v1\""));
+    return out;
+  }
+  out.identity = std::move(auth.identity);
+  return out;
+}
+
+std::vector<HttpServer::Route> HttpServer::api_routes() {
+  // What handle_api dispatches itself (the planning routes are added by planning_routes.cpp).
+  std::vector<Route> routes = {
+      {"GET", "/api/v1/health"},   {"GET", "/api/v1/openapi.json"}, {"GET", "/api/v1/robots"},
+      {"GET", "/api/v1/faults"},   {"GET", "/api/v1/lease"},        {"POST", "/api/v1/lease"},
+      {"DELETE", "/api/v1/lease"}, {"POST", "/api/v1/estop"},       {"POST", "/api/v1/estop/reset"},
+  };
+  for (const auto& [verb, getter] : robot_getters())
+    routes.push_back({"GET", "/api/v1/robots/{robot}/" + verb});
+  for (const auto& [verb, command] : robot_commands())
+    routes.push_back({"POST", "/api/v1/robots/{robot}/" + verb});
+  for (const auto& [verb, path] : planning_route_list()) routes.push_back({verb, path});
+  return routes;
+}
+
+}  // namespace tendril::server
