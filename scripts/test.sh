@@ -1,23 +1,58 @@
 #!/usr/bin/env bash
-# Sets up and runs every tendril test: installs what is missing, builds, then runs
-#   1. unit, integration and server tests (ctest), including SocketCAN inside a qemu VM
-#   2. REST + Foxglove WebSocket API tests against a running tendrild (node, @foxglove/ws-protocol)
-#   3. the browser test (Playwright + Debian chromium), screenshots in tests/e2e/artifacts/
-#   4. unit + integration tests again under AddressSanitizer + UndefinedBehaviorSanitizer
-#   5. libFuzzer targets for every outside-input parser, for a bounded time
-#   6. clang-format and clang-tidy
-# Options: --quick skips 4-6. Ends with a line "tests: N passed, M failed".
+# Sets up and runs tendril's tests. Installs what is missing (apt, npm), builds, runs, and ends with
+# the line "tests: N passed, M failed". Every stage prints its duration; the total comes last.
+#
+#   scripts/test.sh           the blocking run (what CI runs, budget 30 minutes cold on 2 cores):
+#     1. one build: clang, AddressSanitizer + UndefinedBehaviorSanitizer, the real-time and numeric
+#        libraries at -O1 and the rest at -O0, the libFuzzer targets in the same tree (build/)
+#     2. ctest against that build: unit, integration, server and seed-corpus tests, and the SocketCAN
+#        and uinput tests inside a qemu VM
+#     3. REST + Foxglove WebSocket API tests against the sanitized tendrild
+#     4. browser tests (Playwright + Debian chromium) against the sanitized tendrild
+#     5. every fuzz target for a bounded time (TENDRIL_FUZZ_SECONDS, default 20), its corpus kept
+#        between runs in ${TENDRIL_CACHE:-~/.cache/tendril}/fuzz-corpus
+#     6. clang-format on every source; clang-tidy on the translation units changed since the last
+#        commit the whole-tree clang-tidy passed on (.ci/clang-tidy-base) and those that include a
+#        changed header
+#   scripts/test.sh --full    all of the above, plus what leaves the blocking run:
+#     7. a gcc RelWithDebInfo build with the benchmarks (build-gcc/) and its ctest
+#     8. clang-tidy over the whole tree (and, when clean, the commit to record in .ci/clang-tidy-base)
+#     9. long fuzzing (TENDRIL_FUZZ_SECONDS, default 300 in --full)
+#   scripts/test.sh --quick   stages 1-4 only (for a quick local check)
 set -uo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
-quick=0
-[ "${1:-}" = "--quick" ] && quick=1
+mode=ci
+case "${1:-}" in
+  "") ;;
+  --full) mode=full ;;
+  --quick) mode=quick ;;
+  *) echo "usage: scripts/test.sh [--full | --quick]" >&2; exit 2 ;;
+esac
 jobs=$(nproc)
 passed=0
 failed=0
 failed_steps=()
+stage_times=()
+run_started=$(date +%s)
+cache="${TENDRIL_CACHE:-$HOME/.cache/tendril}"
 
-step() { echo; echo "=== $* ==="; }
+stage_started=0
+stage_name=""
+stage() {  # stage <name>: closes the previous stage's clock and opens this one
+  stage_end
+  stage_name="$*"
+  stage_started=$(date +%s)
+  echo
+  echo "=== $stage_name ==="
+}
+stage_end() {
+  [ -n "$stage_name" ] || return 0
+  local seconds=$(($(date +%s) - stage_started))
+  stage_times+=("$(printf '%5d s  %s' "$seconds" "$stage_name")")
+  echo "--- $stage_name: ${seconds} s"
+  stage_name=""
+}
 record() {  # record <name> <status> <passed-count> <failed-count>
   passed=$((passed + $3))
   failed=$((failed + $4))
@@ -26,12 +61,23 @@ record() {  # record <name> <status> <passed-count> <failed-count>
     [ "$4" -gt 0 ] || failed=$((failed + 1))
   fi
 }
+finish() {
+  stage_end
+  echo
+  echo "stage times:"
+  printf '%s\n' "${stage_times[@]}"
+  echo "$(printf '%5d s' $(($(date +%s) - run_started)))  total"
+  if [ "${#failed_steps[@]}" -gt 0 ]; then echo "failed steps: ${failed_steps[*]}"; fi
+  echo "tests: $passed passed, $failed failed"
+  [ "$failed" -eq 0 ] && [ "${#failed_steps[@]}" -eq 0 ]
+  exit $?
+}
 ctest_counts() {  # parses "X% tests passed, F tests failed out of N"
   local line total fail
   line=$(grep -E 'tests passed, [0-9]+ tests? failed out of [0-9]+' "$1" | tail -n 1)
   total=$(sed -E 's/.*out of ([0-9]+).*/\1/' <<<"$line")
   fail=$(sed -E 's/.*passed, ([0-9]+) tests? failed.*/\1/' <<<"$line")
-  echo "$(( ${total:-0} - ${fail:-0} )) ${fail:-0}"
+  echo "$((${total:-0} - ${fail:-0})) ${fail:-0}"
 }
 node_counts() {  # node --test prints "# pass N" and "# fail N"
   local p f
@@ -40,106 +86,132 @@ node_counts() {  # node --test prints "# pass N" and "# fail N"
   echo "${p:-0} ${f:-0}"
 }
 
-step "install dependencies"
-scripts/install-deps.sh --tests || { echo "tests: 0 passed, 1 failed"; exit 1; }
+stage "install dependencies"
+if ! scripts/install-deps.sh --tests; then
+  record install-deps 1 0 1
+  finish
+fi
 
-step "build (RelWithDebInfo)"
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_BUILD_BENCHMARKS=ON >/dev/null &&
-  cmake --build build -j "$jobs" || { echo "tests: 0 passed, 1 failed"; exit 1; }
+# ---- 1. the one build every blocking stage uses --------------------------------------------------
+stage "build (clang, ASan + UBSan, fuzz targets)"
+# The environment's compiler launcher (e.g. ccache for local work) is passed on; CI sets none.
+launcher=()
+[ -n "${TENDRIL_COMPILER_LAUNCHER:-}" ] && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER="$TENDRIL_COMPILER_LAUNCHER")
+if CC=clang CXX=clang++ cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Debug -DTENDRIL_SANITIZE=ON \
+     -DTENDRIL_FUZZ=ON -DTENDRIL_BUILD_BENCHMARKS=OFF "${launcher[@]}" >/dev/null &&
+   cmake --build build -j "$jobs"; then
+  record build 0 0 0
+else
+  record build 1 0 1
+  finish
+fi
+export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:detect_stack_use_after_return=0
+export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
 
-step "unit, integration and server tests (ctest)"
-ctest --test-dir build --output-on-failure -j "$jobs" --timeout 600 2>&1 | tee build/ctest.log
+# ---- 2. ctest -----------------------------------------------------------------------------------
+stage "unit, integration, server, seed-corpus and VM tests (ctest, sanitized)"
+ctest --test-dir build --output-on-failure -j "$jobs" --timeout 900 2>&1 | tee build/ctest.log
 status=${PIPESTATUS[0]}
 read -r p f < <(ctest_counts build/ctest.log)
 record ctest "$status" "$p" "$f"
 
-step "API tests over real sockets (curl-style REST, @foxglove/ws-protocol)"
+# ---- 3. API tests -------------------------------------------------------------------------------
+stage "API tests over real sockets (REST, @foxglove/ws-protocol) against the sanitized tendrild"
 bash tests/api/run.sh build/server/tendrild 2>&1 | tee build/api.log
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/api.log)
 record api "$status" "$p" "$f"
 
-step "browser test (Playwright + chromium)"
+# ---- 4. browser tests ---------------------------------------------------------------------------
+stage "browser tests (Playwright + chromium) against the sanitized tendrild"
 bash tests/e2e/run.sh build/server/tendrild 2>&1 | tee build/e2e.log
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/e2e.log)
 record e2e "$status" "$p" "$f"
 
-if [ "$quick" = 0 ]; then
-  step "sanitizers: unit and integration tests under ASan + UBSan"
-  # Left out here, run in the release ctest above: long numeric reproductions that take minutes
-  # unoptimised (the §4.10.2 channel experiment, about 45 000 simulated ticks with vessel contact, and
-  # the Table 4.1 design optimisation). Their code runs under the sanitizers in the contact, plant,
-  # planner and catheter-mode tests. (Building this tree at -O1 instead made it 1.8x slower to compile
-  # and the whole suite too long for CI.)
-  sanitizer_skip='^(ChannelTest\.|DesignOptimiser\.ReproducesTable41Ordering$)'
-  cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DTENDRIL_SANITIZE=ON -DTENDRIL_BUILD_BENCHMARKS=OFF \
-    -DTENDRIL_CAN_VM_TESTS=OFF >/dev/null &&
-    cmake --build build-asan -j "$jobs" &&
-    ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
-      ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 900 -E "$sanitizer_skip" 2>&1 |
-      tee build-asan/ctest.log
-  status=${PIPESTATUS[0]}
-  [ -f build-asan/ctest.log ] || status=1
-  read -r p f < <(ctest_counts build-asan/ctest.log 2>/dev/null || echo "0 0")
-  record sanitizers "$status" "$p" "$f"
+[ "$mode" = quick ] && finish
 
-  step "fuzzing (libFuzzer, bounded)"
-  fuzz_targets=(fuzz_rest_body fuzz_ws_client_message fuzz_centerline_csv fuzz_stl fuzz_can_pdo fuzz_calibration_request)
-  CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_FUZZ=ON \
-    -DTENDRIL_BUILD_TESTS=ON -DTENDRIL_BUILD_BENCHMARKS=OFF -DTENDRIL_CAN_VM_TESTS=OFF >/dev/null &&
-    cmake --build build-fuzz -j "$jobs" --target "${fuzz_targets[@]}"
-  status=$?
-  if [ $status -eq 0 ]; then
-    fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-60}
-    run_fuzz() {  # run_fuzz <target>: its log and exit status land in build-fuzz/
-      local corpus_dir
-      corpus_dir=$(mktemp -d)
-      cp -r tests/fuzz/corpus/"$1"/. "$corpus_dir"/ 2>/dev/null || true
-      build-fuzz/tests/fuzz/"$1" -max_total_time="$fuzz_seconds" -rss_limit_mb=2048 -print_final_stats=1 \
-        "$corpus_dir" >build-fuzz/"$1".log 2>&1
-      echo $? >build-fuzz/"$1".status
-      rm -rf "$corpus_dir"
-    }
-    rm -f build-fuzz/*.status
-    # One target per core at a time (each fuzzer is single-threaded).
-    for target in "${fuzz_targets[@]}"; do
-      while [ "$(jobs -rp | wc -l)" -ge "$jobs" ]; do wait -n; done
-      run_fuzz "$target" &
-    done
-    wait
-    for target in "${fuzz_targets[@]}"; do
-      if [ "$(cat build-fuzz/$target.status 2>/dev/null)" = 0 ]; then
-        echo "$target: no crash in $fuzz_seconds s ($(grep -Eo 'stat::number_of_executed_units: [0-9]+' build-fuzz/$target.log | awk '{print $2}') runs)"
-        record "$target" 0 1 0
-      else
-        echo "$target: FAILED"; tail -n 40 build-fuzz/$target.log
-        record "$target" 1 0 1
-      fi
-    done
+# ---- 5. fuzzing ---------------------------------------------------------------------------------
+fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-20}
+[ "$mode" = full ] && fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-300}
+stage "fuzzing (libFuzzer, ${fuzz_seconds} s per target, corpus kept in $cache/fuzz-corpus)"
+read -r -a fuzz_targets < <(tr ';' ' ' < build/fuzz_targets.txt)
+run_fuzz() {  # run_fuzz <target>: its log and exit status land in build/fuzz/
+  local corpus="$cache/fuzz-corpus/$1"
+  mkdir -p "$corpus"
+  # New inputs go to the kept corpus; the repository's seeds are read as a second corpus.
+  build/tests/fuzz/"$1" -max_total_time="$fuzz_seconds" -rss_limit_mb=2048 -print_final_stats=1 \
+    -artifact_prefix=build/fuzz/"$1"- "$corpus" tests/fuzz/corpus/"$1" >build/fuzz/"$1".log 2>&1
+  echo $? >build/fuzz/"$1".status
+}
+mkdir -p build/fuzz
+rm -f build/fuzz/*.status
+for target in "${fuzz_targets[@]}"; do  # one target per core at a time (each fuzzer is single-threaded)
+  while [ "$(jobs -rp | wc -l)" -ge "$jobs" ]; do wait -n; done
+  run_fuzz "$target" &
+done
+wait
+for target in "${fuzz_targets[@]}"; do
+  if [ "$(cat build/fuzz/"$target".status 2>/dev/null)" = 0 ]; then
+    echo "$target: no crash in $fuzz_seconds s ($(grep -Eo 'stat::number_of_executed_units: [0-9]+' \
+      build/fuzz/"$target".log | awk '{print $2}') runs, corpus $(find "$cache/fuzz-corpus/$target" -type f | wc -l) inputs)"
+    record "$target" 0 1 0
   else
-    record fuzz-build 1 0 1
+    echo "$target: FAILED (reproducer: build/fuzz/$target-*)"; tail -n 40 build/fuzz/"$target".log
+    record "$target" 1 0 1
   fi
+done
 
-  step "clang-format"
-  mapfile -t sources < <(git ls-files '*.cpp' '*.hpp')
-  if clang-format --dry-run -Werror "${sources[@]}"; then
-    echo "clang-format: clean"; record clang-format 0 1 0
-  else
-    record clang-format 1 0 1
-  fi
-
-  step "clang-tidy"
-  mapfile -t tidy_sources < <(git ls-files 'teleop/src/*.cpp' 'safety/src/*.cpp' 'drivers/*/src/*.cpp' 'server/src/*.cpp' 'server/src/**/*.cpp' \
-    'calibration/src/*.cpp' 'drivers/sim/imaging/src/simulated_side_view_camera.cpp')
-  if printf '%s\n' "${tidy_sources[@]}" | xargs -P "$jobs" -n 4 clang-tidy -p build --quiet 2>build/clang-tidy.log >build/clang-tidy.out; then
-    echo "clang-tidy: clean (${#tidy_sources[@]} files)"; record clang-tidy 0 1 0
-  else
-    cat build/clang-tidy.out | head -n 80; record clang-tidy 1 0 1
-  fi
+# ---- 6. lint ------------------------------------------------------------------------------------
+stage "clang-format"
+mapfile -t sources < <(git ls-files '*.cpp' '*.hpp')
+if clang-format --dry-run -Werror "${sources[@]}"; then
+  echo "clang-format: clean (${#sources[@]} files)"
+  record clang-format 0 1 0
+else
+  record clang-format 1 0 1
 fi
 
-echo
-if [ "${#failed_steps[@]}" -gt 0 ]; then echo "failed steps: ${failed_steps[*]}"; fi
-echo "tests: $passed passed, $failed failed"
-[ "$failed" -eq 0 ] && [ "${#failed_steps[@]}" -eq 0 ]
+# The translation units clang-tidy looks at: the project's library sources (not tests).
+tidy_scope='^(teleop|safety|drivers/[a-z_]+(/imaging)?|calibration|server)/src/.*\.cpp$'
+run_tidy() {  # run_tidy <log> <files...>
+  local log=$1
+  shift
+  printf '%s\n' "$@" | xargs -r -P "$jobs" -n 2 clang-tidy -p build --quiet >"$log" 2>build/clang-tidy.err
+}
+if [ "$mode" = full ]; then
+  stage "clang-tidy (whole tree)"
+  mapfile -t tidy_sources < <(git ls-files | grep -E "$tidy_scope")
+else
+  stage "clang-tidy (translation units changed since .ci/clang-tidy-base)"
+  mapfile -t tidy_sources < <(scripts/affected-sources.sh "$(cat .ci/clang-tidy-base 2>/dev/null)" build |
+    grep -E "$tidy_scope")
+fi
+if run_tidy build/clang-tidy.out "${tidy_sources[@]}"; then
+  echo "clang-tidy: clean (${#tidy_sources[@]} files)"
+  record clang-tidy 0 1 0
+  if [ "$mode" = full ] && [ -z "$(git status --porcelain -- '*.cpp' '*.hpp' .clang-tidy)" ]; then
+    echo "the whole tree is clang-tidy clean at $(git rev-parse HEAD): record it with"
+    echo "  git rev-parse HEAD > .ci/clang-tidy-base && git commit -m 'clang-tidy base' .ci/clang-tidy-base"
+  fi
+else
+  head -n 80 build/clang-tidy.out
+  record clang-tidy 1 0 1
+fi
+
+[ "$mode" = full ] || finish
+
+# ---- 7. gcc release build, benchmarks and its ctest ---------------------------------------------
+stage "gcc RelWithDebInfo build with benchmarks (build-gcc)"
+if cmake -S . -B build-gcc -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_BUILD_BENCHMARKS=ON \
+     -DTENDRIL_CAN_VM_TESTS=OFF "${launcher[@]}" >/dev/null && cmake --build build-gcc -j "$jobs"; then
+  record gcc-build 0 0 0
+  stage "ctest (gcc RelWithDebInfo)"
+  ctest --test-dir build-gcc --output-on-failure -j "$jobs" --timeout 600 2>&1 | tee build-gcc/ctest.log
+  status=${PIPESTATUS[0]}
+  read -r p f < <(ctest_counts build-gcc/ctest.log)
+  record ctest-gcc "$status" "$p" "$f"
+else
+  record gcc-build 1 0 1
+fi
+finish
