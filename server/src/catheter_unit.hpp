@@ -20,7 +20,7 @@
 #include "tendril/drivers/input/analog_joystick.hpp"
 #include "tendril/drivers/input/evdev_joystick.hpp"
 #include "tendril/teleop/catheter_configuration.hpp"
-#include "tendril/teleop/latest_value.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 
 namespace tendril::server {
 
@@ -50,8 +50,8 @@ struct CatheterUnit {
   Eigen::Vector4d psi_max_velocity, psi_max_acceleration;               // its quintic's bounds in ψ
   std::unique_ptr<canopen::AnalogInputReceiver> deflection_receiver;    // bus thread
   std::unique_ptr<input::AnalogJoystickReceiver> joystick_receiver;     // bus thread
-  teleop::LatestValue<DeflectionReading> deflection;
-  teleop::LatestValue<input::JoystickState> analog_joystick;
+  hardware::LatestValue<DeflectionReading> deflection;
+  hardware::LatestValue<input::JoystickState> analog_joystick;
   std::unique_ptr<input::EvdevJoystick> evdev;
   std::array<int, 4> evdev_output{-1, -1, -1, -1};  // joint → output index of the evdev mapping
   std::unique_ptr<CatheterSimulation> simulation;

@@ -21,7 +21,7 @@
 #include "tendril/server/command_mailbox.hpp"
 #include "tendril/server/robot_kinematics.hpp"
 #include "tendril/server/robot_runtime.hpp"
-#include "tendril/teleop/latest_value.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 #include "tendril/teleop/quintic_interpolator.hpp"
 
 namespace tendril::server {
@@ -156,13 +156,13 @@ struct RobotUnit {
   std::unique_ptr<teleop::QuinticInterpolator> interpolator;
   std::vector<JointBinding> bindings;
   CommandMailbox<RobotCommand> mailbox{256};
-  teleop::LatestValue<RobotSnapshot> snapshot;
+  hardware::LatestValue<RobotSnapshot> snapshot;
   std::atomic<std::uint64_t> mailbox_full{0};
   std::size_t n = 0;
   JointArray max_velocity{}, max_acceleration{};
   std::mutex path_mutex;                                  // network threads only
   std::shared_ptr<const LoadedPath> path;                 // guarded by path_mutex
-  teleop::LatestValue<OperatingLimits> operating_limits;  // see OperatingLimits
+  hardware::LatestValue<OperatingLimits> operating_limits;  // see OperatingLimits
   std::mutex limits_write_mutex;                          // network threads only: read-modify-write
   std::unique_ptr<CatheterUnit> catheter;                 // steerable catheter robots only
   // Last refused mode switch, for operating_state (network threads only).

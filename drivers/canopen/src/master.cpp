@@ -49,8 +49,8 @@ bool is_disabled(Cia402State s) {
 
 struct CanopenMaster::Impl {
   struct Slots {
-    teleop::LatestValue<DriveCommand> command;
-    teleop::LatestValue<DriveFeedback> feedback;
+    hardware::LatestValue<DriveCommand> command;
+    hardware::LatestValue<DriveFeedback> feedback;
   };
   // Bus-thread-only state of one drive.
   struct Runtime {
@@ -488,11 +488,11 @@ std::size_t CanopenMaster::drive_count() const noexcept { return impl_->drives.s
 
 const DriveSetup& CanopenMaster::drive_setup(std::size_t i) const { return impl_->drives.at(i); }
 
-teleop::LatestValue<DriveCommand>& CanopenMaster::command(std::size_t i) noexcept {
+hardware::LatestValue<DriveCommand>& CanopenMaster::command(std::size_t i) noexcept {
   return impl_->slots[i].command;
 }
 
-const teleop::LatestValue<DriveFeedback>& CanopenMaster::feedback(std::size_t i) const noexcept {
+const hardware::LatestValue<DriveFeedback>& CanopenMaster::feedback(std::size_t i) const noexcept {
   return impl_->slots[i].feedback;
 }
 

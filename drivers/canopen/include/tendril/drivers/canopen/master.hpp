@@ -15,7 +15,7 @@
 
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/drivers/canopen/protocol.hpp"
-#include "tendril/teleop/latest_value.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 
 namespace tendril::canopen {
 
@@ -110,8 +110,8 @@ class CanopenMaster {
 
   std::size_t drive_count() const noexcept;
   const DriveSetup& drive_setup(std::size_t i) const;
-  teleop::LatestValue<DriveCommand>& command(std::size_t i) noexcept;
-  const teleop::LatestValue<DriveFeedback>& feedback(std::size_t i) const noexcept;
+  hardware::LatestValue<DriveCommand>& command(std::size_t i) noexcept;
+  const hardware::LatestValue<DriveFeedback>& feedback(std::size_t i) const noexcept;
   MasterStatistics statistics() const noexcept;
 
  private:

@@ -16,7 +16,7 @@
 #include <thread>
 
 #include "tendril/drivers/input/joystick.hpp"
-#include "tendril/teleop/latest_value.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 
 namespace tendril::input {
 
@@ -80,7 +80,7 @@ class EvdevJoystick {
   int open_device(std::string& name_out) const;
 
   EvdevJoystickOptions options_;
-  teleop::LatestValue<JoystickState> slot_;
+  hardware::LatestValue<JoystickState> slot_;
   std::atomic<bool> running_{false};
   std::atomic<std::uint64_t> connects_{0};
   std::atomic<std::uint64_t> disconnects_{0};

@@ -17,7 +17,7 @@ namespace tendril::input {
 
 inline constexpr std::size_t kMaxJoystickOutputs = 8;
 
-// Trivially copyable so it can travel through a teleop::LatestValue slot to the control thread.
+// Trivially copyable so it can travel through a hardware::LatestValue slot to the control thread.
 struct JoystickState {
   std::array<double, kMaxJoystickOutputs> outputs{};  // normalised −1..1, in mapping order
   std::uint32_t buttons = 0;                          // bit i: mapped button i is pressed

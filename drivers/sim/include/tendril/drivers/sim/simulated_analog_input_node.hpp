@@ -16,7 +16,7 @@
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/drivers/canopen/analog_input_node.hpp"
 #include "tendril/drivers/sim/simulation.hpp"
-#include "tendril/teleop/latest_value.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 
 namespace tendril::sim {
 
@@ -61,9 +61,9 @@ class SimulatedAnalogInputNode : public Plant {
 
   can::Bus& bus_;
   AnalogInputNodeParameters parameters_;
-  teleop::LatestValue<Volts> input_;
-  teleop::LatestValue<Volts> forced_;
-  teleop::LatestValue<Volts> sample_;
+  hardware::LatestValue<Volts> input_;
+  hardware::LatestValue<Volts> forced_;
+  hardware::LatestValue<Volts> sample_;
   std::atomic<std::uint8_t> digital_{0};
   std::atomic<bool> silent_{false};
   std::atomic<std::uint64_t> pdos_sent_{0};

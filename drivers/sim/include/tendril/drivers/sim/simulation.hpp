@@ -12,7 +12,7 @@
 
 #include "tendril/drivers/can/virtual_bus.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
-#include "tendril/teleop/latest_value.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 
 namespace tendril::sim {
 
@@ -71,7 +71,7 @@ class Simulation {
   struct Slot {
     std::unique_ptr<can::VirtualBusEndpoint> endpoint;
     std::unique_ptr<SimulatedCia402Drive> drive;
-    teleop::LatestValue<DriveTruth> truth;
+    hardware::LatestValue<DriveTruth> truth;
     std::atomic<bool> power_cycle_requested{false};
     std::atomic<std::uint32_t> fault_requested{0};  // 0x10000 | code
   };
@@ -84,7 +84,7 @@ class Simulation {
   std::atomic<bool> running_{false};
   std::atomic<bool> stop_requested_{false};
   std::thread thread_;
-  teleop::LatestValue<RealtimeStatistics> stats_;
+  hardware::LatestValue<RealtimeStatistics> stats_;
 };
 
 }  // namespace tendril::sim

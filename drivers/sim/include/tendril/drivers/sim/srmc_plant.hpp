@@ -97,7 +97,7 @@ class SrmcPlant final : public Plant {
   bool initialised_ = false;
   std::mt19937_64 rng_;
   std::normal_distribution<double> noise_{0.0, 1.0};
-  teleop::LatestValue<SrmcPlantState> state_;
+  hardware::LatestValue<SrmcPlantState> state_;
 };
 
 }  // namespace tendril::sim

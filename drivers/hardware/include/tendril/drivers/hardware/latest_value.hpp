@@ -7,7 +7,7 @@
 #include <cstring>
 #include <type_traits>
 
-namespace tendril::teleop {
+namespace tendril::hardware {
 
 template <typename T>
 class LatestValue {
@@ -60,4 +60,4 @@ class LatestValue {
   alignas(T) unsigned char bytes_[sizeof(T)]{};
 };
 
-}  // namespace tendril::teleop
+}  // namespace tendril::hardware
