@@ -33,6 +33,7 @@ const ui = {
   form: $('#joint-form'),
   moveButton: $('#move-button'),
   moveHint: $('[data-testid="move-hint"]'),
+  movePreview: $('[data-testid="move-preview"]'),
   goalFromSetpoint: $('#goal-from-setpoint-button'),
   status: $('[data-testid="command-status"]'),
   events: $('[data-testid="event-log"]'),
@@ -204,8 +205,11 @@ function updateControls() {
   if (!hint && pathMode) hint = 'Path-following mode: step through the plan (Plan tab), or switch to Joint mode.';
   const invalid = joints ? joints.invalidJoints() : [];
   if (!hint && invalid.length) hint = `Goal outside limits: ${invalid.join(', ')}`;
-  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0;
+  const edited = !!joints && joints.edited();
+  if (!hint && !edited) hint = 'Type or drag a goal; joints you do not touch stay where they are.';
+  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0 || !edited;
   ui.moveHint.textContent = hint;
+  ui.movePreview.textContent = joints ? joints.preview() : '';
 }
 
 function setLease(held, otherMessage = '') {
@@ -744,15 +748,21 @@ function wireCommands() {
   ui.form.addEventListener('submit', async (ev) => {
     ev.preventDefault();
     if (!joints || ui.moveButton.disabled) return;
-    const goal = joints.goals();
-    const answer = await runCommand('Move', () => api.moveJp(state.robot.name, goal));
+    // Joints nobody touched go at the setpoint the server has now, not at what the page last saw.
+    const answer = await runCommand('Move', async () => {
+      const live = await api.setpointJs(state.robot.name);
+      joints.updateSetpoint(live);
+      const preview = joints.preview();
+      const result = await api.moveJp(state.robot.name, joints.goals(live.position));
+      return {...result, preview};
+    });
     if (answer) {
       const d = typeof answer.duration_s === 'number' ? ` (about ${answer.duration_s.toFixed(1)} s)` : '';
-      showStatus(`Moving to goal${d}`, 'ok');
-      joints.markSent();
+      showStatus(`Moving to goal${d}: ${answer.preview.replace(/^will move: /, '')}`, 'ok');
+      joints.clearEdits();
     }
   });
-  ui.goalFromSetpoint.addEventListener('click', () => { joints?.goalsFromSetpoint(); updateControls(); });
+  ui.goalFromSetpoint.addEventListener('click', () => { joints?.clearEdits(); updateControls(); });
   ui.fitView.addEventListener('click', () => view?.fit());
 }
 

@@ -97,6 +97,24 @@ test('configuration mode: move_configuration in radians reaches the bend angles'
   await switchTo('joint');
 });
 
+test('a partial configuration goal moves only what it names: the insertion stays where it is', async () => {
+  await holding();
+  const q = await setpoint();
+  assert.equal((await post(`${R}/move_jp`, {goal: [30, q[1], q[2], q[3]]})).status, 202);
+  assert.ok(await holding(), 'joint move ends');
+  await switchTo('configuration');
+  const res = await post(`${R}/move_configuration`, {goal: {theta_proximal: 5 * deg}});
+  assert.equal(res.status, 202, res.text);
+  assert.ok(Math.abs(res.json.goal[0] - 30) < 0.01, `the goal keeps the insertion: ${JSON.stringify(res.json.goal)}`);
+  assert.ok(await holding(), 'configuration move ends');
+  const s = await operatingState();
+  assert.ok(Math.abs((await setpoint())[0] - 30) < 0.01, `insertion stayed at 30 mm: ${(await setpoint())[0]}`);
+  assert.ok(Math.abs(s.configuration[2] - 5 * deg) < 0.5 * deg, `theta_proximal ${s.configuration[2] / deg} deg`);
+  assert.equal((await post(`${R}/move_configuration`, {goal: {theta_proximal: 0}})).status, 202);
+  await holding();
+  await switchTo('joint');
+});
+
 test('telemanipulation over REST: nothing moves without the deadman, the bend moves with it', async () => {
   assertErrorShape(await post(`${R}/joystick`, {axes: [0, 0, 0.5, 0], deadman: true}), 409, 'wrong_mode');
   await switchTo('telemanipulation');
