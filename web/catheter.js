@@ -329,13 +329,10 @@ export class CatheterPanel {
     if (Array.isArray(c)) {
       for (const s of this.sliders) s.now.textContent = s.index === 0 ? `${fmt(c[0], 1)} mm` : `${fmt(c[s.index] / DEG, 1)}°`;
     }
-    if (os.retraction_only || os.hold_reason) {
-      this.el.hold.hidden = false;
-      this.el.hold.textContent = `Held: ${os.hold_reason || 'safety limit'}.` +
-          (os.retraction_only ? ' Only withdrawal moves now (insertion backwards); Resume when clear.' : ' Resume when clear.');
-    } else {
-      this.el.hold.hidden = true;
-    }
+    // The same cause and way out as the banner, next to the gauges they are about.
+    const hold = os.state === 'PAUSED' && os.hold && os.hold.message ? os.hold : null;
+    this.el.hold.hidden = !hold;
+    if (hold) this.el.hold.textContent = `Held: ${hold.message}. ${hold.next || ''}`;
     const j = os.joystick || {};
     this.el.status.textContent = j.conflict ? 'two joysticks hold their deadman: nothing moves'
         : j.source ? `moving from ${j.source} joystick` + (j.deadman ? '' : ' (deadman released)')

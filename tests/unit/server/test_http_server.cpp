@@ -77,6 +77,19 @@ class FakeControlApi : public tendril::server::ControlApi {
     ++estops;
     return ApiResult::success({{"estop", true}});
   }
+  ApiResult estop_from(const std::string& actor) override {
+    {
+      std::lock_guard lock(actor_mutex);
+      estop_actor = actor;
+    }
+    return estop();
+  }
+  std::string last_estop_actor() const {
+    std::lock_guard lock(actor_mutex);
+    return estop_actor;
+  }
+  mutable std::mutex actor_mutex;
+  std::string estop_actor;  // guarded by actor_mutex
   ApiResult estop_reset() override {
     ++estop_resets;
     return ApiResult::success({{"estop", false}});
@@ -368,6 +381,8 @@ TEST_F(HttpServerTest, ViewersAreReadOnlyButMayStopTheRobot) {
   EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots/srmc/measured_js", "", viewer).status, 200);
   EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "", viewer).status, 200);
   EXPECT_EQ(api_.estops, 1);
+  // The e-stop is recorded with who pressed it (issue 12).
+  EXPECT_EQ(api_.last_estop_actor(), "client:v (viewer)");
   expect_error_shape(
       http_request(port_, bhttp::verb::get, "/api/v1/robots", "",
                    {{"Authorization", std::string("Bearer ") + kToken}, {"X-Tendril-Role", "root"}}),
