@@ -102,8 +102,10 @@ export class Api {
   shape(robot) { return this.get(`/robots/${encodeURIComponent(robot)}/shape`); }
   operatingState(robot) { return this.get(`/robots/${encodeURIComponent(robot)}/operating_state`); }
   faults() { return this.get('/faults'); }
-  stateCommand(robot, command) {
-    return this.post(`/robots/${encodeURIComponent(robot)}/state_command`, {command});
+  // command: enable, disable, pause, resume; for a held catheter also relax, and withdraw (extra:
+  // {distance_mm}).
+  stateCommand(robot, command, extra = {}) {
+    return this.post(`/robots/${encodeURIComponent(robot)}/state_command`, {command, ...extra});
   }
   moveJp(robot, goal) { return this.post(`/robots/${encodeURIComponent(robot)}/move_jp`, {goal}); }
   estop() { return this.post('/estop', {}); }

@@ -25,6 +25,12 @@ const ui = {
   leaseButton: $('#lease-button'),
   enableButton: $('#enable-button'),
   disableButton: $('#disable-button'),
+  pauseButton: $('#pause-button'),
+  resumeButton: $('#resume-button'),
+  bannerNext: $('[data-testid="banner-next"]'),
+  relaxButton: $('#relax-button'),
+  withdrawButton: $('#withdraw-button'),
+  bannerResume: $('#banner-resume-button'),
   resetButton: $('#estop-reset-button'),
   estopButton: $('#estop-button'),
   banner: $('[data-testid="banner"]'),
@@ -33,6 +39,7 @@ const ui = {
   form: $('#joint-form'),
   moveButton: $('#move-button'),
   moveHint: $('[data-testid="move-hint"]'),
+  movePreview: $('[data-testid="move-preview"]'),
   goalFromSetpoint: $('#goal-from-setpoint-button'),
   status: $('[data-testid="command-status"]'),
   events: $('[data-testid="event-log"]'),
@@ -69,7 +76,32 @@ const state = {
   rttMs: NaN,           // round trip of GET /health, every 2 s
   advertised: new Set(),  // topics the stream currently offers
   timingSource: null,   // 'diagnostics' | 'metrics' | null
+  catheterMsg: null,    // newest /{robot}/catheter message (operating_state with the live catheter values)
+  catheterMsgMs: 0,
 };
+
+// Titles of the hold causes the server names in operating_state.hold.cause.
+const HOLD_TITLES = {
+  operator_pause: 'Paused',
+  spring_deflection: 'Held: spring deflection',
+  sensor_stale: 'Held: spring sensor silent',
+};
+
+// The hold (cause, wording, what is allowed) while PAUSED, else null. The operating_state topic
+// carries the hold without its live wording (that would change it with every sensor reading); the
+// 10 Hz catheter topic has it whole.
+function currentHold(os = state.operating) {
+  if (!os || os.state !== 'PAUSED' || os.estop) return null;
+  const hold = os.hold || {cause: 'unknown', message: 'the robot holds its position', next: 'Resume to continue.',
+                           allowed: ['resume'], cleared: true};
+  const c = state.catheterMsg?.hold;
+  if (c && c.cause === hold.cause && Date.now() - state.catheterMsgMs < 1000) return {...hold, ...c};
+  return hold;
+}
+
+const HOLD_ACTIONS = {resume: 'Resume', relax: 'Relax springs', withdraw: 'Withdraw'};
+
+const capitalise = (text) => (text ? text.charAt(0).toUpperCase() + text.slice(1) : '');
 
 let joints = null;      // joint panel controller
 let view = null;        // CatheterView, loaded lazily so a WebGL/three failure cannot break the controls
@@ -158,6 +190,8 @@ function updateBanner() {
   let level = 'ok';
   let title = 'Normal';
   let cause = 'No active fault.';
+  let next = '';
+  const hold = currentHold(os);
   if (os && os.estop) {
     level = 'estop';
     title = 'Emergency stop latched';
@@ -171,19 +205,34 @@ function updateBanner() {
     level = 'offline';
     title = 'No connection';
     cause = 'The values shown are stale. The server keeps the robot safe on its own; check the network or tendrild.';
-  } else if (os && os.state === 'PAUSED') {
+  } else if (hold) {
+    // Always the cause and the way out, here where the operator looks (not on another tab).
     level = 'paused';
-    title = 'Paused';
-    cause = 'The robot holds its position.';
+    title = HOLD_TITLES[hold.cause] || `Held: ${String(hold.cause).replace(/_/g, ' ')}`;
+    cause = `${capitalise(hold.message || 'the robot holds its position')}.`;
+    next = hold.next || '';
   } else if (!os) {
     title = 'Starting';
     cause = 'Waiting for the robot state…';
   }
   ui.banner.className = `banner level-${level}`;
   ui.banner.dataset.level = level;
-  ui.banner.title = `${title}: ${cause}`;
+  ui.banner.title = `${title}: ${cause} ${next}`.trim();
+  ui.banner.dataset.cause = hold ? hold.cause : '';
   ui.bannerTitle.textContent = title;
   ui.bannerCause.textContent = cause;
+  ui.bannerNext.textContent = next;
+  // The ways out the server allows now, as buttons beside the words.
+  const allowed = new Set(hold && !state.offline ? hold.allowed || [] : []);
+  const relaxing = !!hold?.relax?.running;
+  ui.relaxButton.hidden = !(allowed.has('relax') || relaxing);
+  ui.relaxButton.textContent = relaxing ? 'Stop relaxing' : 'Relax springs';
+  ui.relaxButton.dataset.relaxing = String(relaxing);
+  ui.withdrawButton.hidden = !allowed.has('withdraw');
+  ui.bannerResume.hidden = !hold;
+  ui.bannerResume.classList.toggle('btn-go', !!hold?.cleared);
+  ui.bannerResume.title = hold && !hold.cleared ? `Not yet: ${hold.next || 'the cause persists'}` : '';
+  for (const b of [ui.relaxButton, ui.withdrawButton, ui.bannerResume]) b.disabled = !state.leaseHeld;
 }
 
 function updateControls() {
@@ -191,25 +240,39 @@ function updateControls() {
   const estop = !!(os && os.estop);
   const enabled = !!(os && os.state === 'ENABLED');
   const fault = !!(os && os.state === 'FAULT');
-  ui.enableButton.disabled = !os || estop || enabled || fault;
+  const paused = !!(os && os.state === 'PAUSED' && !estop);
+  ui.enableButton.disabled = !os || estop || enabled || fault || paused;
   ui.disableButton.disabled = !os || os.state === 'DISABLED';
+  ui.pauseButton.hidden = paused;
+  ui.pauseButton.disabled = !enabled || estop;
+  ui.resumeButton.hidden = !paused;
+  const hold = currentHold(os);
+  ui.resumeButton.classList.toggle('btn-go', !!hold?.cleared);
+  ui.resumeButton.title = hold && !hold.cleared ? `Not yet: ${hold.next || 'the cause persists'}` : '';
   ui.resetButton.disabled = !os || (!estop && os.state !== 'FAULT');
   let hint = '';
   if (!os) hint = 'Waiting for the robot state…';
   else if (estop) hint = 'E-stop latched: Reset, then Enable.';
   else if (fault) hint = 'Fault: Reset to acknowledge, then Enable.';
+  else if (hold) hint = `${HOLD_TITLES[hold.cause] || 'Held'}: the banner above says why and offers ` +
+      `${[...(hold.allowed || [])].map((a) => HOLD_ACTIONS[a] || a).join(', ') || 'the way out'}.`;
   else if (!enabled) hint = 'Enable the robot to move.';
   else if (!state.leaseHeld) hint = 'Take the lease to command.';
   const pathMode = !!(os && os.mode === 'path_following');
   if (!hint && pathMode) hint = 'Path-following mode: step through the plan (Plan tab), or switch to Joint mode.';
   const invalid = joints ? joints.invalidJoints() : [];
   if (!hint && invalid.length) hint = `Goal outside limits: ${invalid.join(', ')}`;
-  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0;
+  const edited = !!joints && joints.edited();
+  if (!hint && !edited) hint = 'Type or drag a goal; joints you do not touch stay where they are.';
+  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0 || !edited;
   ui.moveHint.textContent = hint;
+  ui.movePreview.textContent = joints ? joints.preview() : '';
 }
 
 function setLease(held, otherMessage = '') {
+  const changed = state.leaseHeld !== held;
   state.leaseHeld = held;
+  if (changed) updateBanner();
   ui.lease.classList.toggle('held', held);
   ui.lease.classList.toggle('other', !held && !!otherMessage);
   ui.lease.textContent = held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'no lease (viewer)';
@@ -445,7 +508,12 @@ function connectWebSocket(robotName) {
           applyJointState(msg, true);
           break;
         case t.operating: applyOperatingState(msg); break;
-        case t.catheter: catheter?.update(msg); break;
+        case t.catheter:
+          state.catheterMsg = msg;
+          state.catheterMsgMs = Date.now();
+          catheter?.update(msg);
+          if (msg.state === 'PAUSED') { updateBanner(); updateControls(); }
+          break;
         case t.scene: view?.applySceneUpdate(msg); break;
         case t.events: addEvents(Array.isArray(msg.events) ? msg.events : [msg]); break;
         case t.diagnostics: applyDiagnostics(msg); break;
@@ -584,6 +652,13 @@ async function estop() {
   refreshStateSoon();
 }
 
+// Withdraws the catheter by `mm` while held (the one motion a limit hold allows); the server moves the
+// insertion back by exactly that at the joystick's full speed, however slow the link is.
+async function withdraw(mm) {
+  const answer = await runCommand(`Withdraw ${mm} mm`, () => api.stateCommand(state.robot.name, 'withdraw', {distance_mm: mm}));
+  if (answer) showStatus(`Withdrawing ${mm} mm (to ${Number(answer.withdrawing_to_mm).toFixed(1)} mm)`, 'ok');
+}
+
 function selectTab(tab) {
   for (const t of ui.tabs) {
     const selected = t === tab;
@@ -692,6 +767,24 @@ function wireCommands() {
     const os = await runCommand('Disable', () => api.stateCommand(state.robot.name, 'disable'));
     if (os) applyOperatingState(os);
   });
+  ui.pauseButton.addEventListener('click', async () => {
+    await runCommand('Pause', () => api.stateCommand(state.robot.name, 'pause'));
+    refreshStateSoon();
+  });
+  const resume = async () => {
+    // Refused (409) while the hold's cause persists: the status line then says why and what to do.
+    await runCommand('Resume', () => api.stateCommand(state.robot.name, 'resume'));
+    refreshStateSoon();
+  };
+  ui.resumeButton.addEventListener('click', resume);
+  ui.bannerResume.addEventListener('click', resume);
+  ui.relaxButton.addEventListener('click', async () => {
+    // While relaxing the same button stops it (a pause while held stops the relax).
+    if (ui.relaxButton.dataset.relaxing === 'true') await runCommand('Stop relaxing', () => api.stateCommand(state.robot.name, 'pause'));
+    else await runCommand('Relax springs', () => api.stateCommand(state.robot.name, 'relax'));
+    refreshStateSoon();
+  });
+  ui.withdrawButton.addEventListener('click', () => withdraw(1.0));
   ui.leaseButton.addEventListener('click', async () => {
     if (state.leaseHeld) {
       if (await runCommand('Release lease', () => api.releaseLease())) setLease(false);
@@ -744,15 +837,21 @@ function wireCommands() {
   ui.form.addEventListener('submit', async (ev) => {
     ev.preventDefault();
     if (!joints || ui.moveButton.disabled) return;
-    const goal = joints.goals();
-    const answer = await runCommand('Move', () => api.moveJp(state.robot.name, goal));
+    // Joints nobody touched go at the setpoint the server has now, not at what the page last saw.
+    const answer = await runCommand('Move', async () => {
+      const live = await api.setpointJs(state.robot.name);
+      joints.updateSetpoint(live);
+      const preview = joints.preview();
+      const result = await api.moveJp(state.robot.name, joints.goals(live.position));
+      return {...result, preview};
+    });
     if (answer) {
       const d = typeof answer.duration_s === 'number' ? ` (about ${answer.duration_s.toFixed(1)} s)` : '';
-      showStatus(`Moving to goal${d}`, 'ok');
-      joints.markSent();
+      showStatus(`Moving to goal${d}: ${answer.preview.replace(/^will move: /, '')}`, 'ok');
+      joints.clearEdits();
     }
   });
-  ui.goalFromSetpoint.addEventListener('click', () => { joints?.goalsFromSetpoint(); updateControls(); });
+  ui.goalFromSetpoint.addEventListener('click', () => { joints?.clearEdits(); updateControls(); });
   ui.fitView.addEventListener('click', () => view?.fit());
 }
 

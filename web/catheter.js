@@ -9,6 +9,12 @@ const SEND_PERIOD_MS = 33;  // 30 Hz: well inside the 150 ms command timeout
 // shoulder buttons 4 (LB) and 5 (RB).
 const GAMEPAD_MAP = 'left stick ↔ proximal, ↕ distal · right stick ↔ roll, ↕ insertion · hold LB or RB';
 
+// Configuration indices: 0 insertion (mm), 1 roll, 2 proximal bend, 3 distal bend (rad in the API,
+// degrees here).
+const API_NAMES = ['insertion', 'roll', 'theta_proximal', 'theta_distal'];
+const LABELS = ['insertion', 'roll', 'proximal bend θ', 'distal bend θ'];
+const PREVIEW_ORDER = [2, 3, 0, 1];
+
 const clamp1 = (v) => Math.max(-1, Math.min(1, Number.isFinite(v) ? v : 0));
 const fmt = (v, digits = 1) => (Number.isFinite(v) ? v.toFixed(digits) : '—');
 
@@ -24,7 +30,6 @@ export class CatheterPanel {
     this.deadmanGamepad = false;
     this.pad = {x: 0, y: 0};
     this.sending = false;
-    this.filled = false;  // sliders set from the robot's configuration once it is known
     this.lastError = '';
     this.timer = null;
     const q = (id) => root.querySelector(`[data-testid="${id}"]`);
@@ -42,12 +47,15 @@ export class CatheterPanel {
       gamepad: q('gamepad-status'),
       move: q('cfg-move-button'),
       fromCurrent: q('cfg-from-current-button'),
+      preview: q('cfg-preview'),
     };
     this.sliders = ['theta-proximal', 'theta-distal', 'insertion', 'roll'].map((name) => ({
       name,
       range: root.querySelector(`#cfg-${name}`),
       number: root.querySelector(`#cfg-${name}-num`),
       now: q(`cfg-${name}-now`),
+      touched: false,
+      live: NaN,
     }));
     this.wire();
   }
@@ -68,16 +76,20 @@ export class CatheterPanel {
       s.index = i;
     });
     this.limit = robot.spring_deflection_limit_mm;
-    this.filled = false;
-    this.fillFromCurrent();
+    this.clearTouched();
   }
 
   wire() {
     for (const s of this.sliders) {
-      s.range.addEventListener('input', () => { s.number.value = s.range.value; });
-      s.number.addEventListener('input', () => { s.range.value = s.number.value; });
+      const touch = () => {
+        s.touched = true;
+        s.number.classList.add('edited');
+        this.renderPreview();
+      };
+      s.range.addEventListener('input', () => { s.number.value = s.range.value; touch(); });
+      s.number.addEventListener('input', () => { s.range.value = s.number.value; touch(); });
     }
-    this.el.fromCurrent.addEventListener('click', () => this.fillFromCurrent());
+    this.el.fromCurrent.addEventListener('click', () => this.clearTouched());
     this.el.move.addEventListener('click', () => this.moveConfiguration());
 
     // Deadman: held by pointer (button), Space key, or a gamepad shoulder button.
@@ -210,31 +222,73 @@ export class CatheterPanel {
     this.el.deadman.classList.toggle('held', this.deadman);
   }
 
-  fillFromCurrent() {
+  // Untouched fields show the live configuration; a field the surgeon touched keeps its value until
+  // it is sent or cleared. Only touched fields go into the command (the server takes every other value
+  // from the robot's state when the command arrives), so nothing moves that nobody set.
+  showLive() {
     const c = this.operating?.configuration;
     if (!Array.isArray(c)) return;
-    this.filled = true;
     for (const s of this.sliders) {
-      const v = s.index === 0 ? c[0] : c[s.index] / DEG;
-      s.range.value = s.number.value = fmt(v, 1);
+      s.live = s.index === 0 ? c[0] : c[s.index] / DEG;
+      if (!s.touched) s.range.value = s.number.value = fmt(s.live, 1);
     }
+    this.renderPreview();
+  }
+
+  clearTouched() {
+    for (const s of this.sliders) {
+      s.touched = false;
+      s.number.classList.remove('edited');
+    }
+    this.showLive();
+  }
+
+  // The goal the Move button would send: {name: value in API units} of the touched fields only.
+  goal() {
+    const goal = {};
+    for (const s of this.sliders) {
+      if (!s.touched || s.number.value.trim() === '') continue;
+      const v = Number(s.number.value);
+      goal[API_NAMES[s.index]] = Number.isFinite(v) ? (s.index === 0 ? v : v * DEG) : NaN;
+    }
+    return goal;
+  }
+
+  // "will move: proximal bend θ 0.0° → 5.0° · insertion 30.0 mm (unchanged), …"
+  renderPreview() {
+    const moving = [];
+    const still = [];
+    for (const k of PREVIEW_ORDER) {
+      const s = this.sliders.find((x) => x.index === k);
+      const unit = k === 0 ? ' mm' : '°';
+      const now = `${fmt(s.live, 1)}${unit}`;
+      const v = Number(s.number.value);
+      if (s.touched && s.number.value.trim() !== '' && Number.isFinite(v)) moving.push(`${LABELS[k]} ${now} → ${fmt(v, 1)}${unit}`);
+      else still.push(`${LABELS[k]} ${now} (unchanged)`);
+    }
+    const bad = this.sliders.filter((s) => s.touched && !Number.isFinite(Number(s.number.value)));
+    this.el.preview.dataset.moves = String(moving.length);
+    this.el.preview.textContent = bad.length ? `${bad.map((s) => LABELS[s.index]).join(', ')}: not a number`
+        : moving.length ? `will move: ${moving.join(', ')} · ${still.join(', ')}`
+        : 'Nothing set yet: type or drag the value you want to change; the rest stays as it is.';
+    this.updateMoveButton();
   }
 
   async moveConfiguration() {
-    const goal = {};
-    const names = ['insertion', 'roll', 'theta_proximal', 'theta_distal'];
-    for (const s of this.sliders) {
-      if (s.number.value.trim() === '') continue;  // left empty: keeps its current value
-      const v = Number(s.number.value);
-      if (!Number.isFinite(v)) {
-        this.showStatus(`Configuration: ${s.name.replace('-', ' ')} is not a number`, 'error');
-        return;
-      }
-      goal[names[s.index]] = s.index === 0 ? v : v * DEG;
+    const goal = this.goal();
+    const names = Object.keys(goal);
+    if (!names.length) {
+      this.showStatus('Configuration: nothing set; type or drag the value you want to change', 'error');
+      return;
+    }
+    if (names.some((k) => !Number.isFinite(goal[k]))) {
+      this.showStatus('Configuration: a value is not a number', 'error');
+      return;
     }
     try {
       const answer = await this.api.moveConfiguration(this.robotName, goal);
-      this.showStatus(`Moving to the configuration (${fmt(answer.duration_s, 1)} s)`, 'ok');
+      this.showStatus(`Moving to the configuration (${fmt(answer.duration_s, 1)} s): ${this.el.preview.textContent.replace(/^will move: /, '').split(' · ')[0]}`, 'ok');
+      this.clearTouched();
     } catch (err) {
       this.showStatus(`Configuration refused: ${err.message || err}`, 'error');
     }
@@ -242,7 +296,7 @@ export class CatheterPanel {
 
   update(os) {
     this.operating = os;
-    if (!this.filled && Array.isArray(os.configuration)) this.fillFromCurrent();
+    this.showLive();
     const limit = os.spring_deflection_limit_mm || this.limit || 1;
     const d = Array.isArray(os.spring_deflection_mm) ? os.spring_deflection_mm : null;
     this.el.gauges.forEach((g, i) => {
@@ -275,20 +329,24 @@ export class CatheterPanel {
     if (Array.isArray(c)) {
       for (const s of this.sliders) s.now.textContent = s.index === 0 ? `${fmt(c[0], 1)} mm` : `${fmt(c[s.index] / DEG, 1)}°`;
     }
-    if (os.retraction_only || os.hold_reason) {
-      this.el.hold.hidden = false;
-      this.el.hold.textContent = `Held: ${os.hold_reason || 'safety limit'}.` +
-          (os.retraction_only ? ' Only withdrawal moves now (insertion backwards); Resume when clear.' : ' Resume when clear.');
-    } else {
-      this.el.hold.hidden = true;
-    }
+    // The same cause and way out as the banner, next to the gauges they are about.
+    const hold = os.state === 'PAUSED' && os.hold && os.hold.message ? os.hold : null;
+    this.el.hold.hidden = !hold;
+    if (hold) this.el.hold.textContent = `Held: ${hold.message}. ${hold.next || ''}`;
     const j = os.joystick || {};
     this.el.status.textContent = j.conflict ? 'two joysticks hold their deadman: nothing moves'
         : j.source ? `moving from ${j.source} joystick` + (j.deadman ? '' : ' (deadman released)')
         : this.deadman ? 'deadman held — waiting for the robot (telemanipulation or active compliance mode)'
         : 'no joystick input';
-    const configurationMode = os.mode === 'configuration';
-    this.el.move.disabled = !configurationMode || os.state !== 'ENABLED';
-    this.el.move.title = configurationMode ? '' : 'Switch to Configuration mode to move in bend angles';
+    this.updateMoveButton();
+  }
+
+  updateMoveButton() {
+    const os = this.operating;
+    const configurationMode = os?.mode === 'configuration';
+    const set = Number(this.el.preview.dataset.moves) > 0;
+    this.el.move.disabled = !configurationMode || os?.state !== 'ENABLED' || !set;
+    this.el.move.title = !configurationMode ? 'Switch to Configuration mode to move in bend angles'
+        : os?.state !== 'ENABLED' ? 'The robot must be ENABLED to move' : !set ? 'Set a value first' : '';
   }
 }

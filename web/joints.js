@@ -1,6 +1,8 @@
 // Joint panel, built from the robot description of GET /api/v1/robots: per joint the measured value
 // and the setpoint with units, the limits, a range bar, and a goal (number input + slider kept within
-// the limits). Goals start at the setpoint and follow it until the operator edits them.
+// the limits). Goals follow the setpoint until the operator edits them; a move sends the edited goals
+// and, for every joint nobody touched, the setpoint read when the command is sent (never a value the
+// page saw earlier). The preview line says what will move before it moves.
 
 const DECIMALS = {mm: 2, rad: 3, deg: 1};
 const STEP = {mm: 0.01, rad: 0.001, deg: 0.1};
@@ -134,16 +136,32 @@ export function buildJointPanel(form, jointDescriptions, onChange) {
       });
       onChange();
     },
-    goals() { return rows.map((r) => Number(r.number.value)); },
-    invalidJoints() { return rows.filter((r) => !r.validate()).map((r) => prettyName(r.name)); },
-    // After a move is accepted the goals stay as typed; the setpoint now heads there.
-    markSent() { rows.forEach((r) => r.number.classList.remove('edited')); },
-    goalsFromSetpoint() {
+    // The move_jp goal: edited joints as typed, the others at `setpoint` (positions in joint order,
+    // read from the server just before sending).
+    goals(setpoint) {
+      return rows.map((r, i) => (r.edited ? Number(r.number.value) : Number(setpoint?.[i] ?? r.setpoint)));
+    },
+    edited() { return rows.some((r) => r.edited); },
+    invalidJoints() { return rows.filter((r) => r.edited && !r.validate()).map((r) => prettyName(r.name)); },
+    // "will move: insertion 10.00 → 30.00 mm · unchanged: roll, proximal bend, distal bend"
+    preview() {
+      const moving = rows.filter((r) => r.edited);
+      if (!moving.length) return '';
+      const still = rows.filter((r) => !r.edited).map((r) => prettyName(r.name).toLowerCase());
+      const parts = moving.map((r) => {
+        const deg = r.unit === 'rad' ? ` (${(Number(r.number.value) * 180 / Math.PI).toFixed(1)}°)` : '';
+        return `${prettyName(r.name).toLowerCase()} ${r.fmt(r.setpoint)} → ${r.fmt(Number(r.number.value))} ${r.unit}${deg}`;
+      });
+      return `will move: ${parts.join(', ')}${still.length ? ` · unchanged: ${still.join(', ')}` : ''}`;
+    },
+    // After a move is accepted (or on "Clear goals") every goal follows the setpoint again.
+    clearEdits() {
       rows.forEach((r) => {
         r.edited = false;
         r.number.classList.remove('edited');
         r.setGoal(Number.isFinite(r.setpoint) ? r.setpoint : r.measured);
       });
+      onChange();
     },
   };
 }

@@ -71,24 +71,56 @@ void SafetySupervisor::raise_fault(double t, FaultCode code, int joint, const ch
 }
 
 void SafetySupervisor::process_estop_request(double t) noexcept {
-  if (estop_requested_.load(std::memory_order_acquire)) {
-    estop(t);
-    estop_requested_.store(false, std::memory_order_release);
-  }
+  if (estop_requested_.load(std::memory_order_acquire)) estop(t);
 }
 
-void SafetySupervisor::estop(double t) noexcept {
-  if (estop_latched_.load(std::memory_order_relaxed)) return;
+void SafetySupervisor::estop(double t) noexcept { estop(t, nullptr); }
+
+void SafetySupervisor::estop(double t, const char* actor) noexcept {
+  const bool named = actor != nullptr && actor[0] != '\0';
+  char text[96];
+  if (estop_latched_.load(std::memory_order_relaxed)) {
+    estop_requested_.store(false, std::memory_order_release);
+    if (!named) return;
+    const OperatingState s = state_.load(std::memory_order_relaxed);
+    if (!estop_actor_known_) {
+      std::snprintf(text, sizeof(text), "e-stop pressed by %s", actor);
+      copy_text(fault_cause_.text, text);
+    } else {
+      std::snprintf(text, sizeof(text), "e-stop pressed again by %s (already latched)", actor);
+    }
+    estop_actor_known_ = true;
+    log(t, EventKind::kEstop, FaultCode::kEstop, -1, s, s, text);
+    return;
+  }
   estop_latched_.store(true, std::memory_order_release);
+  // This press may be the one request_estop() announced: it is taken here (the latch is already set,
+  // so state() never shows the old state in between).
+  estop_requested_.store(false, std::memory_order_release);
+  estop_actor_known_ = named;
   const OperatingState from = state_.load(std::memory_order_relaxed);
   fault_cause_.code = FaultCode::kEstop;
   fault_cause_.joint = -1;
   fault_cause_.time = t;
-  copy_text(fault_cause_.text, "e-stop pressed");
+  if (named)
+    std::snprintf(text, sizeof(text), "e-stop pressed by %s", actor);
+  else
+    std::snprintf(text, sizeof(text), "e-stop pressed");
+  copy_text(fault_cause_.text, text);
   state_.store(OperatingState::kFault, std::memory_order_release);
   servo_live_ = false;
-  log(t, EventKind::kEstop, FaultCode::kEstop, -1, from, OperatingState::kFault,
-      "e-stop latched; motion stopped");
+  if (named)
+    std::snprintf(text, sizeof(text), "e-stop latched by %s; motion stopped", actor);
+  else
+    std::snprintf(text, sizeof(text), "e-stop latched; motion stopped");
+  log(t, EventKind::kEstop, FaultCode::kEstop, -1, from, OperatingState::kFault, text);
+}
+
+void SafetySupervisor::record(double t, EventKind kind, FaultCode code, int joint,
+                              const char* text) noexcept {
+  process_estop_request(t);
+  const OperatingState s = state_.load(std::memory_order_relaxed);
+  log(t, kind, code, joint, s, s, text);
 }
 
 CommandResult SafetySupervisor::reset_estop(double t) noexcept {

@@ -92,6 +92,8 @@ const char* to_string(EventKind kind) noexcept {
       return "estop";
     case EventKind::kEstopReset:
       return "estop_reset";
+    case EventKind::kRecovery:
+      return "recovery";
   }
   return "unknown";
 }

@@ -1,7 +1,10 @@
 // Steerable-catheter API (network threads): configuration goals, the console joystick, and the
 // catheter's part of /robots and operating_state.
+#include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
+#include <utility>
 
 #include "catheter_unit.hpp"
 #include "robot_runtime_impl.hpp"
@@ -59,6 +62,7 @@ void catheter_robot_json(const RobotUnit& r, nlohmann::json& robot) {
                             {"lower", lower},
                             {"upper", upper}};
   robot["spring_deflection_limit_mm"] = c.settings.deflection.limit_mm;
+  robot["spring_deflection_resume_mm"] = c.settings.deflection.resume_mm;
   robot["active_compliance"] = {{"gain", c.settings.compliance.gain},
                                 {"min_speed_mm_s", c.settings.compliance.min_speed},
                                 {"max_speed_mm_s", c.settings.compliance.max_speed},
@@ -251,6 +255,212 @@ ApiResult RobotRuntime::joystick(const std::string& robot, const nlohmann::json&
         "the control loop of '" + robot + "' is not taking commands fast enough; try again");
   }
   return ApiResult::success({{"command_timeout_ms", r.config.command_timeout_ms}});
+}
+
+}  // namespace tendril::server
+
+// ---- Ways out of a hold ------------------------------------------------------------------------
+
+namespace tendril::server {
+
+namespace {
+
+std::string mm(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.2f mm", v);
+  return buf;
+}
+
+// The spring furthest from rest: its index (0 proximal, 1 distal) and |deflection|.
+std::pair<int, double> worst_spring(const RobotSnapshot& s) {
+  const double a = std::abs(s.spring_deflection[0]), b = std::abs(s.spring_deflection[1]);
+  return a >= b ? std::pair{0, a} : std::pair{1, b};
+}
+
+constexpr const char* kSpringNames[2] = {"proximal", "distal"};
+
+std::string node_name(const RobotUnit& r) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "ADC node 0x%02X", r.catheter->settings.deflection.node_id);
+  return buf;
+}
+
+}  // namespace
+
+void catheter_hold_json(const RobotUnit& r, const RobotSnapshot& s, nlohmann::json& hold) {
+  const auto& d = r.catheter->settings.deflection;
+  const auto [spring, value] = worst_spring(s);
+  const std::string which = std::string("the ") + kSpringNames[spring] + " spring";
+  const bool fresh = s.deflection_fresh;
+  const bool deflection_hold = s.hold_code == safety::FaultCode::kSpringDeflection;
+  const double bound = deflection_hold ? d.resume_mm : d.limit_mm;
+  const bool cleared = fresh && value <= bound && !s.relaxing;
+  const std::string relax_how =
+      "relax the springs (the bend drives follow them down to " + mm(0.5 * d.resume_mm) + ")";
+  std::string message = hold.value("message", "");
+  std::string next = hold.value("next", "");
+  if (deflection_hold) {
+    hold["cause"] = "spring_deflection";
+    message = fresh ? which + " deflected " + mm(value) + " (hold bound " + mm(d.limit_mm) + ")"
+                    : "spring deflection over its bound; the sensor now sends no reading";
+  } else if (s.hold_code == safety::FaultCode::kSensorStale) {
+    hold["cause"] = "sensor_stale";
+    message =
+        fresh ? "the spring-deflection sensor (" + node_name(r) + ") sent no valid reading; it reads again"
+              : "no valid spring-deflection reading from " + node_name(r);
+  }
+  if (!fresh) {
+    next = "Check the spring-deflection sensor (" + node_name(r) +
+           ": cable, power); Resume once the gauges read again." +
+           (s.retraction_only ? " Withdrawal (insertion backwards) is allowed meanwhile." : "");
+  } else if (s.relaxing) {
+    next = "Relaxing: the bend drives follow their springs until both are within " + mm(0.5 * d.resume_mm) +
+           " (now " + mm(value) + "). Pause stops it.";
+  } else if (value > bound) {
+    const bool stuck =
+        s.relax_outcome == RelaxOutcome::timed_out || s.relax_outcome == RelaxOutcome::at_limit;
+    next = (deflection_hold
+                ? std::string()
+                : "Resume would hold again at once: " + which + " is deflected " + mm(value) + ". ") +
+           "Resume needs both springs within " + mm(bound) + ": " +
+           (stuck ? "the last relax stopped short (" + std::string(to_string(s.relax_outcome)) +
+                        "), so withdraw the catheter (insertion backwards) and Relax again; then Resume."
+                  : relax_how + (s.retraction_only ? " or withdraw the catheter (insertion backwards)" : "") +
+                        "; then Resume.");
+  } else if (s.hold_code != safety::FaultCode::kNone) {
+    next = "The cause has cleared (" + which + " " + mm(value) + "): Resume to continue.";
+  }
+  if (!next.empty()) next[0] = static_cast<char>(std::toupper(static_cast<unsigned char>(next[0])));
+  auto allowed = nlohmann::json::array();
+  if (cleared) allowed.push_back("resume");
+  if (fresh && value > d.resume_mm && !s.relaxing) allowed.push_back("relax");
+  if (s.retraction_only) allowed.push_back("withdraw");
+  hold["message"] = message;
+  hold["next"] = next;
+  hold["cleared"] = cleared;
+  hold["allowed"] = allowed;
+  hold["resume_bound_mm"] = bound;
+  hold["withdraw"] = {{"running", s.withdrawing}};
+  hold["relax"] = {
+      {"running", s.relaxing},
+      {"outcome", s.relax_outcome == RelaxOutcome::none ? nlohmann::json(nullptr)
+                                                        : nlohmann::json(to_string(s.relax_outcome))}};
+}
+
+std::optional<ApiResult> catheter_resume_refusal(const RobotUnit& r, const RobotSnapshot& s) {
+  if (s.state != OperatingState::kPaused) return std::nullopt;
+  const auto& d = r.catheter->settings.deflection;
+  const std::string robot = r.config.name;
+  const std::string held = s.hold_code == safety::FaultCode::kNone
+                               ? std::string("paused by the operator")
+                               : std::string("held: ") + safety::to_string(s.hold_code);
+  if (!s.deflection_fresh)
+    return ApiResult::error(
+        409, "hold_not_cleared",
+        "cannot resume robot '" + robot + "' (" + held +
+            "): there is no valid spring-deflection reading from " + node_name(r) +
+            ", so it would hold again at once; check the sensor's cable and power and resume "
+            "once it reads again" +
+            (s.retraction_only ? " (withdrawal is allowed meanwhile)" : ""));
+  const auto [spring, value] = worst_spring(s);
+  const bool deflection_hold = s.hold_code == safety::FaultCode::kSpringDeflection;
+  const double bound = deflection_hold ? d.resume_mm : d.limit_mm;
+  if (s.relaxing)
+    return ApiResult::error(409, "hold_not_cleared",
+                            "cannot resume robot '" + robot + "' yet: the springs are relaxing (the " +
+                                kSpringNames[spring] + " at " + mm(value) + ", resume at " + mm(d.resume_mm) +
+                                "); wait until the relax ends");
+  if (value <= bound) return std::nullopt;
+  return ApiResult::error(409, "hold_not_cleared",
+                          "cannot resume robot '" + robot + "' (" + held + "): the " + kSpringNames[spring] +
+                              " spring is deflected " + mm(value) + ", over the " +
+                              (deflection_hold ? "resume bound " : "hold bound ") + mm(bound) +
+                              "; relax the springs first (POST /api/v1/robots/" + robot +
+                              "/state_command {\"command\": \"relax\"})" +
+                              (s.retraction_only ? " or withdraw the catheter" : ""));
+}
+
+ApiResult relax_springs(RobotUnit& r, const RobotSnapshot& s) {
+  const auto& d = r.catheter->settings.deflection;
+  const std::string robot = r.config.name;
+  if (s.estop)
+    return ApiResult::error(409, "estop_latched",
+                            "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
+  if (s.state != OperatingState::kPaused)
+    return ApiResult::error(409, "invalid_state",
+                            "relax is a way out of a hold: robot '" + robot + "' is " +
+                                safety::to_string(s.state) +
+                                ", not held (PAUSED); in active_compliance mode the bend drives follow their "
+                                "springs anyway");
+  if (!s.drives_ready)
+    return ApiResult::error(409, "not_enabled", "the drives of robot '" + robot + "' are not ready yet");
+  if (!s.deflection_fresh)
+    return ApiResult::error(409, "sensor_stale",
+                            "relax needs the spring-deflection sensor, and " + node_name(r) +
+                                " sends no valid reading; check its cable and power");
+  if (s.relaxing)
+    return ApiResult::success({{"state", "PAUSED"}, {"relaxing", true}, {"resume_bound_mm", d.resume_mm}},
+                              202);
+  const auto [spring, value] = worst_spring(s);
+  if (value <= d.resume_mm)
+    return ApiResult::error(409, "already_relaxed",
+                            std::string("both springs are within ") + mm(d.resume_mm) + " already (the " +
+                                kSpringNames[spring] + " at " + mm(value) + "): resume");
+  RobotCommand cmd;
+  cmd.kind = CommandKind::relax;
+  cmd.received = std::chrono::steady_clock::now();
+  if (!r.mailbox.push(cmd)) {
+    r.mailbox_full.fetch_add(1, std::memory_order_relaxed);
+    return ApiResult::error(
+        503, "control_busy",
+        "the control loop of '" + robot + "' is not taking commands fast enough; try again");
+  }
+  return ApiResult::success({{"state", "PAUSED"},
+                             {"relaxing", true},
+                             {"resume_bound_mm", d.resume_mm},
+                             {"timeout_s", d.relax_timeout_s}},
+                            202);
+}
+
+ApiResult withdraw_catheter(RobotUnit& r, const RobotSnapshot& s, const nlohmann::json& body) {
+  const std::string robot = r.config.name;
+  constexpr double kMaxDistanceMm = 10.0;  // one press; more is more presses, each a deliberate act
+  if (!body.contains("distance_mm") || !body["distance_mm"].is_number())
+    return ApiResult::error(400, "bad_request",
+                            "expected {\"command\": \"withdraw\", \"distance_mm\": d} with 0 < d <= 10");
+  const double distance = body["distance_mm"].get<double>();
+  if (!std::isfinite(distance) || distance <= 0.0 || distance > kMaxDistanceMm)
+    return ApiResult::error(422, "out_of_range", "distance_mm must be greater than 0 and at most 10 mm");
+  if (s.estop)
+    return ApiResult::error(409, "estop_latched",
+                            "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
+  if (s.state != OperatingState::kPaused || !s.retraction_only)
+    return ApiResult::error(409, "invalid_state",
+                            "withdraw is the way out of a limit hold: robot '" + robot + "' is " +
+                                safety::to_string(s.state) +
+                                (s.state == OperatingState::kPaused ? " by the operator" : "") +
+                                "; move the insertion in joint mode or with a joystick instead");
+  if (!s.drives_ready)
+    return ApiResult::error(409, "not_enabled", "the drives of robot '" + robot + "' are not ready yet");
+  const auto& insertion = r.config.joints[0];
+  const double lowest = std::max(insertion.lower + insertion.soft_margin, r.operating_limits.load().lower[0]);
+  const double to = std::max(s.setpoint[0] - distance, lowest);
+  if (!(to < s.setpoint[0]))
+    return ApiResult::error(
+        422, "out_of_limits",
+        "the insertion is at its lower limit (" + mm(lowest) + "): nothing left to withdraw");
+  RobotCommand cmd;
+  cmd.kind = CommandKind::withdraw;
+  cmd.count = 1;
+  cmd.values[0] = to;
+  cmd.received = std::chrono::steady_clock::now();
+  if (!r.mailbox.push(cmd)) {
+    r.mailbox_full.fetch_add(1, std::memory_order_relaxed);
+    return ApiResult::error(
+        503, "control_busy",
+        "the control loop of '" + robot + "' is not taking commands fast enough; try again");
+  }
+  return ApiResult::success({{"state", "PAUSED"}, {"withdrawing_to_mm", to}}, 202);
 }
 
 }  // namespace tendril::server

@@ -1,6 +1,7 @@
 // Steerable-catheter parts of the control cycle (real-time thread: no allocation, locks or blocking):
 // spring-deflection supervision, the configuration, active-compliance and telemanipulation modes of
-// the mid-level controller (seed 000 §4.7), and retraction while held.
+// the mid-level controller (seed 000 §4.7), and the ways out of a hold: retraction, relaxing the
+// springs, and resume only once the cause has cleared.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -16,6 +17,7 @@ using safety::OperatingState;
 
 constexpr std::size_t kJoints = 4;
 constexpr std::int64_t kAnalogJoystickStaleNs = 100'000'000;
+constexpr double kRelaxSettleS = 0.1;  // relaxed: both springs within half the resume bound this long
 
 // Velocity per joint from the joystick sources whose deadman is held. Exactly one such source moves
 // the robot; two at once cancel (two hands on one catheter is a conflict, not a sum).
@@ -58,6 +60,26 @@ void joystick_velocity(RobotUnit& r, double t, std::int64_t now_ns, std::array<d
 
 }  // namespace
 
+const char* to_string(RelaxOutcome outcome) noexcept {
+  switch (outcome) {
+    case RelaxOutcome::running:
+      return "running";
+    case RelaxOutcome::relaxed:
+      return "relaxed";
+    case RelaxOutcome::timed_out:
+      return "timed_out";
+    case RelaxOutcome::at_limit:
+      return "at_limit";
+    case RelaxOutcome::sensor_stale:
+      return "sensor_stale";
+    case RelaxOutcome::stopped:
+      return "stopped";
+    case RelaxOutcome::none:
+      break;
+  }
+  return "none";
+}
+
 const char* to_string(JoystickSource source) noexcept {
   switch (source) {
     case JoystickSource::console:
@@ -79,11 +101,17 @@ void RobotRuntime::Impl::catheter_sensors(RobotUnit& r, double t, OperatingState
   const auto stale_ns = static_cast<std::int64_t>(c.settings.deflection.stale_ms * 1e6);
   s.deflection_fresh = reading.valid && now_ns - reading.stamp_ns <= stale_ns;
   s.spring_deflection = s.deflection_fresh ? reading.mm : std::array<double, 2>{};
+  if (s.relaxing && state != OperatingState::kPaused) {  // resumed, disabled, faulted or e-stopped
+    s.relaxing = false;
+    s.relax_outcome = RelaxOutcome::stopped;
+  }
+  if (state != OperatingState::kPaused) s.withdrawing = false;
   if (state != OperatingState::kEnabled || !s.drives_ready) return;
   auto held = [&](safety::FaultCode code, int joint, const char* detail) {
     if (!r.supervisor->hold(t, code, joint, detail)) return;
     s.hold_code = code;
     s.retraction_only = c.settings.retraction_only_while_held;
+    s.relax_outcome = RelaxOutcome::none;
     s.servo_active = false;
     s.console_deadman = false;
     c.configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
@@ -167,7 +195,7 @@ void RobotRuntime::Impl::catheter_mid_level(RobotUnit& r, double t) noexcept {
 
 void RobotRuntime::Impl::catheter_retraction(RobotUnit& r, double t) noexcept {
   // Held after a limit: the operator may withdraw the catheter (insertion only, never forward), from
-  // the servo stream or a joystick; everything else stays where it is.
+  // the servo stream, a joystick or a requested distance; everything else stays where it is.
   auto& s = r.rt;
   std::array<double, kJoints> v{};
   if (s.servo_active && t - s.last_servo_time <= s.limits.servo_timeout_s) {
@@ -176,16 +204,109 @@ void RobotRuntime::Impl::catheter_retraction(RobotUnit& r, double t) noexcept {
     s.servo_active = false;
     joystick_velocity(r, t, now_ns, v);
   }
-  const double withdraw = std::min(v[0], 0.0);
+  double withdraw = std::min(v[0], 0.0);
+  if (s.withdrawing) {
+    // A requested distance goes at the joystick's full insertion speed and stops on the millimetre.
+    const double remaining = s.q_des[0] - s.withdraw_to;
+    const double speed =
+        std::min(r.catheter->settings.telemanipulation_max_speed[0], s.limits.max_velocity[0]);
+    if (remaining <= 1e-9 || speed <= 0.0)
+      s.withdrawing = false;
+    else
+      withdraw = std::min(withdraw, -std::min(speed, remaining / period));
+  }
   s.qd_des[0] = withdraw;
   s.q_des[0] += withdraw * period;
   r.interpolator->reset({s.q_des.data(), r.n}, t);
+}
+
+void RobotRuntime::Impl::catheter_start_relax(RobotUnit& r, double t) noexcept {
+  auto& s = r.rt;
+  if (r.supervisor->state() != OperatingState::kPaused || !s.drives_ready || !s.deflection_fresh) return;
+  s.relaxing = true;
+  s.relax_started = t;
+  s.relax_settled_s = 0.0;
+  s.relax_outcome = RelaxOutcome::running;
+  char text[96];
+  std::snprintf(text, sizeof text, "relax: bend drives follow their springs (%.2f, %.2f mm) down to %.2f mm",
+                s.spring_deflection[0], s.spring_deflection[1],
+                0.5 * r.catheter->settings.deflection.resume_mm);
+  r.supervisor->record(t, safety::EventKind::kRecovery, safety::FaultCode::kSpringDeflection, -1, text);
+}
+
+void RobotRuntime::Impl::catheter_relax(RobotUnit& r, double t) noexcept {
+  auto& s = r.rt;
+  if (!s.relaxing) return;
+  const auto& d = r.catheter->settings.deflection;
+  char text[96];
+  auto end = [&](RelaxOutcome outcome) {
+    s.relaxing = false;
+    s.relax_outcome = outcome;
+    s.qd_des[2] = s.qd_des[3] = 0.0;
+    r.supervisor->record(t, safety::EventKind::kRecovery, safety::FaultCode::kSpringDeflection, -1, text);
+  };
+  if (!s.deflection_fresh) {
+    std::snprintf(text, sizeof text, "relax stopped: no valid spring-deflection reading");
+    return end(RelaxOutcome::sensor_stale);
+  }
+  // Relax goes on to half the resume bound and stays there for 100 ms, so the spring settling after
+  // the drives stop (the carriage is damped, the wall still pushes) does not take it back over.
+  const double worst = std::max(std::abs(s.spring_deflection[0]), std::abs(s.spring_deflection[1]));
+  s.relax_settled_s = worst <= 0.5 * d.resume_mm ? s.relax_settled_s + period : 0.0;
+  if (s.relax_settled_s >= kRelaxSettleS) {
+    std::snprintf(text, sizeof text, "springs relaxed (%.2f mm, resume bound %.2f mm): resume is possible",
+                  worst, d.resume_mm);
+    return end(RelaxOutcome::relaxed);
+  }
+  if (t - s.relax_started > d.relax_timeout_s) {
+    std::snprintf(text, sizeof text, "relax stopped after %.0f s with %.2f mm left (resume bound %.2f mm)",
+                  d.relax_timeout_s, worst, d.resume_mm);
+    return end(RelaxOutcome::timed_out);
+  }
+  // Eqs. 4.24–4.26 on the bend drives only; insertion and roll stay (or withdraw, see retraction).
+  const std::array<double, kJoints> current{s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]};
+  teleop::apply_active_compliance(r.catheter->settings.compliance, current, s.spring_deflection, period,
+                                  {s.q_des.data(), kJoints});
+  for (std::size_t i = 2; i < kJoints; ++i) {
+    const auto& j = r.config.joints[i];
+    const double lo = std::max(j.lower + j.soft_margin, s.limits.lower[i]);
+    const double hi = std::min(j.upper - j.soft_margin, s.limits.upper[i]);
+    if ((s.q_des[i] < lo && s.q_des[i] < current[i]) || (s.q_des[i] > hi && s.q_des[i] > current[i])) {
+      s.q_des[i] = current[i];
+      std::snprintf(text, sizeof text, "relax stopped: drive '%s' at its limit with %.2f mm left; withdraw",
+                    j.name.c_str(), worst);
+      return end(RelaxOutcome::at_limit);
+    }
+    s.qd_des[i] = (s.q_des[i] - current[i]) / period;
+  }
+  r.interpolator->reset({s.q_des.data(), r.n}, t);
+}
+
+bool RobotRuntime::Impl::catheter_may_resume(RobotUnit& r, double t) noexcept {
+  const auto& s = r.rt;
+  const auto& d = r.catheter->settings.deflection;
+  char text[96];
+  if (!s.deflection_fresh) {
+    std::snprintf(text, sizeof text, "resume refused: no valid spring-deflection reading from node 0x%02X",
+                  d.node_id);
+    r.supervisor->record(t, safety::EventKind::kRefused, safety::FaultCode::kSensorStale, -1, text);
+    return false;
+  }
+  const int worst = std::abs(s.spring_deflection[0]) >= std::abs(s.spring_deflection[1]) ? 0 : 1;
+  const double value = std::abs(s.spring_deflection[static_cast<std::size_t>(worst)]);
+  const double bound = s.hold_code == safety::FaultCode::kSpringDeflection ? d.resume_mm : d.limit_mm;
+  if (value <= bound) return true;
+  std::snprintf(text, sizeof text,
+                "resume refused: spring deflected %.2f mm, over %.2f mm; relax or withdraw", value, bound);
+  r.supervisor->record(t, safety::EventKind::kRefused, safety::FaultCode::kSpringDeflection, 2 + worst, text);
+  return false;
 }
 
 bool RobotRuntime::Impl::holding(const RobotUnit& r, double t) const noexcept {
   const auto& s = r.rt;
   if (s.enable_pending || s.goal_pending || s.servo_active || !r.interpolator->done(t)) return false;
   if (!r.catheter) return true;
+  if (s.relaxing || s.withdrawing) return false;
   if (s.mode == ControlMode::configuration && !r.catheter->configuration->done(t)) return false;
   // A joystick whose deadman is held is driving the robot.
   return !(s.mode == ControlMode::telemanipulation || s.mode == ControlMode::active_compliance) ||

@@ -124,6 +124,8 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     if (s.deflection.limit_mm * s.deflection.volts_per_mm >= 2.5)
       d.fail("limit_mm", "a bound the potentiometer can still read (limit × volts_per_mm < 2.5 V)",
              d.raw("limit_mm"));
+    s.deflection.resume_mm = d.positive_or("resume_mm", 0.5 * s.deflection.limit_mm);
+    s.deflection.relax_timeout_s = d.positive_or("relax_timeout_s", s.deflection.relax_timeout_s);
   }
 
   if (r.has("active_compliance")) {
@@ -144,6 +146,20 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
              "at most spring_deflection.limit_mm (" + std::to_string(s.deflection.limit_mm) +
                  "), or compliance would saturate only after the hold",
              a.raw("max_deflection_mm"));
+  }
+
+  // Relax stops at half of resume_mm, which must lie above the compliance deadband (below which the bend
+  // drives no longer move); resume_mm itself below the hold bound.
+  if (!(s.deflection.resume_mm < s.deflection.limit_mm &&
+        0.5 * s.deflection.resume_mm > s.compliance.deadband)) {
+    if (!r.has("spring_deflection"))
+      r.fail("spring_deflection", "a resume_mm above twice the active-compliance deadband", nullptr);
+    const Reader d = r.child("spring_deflection");
+    d.fail("resume_mm",
+           "a bound below limit_mm (" + std::to_string(s.deflection.limit_mm) +
+               " mm) and above twice the active-compliance deadband (" +
+               std::to_string(s.compliance.deadband) + " mm)",
+           d.has("resume_mm") ? d.raw("resume_mm") : nlohmann::json(s.deflection.resume_mm));
   }
 
   if (r.has("telemanipulation")) {

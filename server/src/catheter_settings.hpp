@@ -27,6 +27,12 @@ struct SpringDeflectionSensorSettings {
   double volts_per_mm = 0.5;    // potentiometer gain around the 2.5 V centre (±5 mm over 0–5 V)
   double limit_mm = 1.5;        // |deflection| beyond this holds the robot
   double stale_ms = 100.0;      // no reading for this long: the sensor is stale (hold)
+  // The way out of a deflection hold: resume is accepted once both springs are within resume_mm
+  // (hysteresis below the hold bound, so resuming does not hold again at the next bump); "relax" runs
+  // active compliance on the bend drives until both are within half of it for 100 ms (so the spring
+  // settling after the drives stop stays under resume_mm). Default: half the hold bound.
+  double resume_mm = 0.75;
+  double relax_timeout_s = 10.0;  // a relax that has not got there by then stops and says so
 };
 
 struct VesselTubeSettings {

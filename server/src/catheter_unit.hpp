@@ -10,6 +10,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -19,6 +20,7 @@
 #include "tendril/drivers/canopen/analog_input_node.hpp"
 #include "tendril/drivers/input/analog_joystick.hpp"
 #include "tendril/drivers/input/evdev_joystick.hpp"
+#include "tendril/server/control_api.hpp"
 #include "tendril/teleop/catheter_configuration.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
 
@@ -90,5 +92,17 @@ void add_catheter_entities(const RobotUnit& r, nlohmann::json& scene);
 // effective actuation q − deflection through the configuration map) divided by the display model's
 // bend gains, so the drawn shape shows the bend the sensors imply.
 std::vector<double> catheter_display_positions(const RobotUnit& r, const RobotSnapshot& s);
+
+// The ways out of a hold (network threads). The "hold" object of operating_state while PAUSED, for a
+// catheter: its cause, whether it has cleared, what the operator can do now and what to do next.
+void catheter_hold_json(const RobotUnit& r, const RobotSnapshot& s, nlohmann::json& hold);
+// 409 naming the cause and what to do when resuming now would hold the robot again at once; nullopt
+// when resume may go ahead.
+std::optional<ApiResult> catheter_resume_refusal(const RobotUnit& r, const RobotSnapshot& s);
+// state_command "relax": the bend drives follow their springs while the robot is held (PAUSED).
+ApiResult relax_springs(RobotUnit& r, const RobotSnapshot& s);
+// state_command "withdraw" {"distance_mm": d}: held with retraction allowed, the insertion moves back
+// by d (0 < d <= 10 mm) at the joystick's full insertion speed.
+ApiResult withdraw_catheter(RobotUnit& r, const RobotSnapshot& s, const nlohmann::json& body);
 
 }  // namespace tendril::server

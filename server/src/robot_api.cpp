@@ -1,6 +1,7 @@
 // RobotRuntime's ControlApi: request validation (network threads) and state read-out.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
 #include "catheter_unit.hpp"
@@ -224,6 +225,18 @@ ApiResult RobotRuntime::operating_state(const std::string& robot) const {
         {"joint", s.fault.joint >= 0
                       ? nlohmann::json(r.config.joints[static_cast<std::size_t>(s.fault.joint)].name)
                       : nlohmann::json(nullptr)}};
+  // Why the robot holds and the way out, whenever it is PAUSED.
+  if (s.state == OperatingState::kPaused && !s.estop) {
+    nlohmann::json hold = {{"cause", "operator_pause"},
+                           {"message", "paused by the operator"},
+                           {"cleared", true},
+                           {"next", "Resume to continue; nothing moves until then."},
+                           {"allowed", {"resume"}}};
+    if (r.catheter) catheter_hold_json(r, s, hold);
+    out["hold"] = std::move(hold);
+  } else {
+    out["hold"] = nullptr;
+  }
   if (r.catheter) {
     catheter_state_json(r, s, out);
     std::lock_guard lock(r.refusal_mutex);
@@ -248,10 +261,21 @@ ApiResult busy_mailbox(const std::string& robot) {
 ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::json& body) {
   TENDRIL_FIND_ROBOT(robot)
   if (!body.is_object() || !body.contains("command") || !body["command"].is_string())
-    return ApiResult::error(
-        400, "bad_request",
-        "expected {\"command\": \"enable\" | \"disable\" | \"pause\" | \"resume\" | \"home\"}");
+    return ApiResult::error(400, "bad_request",
+                            "expected {\"command\": \"enable\" | \"disable\" | \"pause\" | \"resume\" | "
+                            "\"home\" | \"relax\" | \"withdraw\"}");
   const auto cmd = body["command"].get<std::string>();
+  if (cmd == "relax") {
+    // tendril's way out of a spring-deflection hold (catheter robots), next to the CRTK commands.
+    if (!r.catheter)
+      return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no springs to relax");
+    return relax_springs(r, r.snapshot.load());
+  }
+  if (cmd == "withdraw") {
+    if (!r.catheter)
+      return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no held withdrawal");
+    return withdraw_catheter(r, r.snapshot.load(), body);
+  }
   safety::StateCommand sc;
   if (cmd == "enable")
     sc = safety::StateCommand::kEnable;
@@ -266,9 +290,9 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
         422, "not_supported",
         "robot '" + robot + "' has absolute encoders and needs no homing (is_homed is true)");
   else
-    return ApiResult::error(
-        400, "bad_request",
-        "unknown state command '" + cmd + "'; expected enable, disable, pause, resume or home");
+    return ApiResult::error(400, "bad_request",
+                            "unknown state command '" + cmd +
+                                "'; expected enable, disable, pause, resume, home, relax or withdraw");
   const auto s = r.snapshot.load();
   if (s.estop && sc != safety::StateCommand::kDisable)
     return ApiResult::error(409, "estop_latched",
@@ -286,6 +310,10 @@ ApiResult RobotRuntime::state_command(const std::string& robot, const nlohmann::
       why += " (" + std::string(s.fault.text) + "); send disable to acknowledge the fault first";
     return ApiResult::error(409, "invalid_state", why);
   }
+  // Resume is refused while the hold's cause persists, with the cause and what to do, rather than
+  // accepted and held again at the next tick.
+  if (sc == safety::StateCommand::kResume && r.catheter)
+    if (auto refusal = catheter_resume_refusal(r, s)) return *refusal;
   RobotCommand c;
   c.kind = CommandKind::state;
   c.state = sc;
@@ -443,12 +471,16 @@ ApiResult RobotRuntime::servo_jv(const std::string& robot, const nlohmann::json&
   return ApiResult::success({{"command_timeout_ms", r.config.command_timeout_ms}});
 }
 
-ApiResult RobotRuntime::estop() {
-  // The latch is set directly as well as through the mailbox, so a full mailbox cannot delay it.
+ApiResult RobotRuntime::estop() { return estop_from({}); }
+
+ApiResult RobotRuntime::estop_from(const std::string& actor) {
+  // The latch is set directly as well as through the mailbox, so a full mailbox cannot delay it; the
+  // command carries who pressed it into the event log.
   for (auto& r : impl_->robots) {
     r->supervisor->request_estop();
     RobotCommand c;
     c.kind = CommandKind::estop;
+    std::snprintf(c.actor, sizeof c.actor, "%s", actor.c_str());
     c.received = std::chrono::steady_clock::now();
     post(*r, c);
   }
@@ -1065,6 +1097,9 @@ std::optional<nlohmann::json> RobotRuntime::topic_message(const std::string& top
       for (const char* k : {"configuration", "spring_deflection_mm", "contact_force_n", "simulation"})
         msg.erase(k);
       msg["joystick"].erase("axes");
+      // The hold's wording quotes the live deflection; the catheter topic carries it.
+      if (msg["hold"].is_object())
+        for (const char* k : {"message", "next"}) msg["hold"].erase(k);
     }
   } else if (leaf == "catheter" && r.catheter) {
     msg = operating_state(r.config.name).body;

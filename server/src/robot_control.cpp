@@ -46,6 +46,18 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
   const std::span<const double> values(c.values.data(), c.count);
   switch (c.kind) {
     case CommandKind::state:
+      // A hold's way out: resume only once its cause has cleared (re-checked here, where the sensors
+      // are read; the network thread checked the snapshot), never into an immediate new hold.
+      if (c.state == safety::StateCommand::kResume && r.catheter && sup.state() == OperatingState::kPaused &&
+          !catheter_may_resume(r, t))
+        break;
+      if (c.state == safety::StateCommand::kPause) s.withdrawing = false;
+      if (c.state == safety::StateCommand::kPause && s.relaxing) {
+        s.relaxing = false;  // pause while relaxing: the operator stops the relax
+        s.relax_outcome = RelaxOutcome::stopped;
+        sup.record(t, safety::EventKind::kRecovery, safety::FaultCode::kSpringDeflection, -1,
+                   "relax stopped by the operator");
+      }
       if (sup.request(t, c.state) == safety::CommandResult::kAccepted &&
           c.state == safety::StateCommand::kEnable) {
         s.enable_pending = true;
@@ -100,7 +112,7 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       break;
     }
     case CommandKind::estop:
-      sup.estop(t);
+      sup.estop(t, c.actor);
       s.servo_active = false;
       s.estop_tick = ticks.load(std::memory_order_relaxed);
       break;
@@ -145,6 +157,17 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       for (std::size_t i = 0; i < 4; ++i) s.console_axes[i] = c.values[i];
       s.console_deadman = c.index != 0;
       s.console_time = t;
+      break;
+    case CommandKind::relax:
+      if (r.catheter) catheter_start_relax(r, t);
+      break;
+    case CommandKind::withdraw:
+      // Re-checked here: held with retraction allowed, and only ever backwards.
+      if (r.catheter && s.retraction_only && sup.state() == OperatingState::kPaused && s.drives_ready &&
+          std::isfinite(c.values[0]) && c.values[0] < s.q_des[0]) {
+        s.withdrawing = true;
+        s.withdraw_to = c.values[0];
+      }
       break;
     case CommandKind::path_loaded:
       s.path_step = -1;
@@ -298,6 +321,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   } else if (state == OperatingState::kPaused && s.drives_ready) {
     for (std::size_t i = 0; i < n; ++i) s.qd_des[i] = 0.0;  // hold the setpoint
     if (r.catheter && s.retraction_only) catheter_retraction(r, t);
+    if (r.catheter) catheter_relax(r, t);
   } else {
     // Not commanding: the setpoint follows the measurement so that enabling never jumps.
     for (std::size_t i = 0; i < n; ++i) {
@@ -309,7 +333,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     if (r.catheter)
       r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
   }
-  if ((state == OperatingState::kEnabled || (state == OperatingState::kPaused && s.retraction_only)) &&
+  if ((state == OperatingState::kEnabled ||
+       (state == OperatingState::kPaused && (s.retraction_only || s.relaxing))) &&
       s.drives_ready) {
     const JointArray unclamped = s.q_des;
     auto clamp = sup.clamp_setpoint(q_des, qd_des);
@@ -409,6 +434,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     snap.joystick_deadman = s.joystick_deadman;
     snap.joystick_conflict = s.joystick_conflict;
     snap.joystick_axes = s.joystick_axes;
+    snap.relaxing = s.relaxing;
+    snap.relax_outcome = s.relax_outcome;
+    snap.withdrawing = s.withdrawing;
   }
   r.snapshot.store(snap);
 }

@@ -40,8 +40,14 @@ enum class CommandKind : std::uint8_t {
   path_loaded,         // a new plan was loaded: no step reached yet
   path_step,           // index = step; values = the step's joint configuration
   move_configuration,  // values = goal ψ (insertion, roll, θ_L1, θ_L2), steerable catheter only
-  joystick             // console joystick: values = axes per joint (−1..1), index = deadman held
+  joystick,            // console joystick: values = axes per joint (−1..1), index = deadman held
+  relax,               // steerable catheter held PAUSED: the bend drives relax their springs
+  withdraw             // steerable catheter held with retraction allowed: values[0] = insertion goal (mm)
 };
+
+// How the last relax of a catheter's springs ended (operating_state "hold.relax").
+enum class RelaxOutcome : std::uint8_t { none, running, relaxed, timed_out, at_limit, sensor_stale, stopped };
+const char* to_string(RelaxOutcome outcome) noexcept;
 
 // Control modes (operating_state "mode"), the mid-level controller of seed 000 §4.7:
 //   joint: move_jp (quintic) and servo_jv;
@@ -70,6 +76,7 @@ struct RobotCommand {
   JointArray values{};
   std::int32_t index = 0;  // mode or path step
   std::chrono::steady_clock::time_point received{};
+  char actor[48] = {};  // who sent it, for the event log (e-stop); NUL-terminated
 };
 
 // A plan loaded for path following: built and freed on network threads, never seen by the control
@@ -119,6 +126,9 @@ struct RobotSnapshot {
   bool joystick_deadman = false;
   bool joystick_conflict = false;  // more than one source held its deadman: no motion
   std::array<double, 4> joystick_axes{};
+  bool relaxing = false;  // the bend drives are relaxing their springs while held
+  RelaxOutcome relax_outcome = RelaxOutcome::none;
+  bool withdrawing = false;  // held: the insertion is withdrawing by a requested distance
 };
 
 // Where telemanipulation velocities come from (operating_state "joystick.source").
@@ -203,6 +213,12 @@ struct RobotUnit {
     bool joystick_deadman = false;
     bool joystick_conflict = false;
     std::array<double, 4> joystick_axes{};
+    bool relaxing = false;
+    double relax_started = 0.0;
+    double relax_settled_s = 0.0;  // time both springs have been within the relax target
+    bool withdrawing = false;      // held: insertion moving back to withdraw_to (mm)
+    double withdraw_to = 0.0;
+    RelaxOutcome relax_outcome = RelaxOutcome::none;
   } rt;
 };
 
@@ -237,6 +253,14 @@ struct RobotRuntime::Impl : RuntimeImplBase {
   void catheter_sensors(RobotUnit& r, double t, safety::OperatingState state) noexcept;
   void catheter_mid_level(RobotUnit& r, double t) noexcept;
   void catheter_retraction(RobotUnit& r, double t) noexcept;
+  // Held: the bend drives follow their springs (eqs. 4.24–4.26) until both deflections are within
+  // the resume bound, the sensor goes stale, a drive reaches its limit or the relax times out.
+  void catheter_relax(RobotUnit& r, double t) noexcept;
+  void catheter_start_relax(RobotUnit& r, double t) noexcept;
+  // False (and the refusal logged) when resuming would hold the robot again at once: the deflection
+  // sensor is stale, or a spring is deflected beyond the resume bound after a deflection hold (beyond
+  // the hold bound otherwise).
+  bool catheter_may_resume(RobotUnit& r, double t) noexcept;
   bool holding(const RobotUnit& r, double t) const noexcept;
   std::int64_t now_ns = 0;  // control-cycle time on the steady clock (ns), for sensor freshness
   void run_bus(BusUnit& b);

@@ -97,6 +97,50 @@ test('configuration mode: move_configuration in radians reaches the bend angles'
   await switchTo('joint');
 });
 
+test('a partial configuration goal moves only what it names: the insertion stays where it is', async () => {
+  await holding();
+  const q = await setpoint();
+  assert.equal((await post(`${R}/move_jp`, {goal: [30, q[1], q[2], q[3]]})).status, 202);
+  assert.ok(await holding(), 'joint move ends');
+  await switchTo('configuration');
+  const res = await post(`${R}/move_configuration`, {goal: {theta_proximal: 5 * deg}});
+  assert.equal(res.status, 202, res.text);
+  assert.ok(Math.abs(res.json.goal[0] - 30) < 0.01, `the goal keeps the insertion: ${JSON.stringify(res.json.goal)}`);
+  assert.ok(await holding(), 'configuration move ends');
+  const s = await operatingState();
+  assert.ok(Math.abs((await setpoint())[0] - 30) < 0.01, `insertion stayed at 30 mm: ${(await setpoint())[0]}`);
+  assert.ok(Math.abs(s.configuration[2] - 5 * deg) < 0.5 * deg, `theta_proximal ${s.configuration[2] / deg} deg`);
+  assert.equal((await post(`${R}/move_configuration`, {goal: {theta_proximal: 0}})).status, 202);
+  await holding();
+  await switchTo('joint');
+});
+
+// Issue 12: every hold names its cause and its way out; the catheter's relax and withdraw are for a
+// held robot only. (The spring-deflection hold itself needs the vessel: tests/integration and the
+// browser test tests/e2e/holds.e2e.mjs.)
+test('an operator pause: operating_state.hold names the cause and the way out; resume ends it', async () => {
+  await holding();
+  assert.equal((await operatingState()).hold, null, 'no hold while ENABLED');
+  assertErrorShape(await post(`${R}/state_command`, {command: 'relax'}), 409, 'invalid_state');
+  assertErrorShape(await post(`${R}/state_command`, {command: 'withdraw', distance_mm: 1}), 409, 'invalid_state');
+  assert.equal((await post(`${R}/state_command`, {command: 'pause'})).status, 200);
+  const paused = await pollUntil(async () => ({done: (await operatingState()).state === 'PAUSED', os: await operatingState()}));
+  const {hold} = paused.os;
+  assert.equal(hold.cause, 'operator_pause', JSON.stringify(hold));
+  assert.equal(hold.message, 'paused by the operator');
+  assert.equal(hold.cleared, true);
+  assert.deepEqual(hold.allowed, ['resume']);
+  assert.match(hold.next, /Resume/);
+  // Nothing to relax in free space, and no withdrawal after an operator's pause (not a limit hold).
+  assertErrorShape(await post(`${R}/state_command`, {command: 'relax'}), 409, 'already_relaxed');
+  assertErrorShape(await post(`${R}/state_command`, {command: 'withdraw', distance_mm: 1}), 409, 'invalid_state');
+  assertErrorShape(await post(`${R}/state_command`, {command: 'withdraw', distance_mm: 50}), 422, 'out_of_range');
+  assert.equal((await post(`${R}/state_command`, {command: 'resume'})).status, 200);
+  const resumed = await pollUntil(async () => ({done: (await operatingState()).state === 'ENABLED'}));
+  assert.ok(resumed.done, 'resumed');
+  assert.equal((await operatingState()).hold, null);
+});
+
 test('telemanipulation over REST: nothing moves without the deadman, the bend moves with it', async () => {
   assertErrorShape(await post(`${R}/joystick`, {axes: [0, 0, 0.5, 0], deadman: true}), 409, 'wrong_mode');
   await switchTo('telemanipulation');

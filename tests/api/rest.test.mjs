@@ -234,6 +234,9 @@ test('GET /faults lists the e-stop, newest first', async () => {
   const list = Array.isArray(res.json) ? res.json : res.json.events || res.json.faults;
   assert.ok(Array.isArray(list) && list.length > 0, `faults list: ${res.text.slice(0, 300)}`);
   assert.ok(list.some((e) => /estop|e-stop|emergency/i.test(`${e.kind} ${e.message}`)), 'an e-stop event is listed');
+  // Issue 12: the event says who pressed it (the X-Tendril-Client of this script, an operator).
+  const estop = list.find((e) => e.kind === 'estop');
+  assert.match(estop.message, /e-stop (latched|pressed) by client:api-test \(operator\)/, JSON.stringify(estop));
 });
 
 test('GET /metrics is Prometheus text', async () => {

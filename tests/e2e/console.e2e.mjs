@@ -238,7 +238,7 @@ async function enableFromConsole() {
   await settled();
   assert.equal(await badgeState(), 'ENABLED',
                `enable ended in ${await badgeState()}: ${(await page.locator(tid('banner')).textContent()).trim()}`);
-  await page.waitForFunction(() => !document.querySelector('[data-testid="move-button"]').disabled, null, WAIT);
+  await page.waitForFunction(() => document.querySelector('[data-testid="enable-button"]').disabled, null, WAIT);
 }
 
 test('take the lease, enable, move: measured values and the 3D view change', async (t) => {
@@ -352,6 +352,55 @@ async function switchMode(mode) {
   }
   assert.fail(`mode ${mode} not reached: ${await page.locator(tid('command-status')).textContent()}`);
 }
+
+// Issue 12: insertion moved to 30 mm in the joint panel, then in configuration mode only the
+// proximal bend typed (5°) and Move: the catheter withdrew to the insertion the sliders were filled
+// with at page load. A command carries only what the surgeon set; the panel says what will move.
+test('a configuration move carries only what the surgeon set: insertion stays where the joint move left it', async () => {
+  await waitHolding();
+  await switchMode('joint');
+  await page.click(tid('tab-joints'));
+  await page.fill(tid('joint-goal-insertion'), '30.00');
+  // Only insertion was touched: the preview names it, and the other joints stay as they are.
+  await page.waitForFunction(() => /insertion .*→ 30\.00 mm/.test(document.querySelector('[data-testid="move-preview"]').textContent),
+                             null, WAIT);
+  const jointPreview = await page.locator(tid('move-preview')).textContent();
+  assert.doesNotMatch(jointPreview, /roll .*→/, `only insertion will move: ${jointPreview}`);
+  await page.click(tid('move-button'));
+  await waitForBadge(() => Math.abs(Number(document.querySelector('[data-testid="joint-measured-insertion"]').textContent) - 30) < 0.1,
+                     null, {timeout: 30000});
+  await waitHolding();
+  const q0 = await measuredJs();
+
+  await switchMode('configuration');
+  await page.click(tid('tab-catheter'));
+  // Untouched fields show the live configuration, not what the page saw when it was opened.
+  await page.waitForFunction(() => Math.abs(Number(document.querySelector('[data-testid="cfg-insertion-num"]').value) - 30) < 0.2,
+                             null, WAIT);
+  await page.fill(tid('cfg-theta-proximal-num'), '5');
+  await page.waitForFunction(() => /proximal bend .*→ 5\.0°/.test(document.querySelector('[data-testid="cfg-preview"]').textContent),
+                             null, WAIT);
+  const preview = await page.locator(tid('cfg-preview')).textContent();
+  assert.match(preview, /insertion 30\.0 mm \(unchanged\)/, `the preview says insertion stays: ${preview}`);
+  await page.screenshot({path: path.join(ARTIFACTS, '05a-configuration-preview.png')});
+  await page.click(tid('cfg-move-button'));
+  await page.waitForFunction(() => /Moving to the configuration/.test(document.querySelector('[data-testid="command-status"]').textContent),
+                             null, WAIT);
+  await page.waitForFunction(() => Math.abs(parseFloat(document.querySelector('[data-testid="cfg-theta-proximal-now"]').textContent) - 5) < 0.6,
+                             null, {timeout: 30000});
+  await waitHolding();
+  const q1 = await measuredJs();
+  assert.ok(Math.abs(q1[0] - q0[0]) < 0.1, `insertion stayed at ${q0[0].toFixed(2)} mm: now ${q1[0].toFixed(2)} mm`);
+  assert.ok(Math.abs(q1[1] - q0[1]) < 0.01, `roll stayed: ${q0[1]} -> ${q1[1]}`);
+  // Back to straight for the tests after this one.
+  assert.equal((await page.evaluate(async () => (await fetch('/api/v1/robots/srmc/move_configuration', {
+    method: 'POST', headers: {'Content-Type': 'application/json'}, credentials: 'same-origin',
+    body: JSON.stringify({goal: {theta_proximal: 0, theta_distal: 0}}),
+  })).status)), 202);
+  await page.waitForTimeout(300);
+  await waitHolding();
+  await page.click(tid('tab-joints'));
+});
 
 test('catheter: configuration sliders in degrees move the catheter; the joystick moves it only with the deadman held', async (t) => {
   const modes = await page.locator('[data-testid^="mode-"][data-mode]').evaluateAll((els) => els.map((e) => e.dataset.mode));

@@ -303,15 +303,152 @@ TEST_F(ChannelTest, SpringDeflectionOverItsBoundHoldsAndAllowsOnlyRetraction) {
   }
   EXPECT_NEAR(setpoint()[0], q1 - 2.0, 0.1);
   EXPECT_EQ(op()["state"], "PAUSED");
-  // Resume acknowledges the hold.
-  steps(200);
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
-  steps(5);
-  s = op();
-  EXPECT_FALSE(s["retraction_only"].get<bool>());
 }
 
-TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobot) {
+// Issue 12: after a deflection hold the robot was stuck (withdrawal does not relax a bend drive's
+// spring; resume, disable/enable and e-stop/reset all led back to PAUSED). The way out: relax the
+// springs (active compliance on the bend drives while held), then resume; resume is refused with the
+// cause and what to do while the cause persists, never accepted into a new hold.
+TEST_F(ChannelTest, ADeflectionHoldIsLeftByRelaxingTheSpringsThenResuming) {
+  start(channel_srmc(1.5));
+  ASSERT_EQ(insert("joint", kChannel.insertion).state, "PAUSED") << op().dump();
+  auto s = op();
+  EXPECT_EQ(s["hold"]["cause"], "spring_deflection");
+  EXPECT_FALSE(s["hold"]["cleared"].get<bool>());
+  EXPECT_EQ(s["hold"]["allowed"], nlohmann::json({"relax", "withdraw"})) << s["hold"].dump();
+  EXPECT_NE(s["hold"]["next"].get<std::string>().find("relax the springs"), std::string::npos)
+      << s["hold"].dump();
+  const double worst_before = std::max(std::abs(s["spring_deflection_mm"][0].get<double>()),
+                                       std::abs(s["spring_deflection_mm"][1].get<double>()));
+  EXPECT_GT(worst_before, 1.5);
+
+  // Resume now: refused with the cause and the way out, and the robot stays held without a new hold.
+  const auto refused = runtime->state_command("srmc", {{"command", "resume"}});
+  EXPECT_EQ(refused.status, 409);
+  EXPECT_EQ(refused.code, "hold_not_cleared");
+  EXPECT_NE(refused.message.find("spring is deflected"), std::string::npos) << refused.message;
+  EXPECT_NE(refused.message.find("relax"), std::string::npos) << refused.message;
+  const auto events_before = runtime->faults(1000).size();
+  steps(100);
+  EXPECT_EQ(op()["state"], "PAUSED");
+  EXPECT_EQ(runtime->faults(1000).size(), events_before) << "nothing happened, not even a new hold";
+
+  // Disable and enable, or e-stop and reset: held again at once (the cause is still there), and
+  // still with a way out.
+  ASSERT_EQ(runtime->estop().status, 200);
+  steps(5);
+  ASSERT_EQ(runtime->estop_reset().status, 200);
+  steps(5);
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+  ASSERT_TRUE(step_until([&] { return op()["state"] == "PAUSED"; }, 3000)) << op().dump();
+  EXPECT_EQ(op()["hold"]["cause"], "spring_deflection");
+
+  // Withdraw by a distance: the insertion goes back by exactly that, nothing else moves.
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 0.0}}).status, 422);
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 11.0}}).status, 422);
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}}).status, 400);
+  const auto q_held = setpoint();
+  max_step = {};
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 1.5}}).status, 202);
+  steps(5);
+  EXPECT_TRUE(op()["hold"]["withdraw"]["running"].get<bool>());
+  ASSERT_TRUE(step_until([&] { return !op()["hold"]["withdraw"]["running"].get<bool>(); }, 3000));
+  EXPECT_NEAR(setpoint()[0], q_held[0] - 1.5, 1e-6);
+  for (std::size_t j = 1; j < 4; ++j) EXPECT_NEAR(setpoint()[j], q_held[j], 1e-9) << "joint " << j;
+  EXPECT_LE(max_step[0], 3.0 * 0.001 * 1.001);  // the joystick's full insertion speed, 3 mm/s (srmc.json)
+
+  // Relax: only the bend drives move, in the direction that relaxes their springs, until both are
+  // within the resume bound (0.75 mm = half the 1.5 mm hold bound).
+  ASSERT_GT(std::max(std::abs(op()["spring_deflection_mm"][0].get<double>()),
+                     std::abs(op()["spring_deflection_mm"][1].get<double>())),
+            0.75)
+      << "withdrawal alone did not clear it";
+  max_step = {};
+  const auto q_before = setpoint();
+  const double relax_start = runtime->time();
+  const auto relax = runtime->state_command("srmc", {{"command", "relax"}});
+  ASSERT_EQ(relax.status, 202) << relax.message;
+  steps(5);
+  EXPECT_TRUE(op()["hold"]["relax"]["running"].get<bool>());
+  EXPECT_TRUE(op()["is_busy"].get<bool>());
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).code, "hold_not_cleared");
+  ASSERT_TRUE(step_until([&] { return !op()["hold"]["relax"]["running"].get<bool>(); }, 12000))
+      << op().dump();
+  s = op();
+  std::printf("  relax: %.2f mm -> %.2f / %.2f mm in %.2f s (simulated), peak wall force %.3f N\n",
+              worst_before, s["spring_deflection_mm"][0].get<double>(),
+              s["spring_deflection_mm"][1].get<double>(), runtime->time() - relax_start,
+              s["simulation"]["peak_contact_force_n"].get<double>());
+  EXPECT_EQ(s["hold"]["relax"]["outcome"], "relaxed") << s["hold"].dump();
+  EXPECT_TRUE(s["hold"]["cleared"].get<bool>());
+  for (int i = 0; i < 2; ++i) EXPECT_LE(std::abs(s["spring_deflection_mm"][i].get<double>()), 0.75 + 0.02);
+  const auto q_after = setpoint();
+  EXPECT_NEAR(q_after[0], q_before[0], 1e-9) << "relax does not move the insertion";
+  EXPECT_NEAR(q_after[1], q_before[1], 1e-9) << "relax does not move the roll";
+  EXPECT_GT(std::abs(q_after[2] - q_before[2]) + std::abs(q_after[3] - q_before[3]), 0.1);
+  // No setpoint moved faster than the compliance law's v_max (2 mm/s) in any tick.
+  for (std::size_t j = 2; j < 4; ++j) EXPECT_LE(max_step[j], 2.0 * 0.001 * 1.05) << "joint " << j;
+  EXPECT_LE(s["simulation"]["peak_contact_force_n"].get<double>(), 1.0);
+
+  // Resume is accepted now, and the robot stays ENABLED.
+  const auto resumed = runtime->state_command("srmc", {{"command", "resume"}});
+  ASSERT_EQ(resumed.status, 200) << resumed.message;
+  steps(500);
+  s = op();
+  EXPECT_EQ(s["state"], "ENABLED") << s.dump();
+  EXPECT_FALSE(s["retraction_only"].get<bool>());
+  EXPECT_TRUE(s["hold"].is_null());
+  // The event log tells the story: hold, refused resume, relax started and ended.
+  std::string log;
+  for (const auto& e : runtime->faults(1000))
+    log += e["kind"].get<std::string>() + ": " + e["message"].get<std::string>() + "\n";
+  EXPECT_NE(log.find("recovery: springs relaxed"), std::string::npos) << log;
+  EXPECT_NE(log.find("recovery: relax: bend drives follow their springs"), std::string::npos) << log;
+}
+
+TEST_F(ChannelTest, RelaxIsOnlyForAHeldRobotAndPauseStopsIt) {
+  start(channel_srmc(1.5));
+  enable();
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "relax"}}).code, "invalid_state");
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 1.0}}).code,
+            "invalid_state");
+  ASSERT_EQ(insert("joint", kChannel.insertion).state, "PAUSED") << op().dump();
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "relax"}}).status, 202);
+  steps(50);
+  ASSERT_TRUE(op()["hold"]["relax"]["running"].get<bool>());
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  steps(5);
+  const auto q = setpoint();
+  steps(200);
+  EXPECT_EQ(op()["hold"]["relax"]["outcome"], "stopped");
+  for (std::size_t j = 0; j < 4; ++j) EXPECT_NEAR(setpoint()[j], q[j], 1e-9) << "joint " << j;
+}
+
+// An operator's pause, then the deflection sensor goes silent: resuming would hold again at once, so
+// it is refused the same way, with the cause; once the sensor reads again, resume works.
+TEST_F(CatheterTest, ResumeAfterAnOperatorPauseIsRefusedWhileTheSensorIsSilent) {
+  start(free_space_srmc());
+  enable();
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  steps(5);
+  auto* sensor = runtime->simulated_spring_sensor("srmc");
+  sensor->set_silent(true);
+  steps(200);
+  auto s = op();
+  EXPECT_EQ(s["hold"]["cause"], "operator_pause");
+  EXPECT_FALSE(s["hold"]["cleared"].get<bool>());
+  EXPECT_EQ(s["hold"]["allowed"], nlohmann::json::array());
+  const auto refused = runtime->state_command("srmc", {{"command", "resume"}});
+  EXPECT_EQ(refused.code, "hold_not_cleared");
+  EXPECT_NE(refused.message.find("paused by the operator"), std::string::npos) << refused.message;
+  sensor->set_silent(false);
+  steps(50);
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  steps(300);
+  EXPECT_EQ(op()["state"], "ENABLED");
+}
+
+TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobotUntilItReadsAgain) {
   start(free_space_srmc());
   enable();
   auto* sensor = runtime->simulated_spring_sensor("srmc");
@@ -321,7 +458,82 @@ TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobot) {
   EXPECT_EQ(op()["hold_reason"], "sensor stream stale");
   EXPECT_TRUE(op()["spring_deflection_mm"].is_null());
   EXPECT_EQ(runtime->mode("srmc", {{"mode", "active_compliance"}}).status, 409);
+  auto s = op();
+  EXPECT_EQ(s["hold"]["cause"], "sensor_stale");
+  EXPECT_FALSE(s["hold"]["cleared"].get<bool>());
+  EXPECT_NE(s["hold"]["next"].get<std::string>().find("0x31"), std::string::npos) << s["hold"].dump();
+  // Resume is refused while the sensor is silent (it would hold again at once); withdrawal works.
+  const auto refused = runtime->state_command("srmc", {{"command", "resume"}});
+  EXPECT_EQ(refused.status, 409);
+  EXPECT_EQ(refused.code, "hold_not_cleared");
+  EXPECT_NE(refused.message.find("no valid spring-deflection reading"), std::string::npos) << refused.message;
+  EXPECT_EQ(runtime->state_command("srmc", {{"command", "relax"}}).code, "sensor_stale");
+  const double q1 = setpoint()[0];
+  for (int t = 0; t < 500; t += 20) {
+    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    steps(20);
+  }
+  EXPECT_LT(setpoint()[0], q1 - 0.5);
+  // The sensor reads again: the hold has cleared, resume works and the robot stays ENABLED.
   sensor->set_silent(false);
+  steps(50);
+  s = op();
+  EXPECT_TRUE(s["hold"]["cleared"].get<bool>()) << s["hold"].dump();
+  EXPECT_EQ(s["hold"]["allowed"], nlohmann::json({"resume", "withdraw"}));
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  steps(300);
+  EXPECT_EQ(op()["state"], "ENABLED");
+}
+
+// Every other way the robot holds, with its way out: an operator's pause (resume), a servo stream
+// that stops (the setpoint holds, ENABLED; a new stream moves again) and a lost operator connection
+// (the same).
+TEST_F(CatheterTest, EveryOtherHoldHasAWayOut) {
+  start(free_space_srmc());
+  enable();
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  steps(5);
+  auto s = op();
+  EXPECT_EQ(s["state"], "PAUSED");
+  EXPECT_EQ(s["hold"]["cause"], "operator_pause");
+  EXPECT_EQ(s["hold"]["allowed"], nlohmann::json({"resume"}));
+  EXPECT_EQ(runtime->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}}).status, 409);
+  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  steps(5);
+  EXPECT_EQ(op()["state"], "ENABLED");
+  EXPECT_TRUE(op()["hold"].is_null());
+
+  // Servo command timeout: a hold of the stream, not of the robot.
+  const double q0 = setpoint()[0];
+  for (int t = 0; t < 200; t += 20) {
+    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    steps(20);
+  }
+  steps(400);  // the stream stopped: the setpoint holds after the 150 ms timeout
+  const double held = setpoint()[0];
+  EXPECT_GT(held, q0 + 0.3);
+  steps(200);
+  EXPECT_NEAR(setpoint()[0], held, 1e-9);
+  EXPECT_EQ(op()["state"], "ENABLED");
+  bool timeout_logged = false;
+  for (const auto& e : runtime->faults(50))
+    timeout_logged = timeout_logged || (e["kind"] == "hold" && e["code"] == "servo command timeout");
+  EXPECT_TRUE(timeout_logged);
+  for (int t = 0; t < 200; t += 20) {  // the way out: stream again
+    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    steps(20);
+  }
+  EXPECT_GT(setpoint()[0], held + 0.3);
+
+  // The operator's connection goes: the stream stops at once; commands work again afterwards.
+  runtime->operator_lost();
+  steps(5);
+  const double lost = setpoint()[0];
+  steps(100);
+  EXPECT_NEAR(setpoint()[0], lost, 1e-9);
+  ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
+  steps(50);
+  EXPECT_LT(setpoint()[0], lost - 0.05);
 }
 
 }  // namespace

@@ -11,7 +11,7 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
                                     const Identity& who) {
   if (command == Command::kEstop) {
     try {
-      return api.estop();
+      return api.estop_from(who.label + (who.role == Role::kViewer ? " (viewer)" : " (operator)"));
     } catch (const std::exception& e) {
       return ApiResult::error(500, "internal_error", e.what());
     }

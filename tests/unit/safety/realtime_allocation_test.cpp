@@ -34,7 +34,12 @@ TEST(SafetyRealtime, SupervisorTickPathDoesNotAllocate) {
     s->request(t, StateCommand::kEnable);  // refused in FAULT
     s->request(t, StateCommand::kDisable);
     s->estop(t);
+    s->estop(t, "session:3 (operator)");
     s->reset_estop(t);
+    s->request_estop();
+    s->estop(t, "session:3 (operator)");
+    s->reset_estop(t);
+    s->record(t, EventKind::kRecovery, FaultCode::kSpringDeflection, -1, "springs relaxed");
   }
   s->events().copy_newest_first(newest);
   std::size_t drained = 0;

@@ -336,3 +336,71 @@ TEST(SafetySupervisorHold, SpringDeflectionHoldsWithoutLosingPowerAndLogsTheCaus
 
 }  // namespace
 }  // namespace tendril::safety
+
+namespace tendril::safety {
+namespace {
+
+// Issue 12: the event log must say who pressed the e-stop.
+TEST(SafetySupervisorEstop, TheEventNamesWhoPressedIt) {
+  auto s = make();
+  s->request(0.0, StateCommand::kEnable);
+  drain(*s);
+  s->estop(0.1, "session:2 (operator)");
+  EXPECT_EQ(s->state(), OperatingState::kFault);
+  EXPECT_STREQ(s->fault_cause().text, "e-stop pressed by session:2 (operator)");
+  auto events = drain(*s);
+  ASSERT_EQ(events.size(), 1u);
+  EXPECT_EQ(events[0].kind, EventKind::kEstop);
+  EXPECT_STREQ(events[0].text, "e-stop latched by session:2 (operator); motion stopped");
+  // A second press while latched is logged with its own actor; the latch and cause stay.
+  s->estop(0.2, "bench-script (viewer)");
+  events = drain(*s);
+  ASSERT_EQ(events.size(), 1u);
+  EXPECT_STREQ(events[0].text, "e-stop pressed again by bench-script (viewer) (already latched)");
+  EXPECT_STREQ(s->fault_cause().text, "e-stop pressed by session:2 (operator)");
+}
+
+TEST(SafetySupervisorEstop, AnAnnouncedPressIsNamedWhenItsCommandArrives) {
+  auto s = make();
+  s->request(0.0, StateCommand::kEnable);
+  drain(*s);
+  // The network thread latches at once; the control thread ticks before the command with the name.
+  s->request_estop();
+  s->tick(0.1, kHome, kHome);
+  s->estop(0.101, "session:7 (operator)");
+  const auto events = drain(*s);
+  ASSERT_EQ(events.size(), 2u);
+  EXPECT_STREQ(events[0].text, "e-stop latched; motion stopped");
+  EXPECT_STREQ(events[1].text, "e-stop pressed by session:7 (operator)");
+  EXPECT_STREQ(s->fault_cause().text, "e-stop pressed by session:7 (operator)");
+  // Taken with its name before any tick: one event.
+  ASSERT_EQ(s->reset_estop(1.0), CommandResult::kAccepted);
+  s->request(1.1, StateCommand::kEnable);
+  drain(*s);
+  s->request_estop();
+  s->estop(1.2, "session:8 (operator)");
+  s->tick(1.3, kHome, kHome);
+  const auto once = drain(*s);
+  ASSERT_EQ(once.size(), 1u);
+  EXPECT_STREQ(once[0].text, "e-stop latched by session:8 (operator); motion stopped");
+}
+
+TEST(SafetySupervisorRecord, LogsWithoutChangingTheState) {
+  auto s = make();
+  s->request(0.0, StateCommand::kEnable);
+  s->hold(0.1, FaultCode::kSpringDeflection, 2, "1.6 mm");
+  drain(*s);
+  s->record(0.2, EventKind::kRefused, FaultCode::kSpringDeflection, 2, "resume refused: spring deflected");
+  s->record(0.3, EventKind::kRecovery, FaultCode::kSpringDeflection, -1, "springs relaxed");
+  EXPECT_EQ(s->state(), OperatingState::kPaused);
+  const auto events = drain(*s);
+  ASSERT_EQ(events.size(), 2u);
+  EXPECT_EQ(events[0].kind, EventKind::kRefused);
+  EXPECT_EQ(events[0].from, OperatingState::kPaused);
+  EXPECT_EQ(events[0].to, OperatingState::kPaused);
+  EXPECT_EQ(events[1].kind, EventKind::kRecovery);
+  EXPECT_STREQ(to_string(EventKind::kRecovery), "recovery");
+}
+
+}  // namespace
+}  // namespace tendril::safety

@@ -74,6 +74,19 @@ class FakeControlApi : public tendril::server::ControlApi {
     ++estops;
     return ApiResult::success({{"estop", true}});
   }
+  ApiResult estop_from(const std::string& actor) override {
+    {
+      std::lock_guard lock(actor_mutex);
+      estop_actor = actor;
+    }
+    return estop();
+  }
+  std::string last_estop_actor() const {
+    std::lock_guard lock(actor_mutex);
+    return estop_actor;
+  }
+  mutable std::mutex actor_mutex;
+  std::string estop_actor;  // guarded by actor_mutex
   ApiResult estop_reset() override {
     ++estop_resets;
     return ApiResult::success({{"estop", false}});

@@ -104,6 +104,8 @@ TEST_F(HttpServerTest, ViewersAreReadOnlyButMayStopTheRobot) {
   EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots/srmc/measured_js", "", viewer).status, 200);
   EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "", viewer).status, 200);
   EXPECT_EQ(api_.estops, 1);
+  // The e-stop is recorded with who pressed it (issue 12).
+  EXPECT_EQ(api_.last_estop_actor(), "client:v (viewer)");
   expect_error_shape(
       http_request(port_, bhttp::verb::get, "/api/v1/robots", "",
                    {{"Authorization", std::string("Bearer ") + kToken}, {"X-Tendril-Role", "root"}}),

@@ -76,6 +76,10 @@ class SafetySupervisor {
   // --- state machine (control thread) ---
   CommandResult request(double t, StateCommand command) noexcept;
   void estop(double t) noexcept;
+  // The e-stop as pressed by someone (a session, a script): the event and the fault cause name them.
+  // When the latch was already set by request_estop() for the same press, this names who pressed it;
+  // when it was latched by an earlier press, the new press is logged as well.
+  void estop(double t, const char* actor) noexcept;
   CommandResult reset_estop(double t) noexcept;
   // External fault (drive heartbeat lost, EMCY, bus-off, …). detail may be null.
   void fault(double t, FaultCode code, int joint, const char* detail) noexcept;
@@ -83,6 +87,10 @@ class SafetySupervisor {
   // sensor): ENABLED -> PAUSED with the cause logged as a hold. Returns false (and logs nothing) when
   // the robot was not ENABLED.
   bool hold(double t, FaultCode code, int joint, const char* detail) noexcept;
+  // Logs an event that changes no state: a command the runtime refused for a reason the supervisor
+  // cannot see (kRefused, e.g. resume while a hold's cause persists) or a way out of a hold that ran
+  // (kRecovery).
+  void record(double t, EventKind kind, FaultCode code, int joint, const char* text) noexcept;
 
   // --- any thread ---
   // Latches the e-stop immediately as seen by state()/estop_latched(); the control thread logs it and
@@ -132,6 +140,7 @@ class SafetySupervisor {
   std::atomic<OperatingState> state_{OperatingState::kDisabled};
   std::atomic<bool> estop_latched_{false};
   std::atomic<bool> estop_requested_{false};
+  bool estop_actor_known_ = false;  // the latched e-stop's event names who pressed it
   FaultInfo fault_cause_{};
   bool servo_live_ = false;
   double last_servo_time_ = 0.0;

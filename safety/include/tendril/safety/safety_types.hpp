@@ -46,6 +46,7 @@ enum class EventKind : std::uint8_t {
   kHold,        // motion held, e.g. servo command timeout
   kEstop,       // e-stop latched
   kEstopReset,  // e-stop latch cleared
+  kRecovery,    // a way out of a hold ran (e.g. the catheter's springs relaxed): no state change
 };
 
 enum class ViolationKind : std::uint8_t {

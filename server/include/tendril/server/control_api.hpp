@@ -62,6 +62,12 @@ class ControlApi {
   virtual ApiResult move_jp(const std::string& robot, const nlohmann::json& body) = 0;
   virtual ApiResult servo_jv(const std::string& robot, const nlohmann::json& body) = 0;
   virtual ApiResult estop() = 0;
+  // The e-stop pressed by `actor` (the session or client and its role, e.g. "session:3 (operator)"):
+  // the safety event names them. Implementations without an event log just stop.
+  virtual ApiResult estop_from(const std::string& actor) {
+    (void)actor;
+    return estop();
+  }
   virtual ApiResult estop_reset() = 0;
 
   // GET /faults: recent faults and safety events, newest first.

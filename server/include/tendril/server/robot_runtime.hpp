@@ -80,6 +80,7 @@ class RobotRuntime final : public ControlApi {
   ApiResult move_jp(const std::string& robot, const nlohmann::json& body) override;
   ApiResult servo_jv(const std::string& robot, const nlohmann::json& body) override;
   ApiResult estop() override;
+  ApiResult estop_from(const std::string& actor) override;
   ApiResult estop_reset() override;
   nlohmann::json faults(std::size_t max_events = 200) const override;
   std::string metrics() const override;

@@ -1,0 +1,146 @@
+// Browser test of the holds (issue 12, "a hold with no way out"), against the second tendrild that
+// tests/e2e/run.sh starts with the shipped SIMULATED vessel: insert the catheter in joint mode until
+// the wall deflects a bend drive's spring over its bound and the robot holds (PAUSED). The banner
+// must name the cause and say what to do (not "Enable the robot to move"); Resume is refused with the
+// server's reason while the spring is deflected; Withdraw and Relax are offered; after Relax the
+// springs are relaxed and Resume brings the robot back to ENABLED, where it stays.
+// Env: TENDRIL_VESSEL_URL, TENDRIL_VESSEL_TOKEN (tests/e2e/run.sh sets them); CHROMIUM.
+import {test, before, after} from 'node:test';
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import path from 'node:path';
+import {fileURLToPath} from 'node:url';
+import {chromium} from 'playwright-core';
+
+const BASE_URL = (process.env.TENDRIL_VESSEL_URL || '').replace(/\/$/, '');
+const TOKEN = process.env.TENDRIL_VESSEL_TOKEN || '';
+if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN, or run tests/e2e/run.sh <tendrild>');
+const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
+const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
+const tid = (id) => `[data-testid="${id}"]`;
+
+let browser;
+let page;
+const pageErrors = [];
+
+before(async () => {
+  fs.mkdirSync(ARTIFACTS, {recursive: true});
+  browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
+                                   args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader',
+                                          '--enable-unsafe-swiftshader']});
+  const context = await browser.newContext({viewport: {width: 1920, height: 1080}});
+  page = await context.newPage();
+  page.on('pageerror', (err) => pageErrors.push(err.message));
+});
+
+after(async () => {
+  await browser?.close();
+});
+
+async function api(method, urlPath, body) {
+  const r = await fetch(`${BASE_URL}/api/v1${urlPath}`, {
+    method, headers: {Authorization: `Bearer ${TOKEN}`, 'X-Tendril-Client': 'e2e-holds-probe', 'Content-Type': 'application/json'},
+    body: body ? JSON.stringify(body) : undefined,
+  });
+  return r.json();
+}
+
+async function shown() {
+  return page.evaluate(() => ({
+    badge: document.querySelector('[data-testid="state-badge"]').dataset.state,
+    banner: document.querySelector('[data-testid="banner"]').textContent.replace(/\s+/g, ' ').trim(),
+    status: document.querySelector('[data-testid="command-status"]').textContent,
+    hint: document.querySelector('[data-testid="move-hint"]').textContent,
+  }));
+}
+
+async function waitFor(predicate, arg, options = WAIT) {
+  try {
+    await page.waitForFunction(predicate, arg, options);
+  } catch (err) {
+    const shot = path.join(ARTIFACTS, `failure-holds-${Date.now()}.png`);
+    await page.screenshot({path: shot}).catch(() => {});
+    err.message += `\npage showed ${JSON.stringify(await shown().catch(() => ({})))}; screenshot ${shot}`;
+    throw err;
+  }
+}
+
+test('a spring-deflection hold names its cause and offers a way out: withdraw, relax, then resume', async () => {
+  await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
+  await waitFor(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live');
+  await page.click(tid('lease-button'));
+  await waitFor(() => document.querySelector('[data-testid="lease-status"]').classList.contains('held'));
+  await waitFor(() => !document.querySelector('[data-testid="enable-button"]').disabled);
+  await page.click(tid('enable-button'));
+  await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED');
+
+  // Insert into the vessel's bend with the bend drives held: the wall deflects a spring and the
+  // robot holds.
+  await page.fill(tid('joint-goal-insertion'), '60.00');
+  await page.click(tid('move-button'));
+  await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'PAUSED', null, {timeout: 60000});
+  await waitFor(() => document.querySelector('[data-testid="banner"]').dataset.cause === 'spring_deflection' &&
+                      /relax the springs/.test(document.querySelector('[data-testid="banner-next"]').textContent));
+  let s = await shown();
+  assert.match(s.banner, /Held: spring deflection/i, s.banner);
+  assert.match(s.banner, /spring deflected \d+\.\d\d mm \(hold bound 1\.50 mm\)/, s.banner);
+  assert.doesNotMatch(s.hint, /Enable the robot/, `the hint says what to do while held: ${s.hint}`);
+  assert.match(s.hint, /Relax/, s.hint);
+  for (const id of ['resume-button', 'relax-button', 'withdraw-button', 'banner-resume-button'])
+    assert.ok(await page.locator(tid(id)).isVisible(), `${id} is offered`);
+  assert.ok(!(await page.locator(tid('pause-button')).isVisible()), 'Pause gives way to Resume');
+  await page.screenshot({path: path.join(ARTIFACTS, '30-held-spring-deflection.png')});
+
+  // Resume while the spring is still deflected: refused with the cause and what to do; still held.
+  await page.click(tid('resume-button'));
+  await waitFor(() => /Resume refused: .*spring is deflected .*relax/i.test(document.querySelector('[data-testid="command-status"]').textContent));
+  assert.equal((await api('GET', '/robots/srmc/operating_state')).state, 'PAUSED');
+
+  // Withdraw 1 mm: the one motion a limit hold allowed before, still there.
+  const before = (await api('GET', '/robots/srmc/setpoint_js')).position[0];
+  await page.click(tid('withdraw-button'));
+  await waitFor(() => /Withdrawing 1 mm|Withdraw 1 mm refused/.test(document.querySelector('[data-testid="command-status"]').textContent));
+  assert.match(await page.locator(tid('command-status')).textContent(), /Withdrawing 1 mm \(to \d+\.\d mm\)/);
+  let after = before;
+  for (let i = 0; i < 100 && before - after < 0.999; ++i) {
+    await page.waitForTimeout(100);
+    after = (await api('GET', '/robots/srmc/setpoint_js')).position[0];
+  }
+  assert.ok(Math.abs(before - after - 1) < 0.01, `withdrew 1 mm: ${before} -> ${after}`);
+
+  // Relax: the bend drives follow their springs; the banner says it is relaxing, then that the cause
+  // has cleared.
+  await page.click(tid('relax-button'));
+  await waitFor(() => /Relaxing/.test(document.querySelector('[data-testid="banner-next"]').textContent) ||
+                      /Resume to continue/.test(document.querySelector('[data-testid="banner-next"]').textContent));
+  await page.screenshot({path: path.join(ARTIFACTS, '31-relaxing.png')});
+  await waitFor(() => /cause has cleared.*Resume to continue/.test(document.querySelector('[data-testid="banner-next"]').textContent),
+                null, {timeout: 30000});
+  assert.ok(await page.locator(tid('banner-resume-button')).evaluate((b) => b.classList.contains('btn-go')),
+            'Resume looks ready once the cause has cleared');
+  await page.screenshot({path: path.join(ARTIFACTS, '32-relaxed.png')});
+  await page.click(tid('banner-resume-button'));
+  await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED');
+  await page.waitForTimeout(1000);  // and it stays ENABLED (no hold again at the next tick)
+  s = await shown();
+  assert.equal(s.badge, 'ENABLED', JSON.stringify(s));
+  assert.equal((await api('GET', '/robots/srmc/operating_state')).state, 'ENABLED');
+  assert.match(s.banner, /Normal/);
+  // The event log tells the story.
+  await page.click(tid('tab-events'));
+  const log = await page.locator(tid('event-log')).textContent();
+  for (const part of [/spring deflection over its bound/, /relax: bend drives follow their springs/, /springs relaxed/])
+    assert.match(log, part);
+  assert.deepEqual(pageErrors, []);
+});
+
+test('an operator pause says so in the banner and Resume ends it', async () => {
+  await page.click(tid('pause-button'));
+  await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'PAUSED' &&
+                      document.querySelector('[data-testid="banner"]').dataset.cause === 'operator_pause');
+  const s = await shown();
+  assert.match(s.banner, /Paused.*paused by the operator.*Resume to continue/i, s.banner);
+  assert.doesNotMatch(s.hint, /Enable the robot/, s.hint);
+  await page.click(tid('resume-button'));
+  await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED');
+});
