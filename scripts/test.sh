@@ -18,6 +18,7 @@
 #     7. a gcc RelWithDebInfo build with the benchmarks (build-gcc/) and its ctest
 #     8. clang-tidy over the whole tree (and, when clean, the commit to record in .ci/clang-tidy-base)
 #     9. long fuzzing (TENDRIL_FUZZ_SECONDS, default 300 in --full)
+#    10. the console's 4K screenshots in the browser tests (TENDRIL_E2E_FULL=1)
 #   scripts/test.sh --quick   stages 1-4 only (for a quick local check)
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -79,10 +80,10 @@ ctest_counts() {  # parses "X% tests passed, F tests failed out of N"
   fail=$(sed -E 's/.*passed, ([0-9]+) tests? failed.*/\1/' <<<"$line")
   echo "$((${total:-0} - ${fail:-0})) ${fail:-0}"
 }
-node_counts() {  # node --test prints "# pass N" and "# fail N"
+node_counts() {  # each node --test run prints "# pass N" and "# fail N"; summed over the runs
   local p f
-  p=$(grep -E '^# pass [0-9]+' "$1" | tail -n 1 | awk '{print $3}')
-  f=$(grep -E '^# fail [0-9]+' "$1" | tail -n 1 | awk '{print $3}')
+  p=$(grep -E '^# pass [0-9]+' "$1" | awk '{s += $3} END {print s + 0}')
+  f=$(grep -E '^# fail [0-9]+' "$1" | awk '{s += $3} END {print s + 0}')
   echo "${p:-0} ${f:-0}"
 }
 
@@ -124,6 +125,7 @@ record api "$status" "$p" "$f"
 
 # ---- 4. browser tests ---------------------------------------------------------------------------
 stage "browser tests (Playwright + chromium) against the sanitized tendrild"
+[ "$mode" = full ] && export TENDRIL_E2E_FULL=1
 bash tests/e2e/run.sh build/server/tendrild 2>&1 | tee build/e2e.log
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/e2e.log)

@@ -18,11 +18,11 @@
 
 #include "catheter_settings.hpp"
 #include "tendril/drivers/canopen/analog_input_node.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 #include "tendril/drivers/input/analog_joystick.hpp"
 #include "tendril/drivers/input/evdev_joystick.hpp"
 #include "tendril/server/control_api.hpp"
 #include "tendril/teleop/catheter_configuration.hpp"
-#include "tendril/drivers/hardware/latest_value.hpp"
 
 namespace tendril::server {
 

@@ -15,13 +15,13 @@
 
 #include "tendril/drivers/can/virtual_bus.hpp"
 #include "tendril/drivers/canopen/master.hpp"
+#include "tendril/drivers/hardware/latest_value.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/drivers/sim/simulation.hpp"
 #include "tendril/safety/safety_supervisor.hpp"
 #include "tendril/server/command_mailbox.hpp"
 #include "tendril/server/robot_kinematics.hpp"
 #include "tendril/server/robot_runtime.hpp"
-#include "tendril/drivers/hardware/latest_value.hpp"
 #include "tendril/teleop/quintic_interpolator.hpp"
 
 namespace tendril::server {
@@ -170,11 +170,11 @@ struct RobotUnit {
   std::atomic<std::uint64_t> mailbox_full{0};
   std::size_t n = 0;
   JointArray max_velocity{}, max_acceleration{};
-  std::mutex path_mutex;                                  // network threads only
-  std::shared_ptr<const LoadedPath> path;                 // guarded by path_mutex
+  std::mutex path_mutex;                                    // network threads only
+  std::shared_ptr<const LoadedPath> path;                   // guarded by path_mutex
   hardware::LatestValue<OperatingLimits> operating_limits;  // see OperatingLimits
-  std::mutex limits_write_mutex;                          // network threads only: read-modify-write
-  std::unique_ptr<CatheterUnit> catheter;                 // steerable catheter robots only
+  std::mutex limits_write_mutex;                            // network threads only: read-modify-write
+  std::unique_ptr<CatheterUnit> catheter;                   // steerable catheter robots only
   // Last refused mode switch, for operating_state (network threads only).
   std::mutex refusal_mutex;
   nlohmann::json mode_refusal;  // guarded by refusal_mutex; null when none

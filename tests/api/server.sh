@@ -76,7 +76,9 @@ JSON
     read -r -a args <<< "$expanded"
   fi
   export TENDRIL_LOG="$tendrild_workdir/tendrild.log"
-  (cd "$repo_root" && exec "$binary" "${args[@]}") > "$TENDRIL_LOG" 2>&1 &
+  # TENDRIL_TOKEN in the environment would override the config's token (tendrild --help): a second
+  # server started from this shell must not inherit the first one's.
+  (cd "$repo_root" && TENDRIL_TOKEN="$token" exec "$binary" "${args[@]}") > "$TENDRIL_LOG" 2>&1 &
   tendrild_pid=$!
   export TENDRIL_URL="http://127.0.0.1:$port"
   export TENDRIL_TOKEN="$token"

@@ -619,10 +619,11 @@ test('screenshots at 1280x800 and on a 4K screen (device scale 1 and 2)', async 
   const browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
                                          args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader',
                                                 '--enable-unsafe-swiftshader']});
+  // The 4K pages take minutes in software rendering on two cores: scripts/test.sh --full
+  // (TENDRIL_E2E_FULL=1) takes them; the blocking run takes the laptop size.
   const shots = [
     ['20-1280x800.png', 1280, 800, 1],
-    ['21-4k-scale1.png', 3840, 2160, 1],
-    ['22-4k-scale2.png', 1920, 1080, 2],
+    ...(process.env.TENDRIL_E2E_FULL ? [['21-4k-scale1.png', 3840, 2160, 1], ['22-4k-scale2.png', 1920, 1080, 2]] : []),
   ];
   try {
     for (const [name, width, height, deviceScaleFactor] of shots) {

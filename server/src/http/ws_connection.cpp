@@ -181,7 +181,7 @@ void WsConnection::on_open() {
   send_text(fg::advertise_services(server_.services));
 }
 
-void WsConnection::on_message(bool is_text, std::string message) {
+void WsConnection::on_message(bool is_text, const std::string& message) {
   ++server_.ws_client_messages;
   if (!take_rate_token()) {
     violation("client message rate limit exceeded (" + std::to_string(server_.opts.ws_client_rate_hz) +

@@ -58,8 +58,8 @@ class WsConnection : public WsConnectionBase, public std::enable_shared_from_thi
   virtual void shutdown_socket() = 0;     // at once, no close frame
 
   // Called by the transport on the strand.
-  void on_open();                                      // handshake done
-  void on_message(bool is_text, std::string message);  // one complete client message
+  void on_open();                                             // handshake done
+  void on_message(bool is_text, const std::string& message);  // one complete client message
   void on_write_done(bool ok, std::size_t bytes);
   void on_closed();
   bool closing() const noexcept { return closing_; }

@@ -85,7 +85,7 @@ class WsSession final : public WsConnection {
     const bool is_text = ws_.got_text();
     std::string message = beast::buffers_to_string(buffer_.data());
     buffer_.consume(buffer_.size());
-    on_message(is_text, std::move(message));
+    on_message(is_text, message);
     if (!closing()) do_read();
   }
 
@@ -121,7 +121,7 @@ class WsSession final : public WsConnection {
 template <class Stream>
 void start_ws_session(Stream&& stream, HttpServer::Impl& server, Identity identity, std::uint64_t id,
                       Request request) {
-  std::make_shared<WsSession<Stream>>(std::move(stream), server, std::move(identity), id)
+  std::make_shared<WsSession<Stream>>(std::forward<Stream>(stream), server, std::move(identity), id)
       ->run(std::move(request));
 }
 

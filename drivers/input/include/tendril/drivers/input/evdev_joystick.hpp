@@ -15,8 +15,8 @@
 #include <string>
 #include <thread>
 
-#include "tendril/drivers/input/joystick.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
+#include "tendril/drivers/input/joystick.hpp"
 
 namespace tendril::input {
 

@@ -15,8 +15,8 @@
 
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/drivers/canopen/analog_input_node.hpp"
-#include "tendril/drivers/sim/simulation.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
+#include "tendril/drivers/sim/simulation.hpp"
 
 namespace tendril::sim {
 

@@ -11,8 +11,8 @@
 #include <vector>
 
 #include "tendril/drivers/can/virtual_bus.hpp"
-#include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
+#include "tendril/drivers/sim/simulated_drive.hpp"
 
 namespace tendril::sim {
 
