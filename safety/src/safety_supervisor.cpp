@@ -20,9 +20,14 @@ SafetySupervisor::SafetySupervisor(LimitSet limits, SupervisorOptions options)
   if (!std::isfinite(options.command_timeout) || options.command_timeout <= 0.0)
     throw std::invalid_argument("SafetySupervisor: command_timeout must be > 0 s, got " +
                                 std::to_string(options.command_timeout));
-  if (options.max_consecutive_overruns < 1)
-    throw std::invalid_argument("SafetySupervisor: max_consecutive_overruns must be >= 1, got " +
-                                std::to_string(options.max_consecutive_overruns));
+  if (!std::isfinite(options.max_lost_control_time) || options.max_lost_control_time <= 0.0)
+    throw std::invalid_argument("SafetySupervisor: max_lost_control_time must be > 0 s, got " +
+                                std::to_string(options.max_lost_control_time));
+}
+
+double lost_control_bound(double command_timeout, double drive_heartbeat_consumer_time) noexcept {
+  if (!(command_timeout > 0.0) || !(drive_heartbeat_consumer_time > 0.0)) return 0.0;
+  return 0.5 * std::min(command_timeout, drive_heartbeat_consumer_time);
 }
 
 OperatingState SafetySupervisor::state() const noexcept {
@@ -128,7 +133,6 @@ CommandResult SafetySupervisor::reset_estop(double t) noexcept {
   if (!estop_latched_.load(std::memory_order_relaxed)) return CommandResult::kAlreadyInState;
   estop_latched_.store(false, std::memory_order_release);
   fault_cause_ = FaultInfo{};
-  consecutive_overruns_ = 0;
   transition(t, OperatingState::kDisabled, EventKind::kEstopReset, FaultCode::kEstop, -1,
              "e-stop reset; robot is DISABLED");
   return CommandResult::kAccepted;
@@ -181,7 +185,6 @@ CommandResult SafetySupervisor::request(double t, StateCommand command) noexcept
                     to_string(fault_cause_.code), to_string(to));
       fault_cause_ = FaultInfo{};
     }
-    if (to == OperatingState::kEnabled) consecutive_overruns_ = 0;
     transition(t, to, EventKind::kTransition, FaultCode::kNone, -1, text);
     return CommandResult::kAccepted;
   };
@@ -371,19 +374,26 @@ TickResult SafetySupervisor::tick(double t, std::span<const double> measured,
   return r;
 }
 
-void SafetySupervisor::report_overrun(double t, bool overran) noexcept {
-  if (!overran) {
-    consecutive_overruns_ = 0;
-    return;
+bool SafetySupervisor::report_cycle(double t, double lost, bool moving) noexcept {
+  if (!(lost > 0.0)) return false;  // on time (or a non-finite report, which only the clock can make)
+  auto& r = lost_control_;
+  const OperatingState s = state_.load(std::memory_order_relaxed);
+  const bool protecting = s == OperatingState::kEnabled || s == OperatingState::kPaused;
+  r.max_lost = std::max(r.max_lost, lost);
+  // Motion counts only with the power stages on: a setpoint that changes while DISABLED moves nothing.
+  if (moving && protecting) r.max_lost_moving = std::max(r.max_lost_moving, lost);
+  if (lost <= options_.max_lost_control_time) return false;
+  ++r.stalls_over_bound;
+  if (!moving || !protecting) {
+    // At rest or powered off: the drives hold (or are off) without the loop. Counted, not faulted.
+    if (protecting) ++r.stalls_over_bound_at_rest;
+    return false;
   }
-  ++total_overruns_;
-  if (++consecutive_overruns_ >= options_.max_consecutive_overruns &&
-      state_.load(std::memory_order_relaxed) != OperatingState::kFault) {
-    char text[96];
-    std::snprintf(text, sizeof(text), "%d consecutive control-loop overruns (limit %d)",
-                  consecutive_overruns_, options_.max_consecutive_overruns);
-    raise_fault(t, FaultCode::kOverrun, -1, text);
-  }
+  char text[96];
+  std::snprintf(text, sizeof(text), "control loop lost %.0f ms while moving (bound %.0f ms); quick stop",
+                lost * 1e3, options_.max_lost_control_time * 1e3);
+  raise_fault(t, FaultCode::kLostControlTime, -1, text);
+  return true;
 }
 
 }  // namespace tendril::safety

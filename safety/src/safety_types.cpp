@@ -54,8 +54,8 @@ const char* to_string(FaultCode code) noexcept {
       return "e-stop";
     case FaultCode::kTrackingError:
       return "tracking error beyond limit";
-    case FaultCode::kOverrun:
-      return "control loop overruns";
+    case FaultCode::kLostControlTime:
+      return "control time lost while moving";
     case FaultCode::kDriveHeartbeatLost:
       return "drive heartbeat lost";
     case FaultCode::kDriveEmergency:

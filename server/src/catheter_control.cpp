@@ -18,6 +18,18 @@ using safety::OperatingState;
 constexpr std::size_t kJoints = 4;
 constexpr std::int64_t kAnalogJoystickStaleNs = 100'000'000;
 constexpr double kRelaxSettleS = 0.1;  // relaxed: both springs within half the resume bound this long
+// A bus silent for this long no longer keeps its last readings fresh (its drives' heartbeat
+// consumers fault the robot well before: 250 ms for the SRMC).
+constexpr std::int64_t kSilentBusNs = 1'000'000'000;
+
+// Age of a reading stamped by the bus thread, on the bus thread's own clock: from the reading to the
+// newest frame heard on that bus. A stall of the bus or control thread (or of the whole machine)
+// delays every frame alike and leaves this age alone; a node that falls silent while the drives
+// keep talking makes it grow. Past kSilentBusNs of silence on the whole bus, the wall clock counts.
+std::int64_t reading_age_ns(const CatheterUnit& c, std::int64_t stamp_ns, std::int64_t now_ns) noexcept {
+  const std::int64_t heard = c.bus_heard_ns.load(std::memory_order_relaxed);
+  return std::max(heard - stamp_ns, now_ns - stamp_ns - kSilentBusNs);
+}
 
 // Velocity per joint from the joystick sources whose deadman is held. Exactly one such source moves
 // the robot; two at once cancel (two hands on one catheter is a conflict, not a sum).
@@ -45,7 +57,7 @@ void joystick_velocity(RobotUnit& r, double t, std::int64_t now_ns, std::array<d
   }
   if (c.joystick_receiver) {
     const auto st = c.analog_joystick.load();
-    if (st.connected && st.deadman && now_ns - st.stamp_ns <= kAnalogJoystickStaleNs)
+    if (st.connected && st.deadman && reading_age_ns(c, st.stamp_ns, now_ns) <= kAnalogJoystickStaleNs)
       take(JoystickSource::analog, {0.0, st.outputs[0], st.outputs[1], st.outputs[2]});  // roll, prox, distal
   }
   s.joystick_conflict = held > 1;
@@ -99,7 +111,7 @@ void RobotRuntime::Impl::catheter_sensors(RobotUnit& r, double t, OperatingState
   auto& c = *r.catheter;
   const auto reading = c.deflection.load();
   const auto stale_ns = static_cast<std::int64_t>(c.settings.deflection.stale_ms * 1e6);
-  s.deflection_fresh = reading.valid && now_ns - reading.stamp_ns <= stale_ns;
+  s.deflection_fresh = reading.valid && reading_age_ns(c, reading.stamp_ns, now_ns) <= stale_ns;
   s.spring_deflection = s.deflection_fresh ? reading.mm : std::array<double, 2>{};
   if (s.relaxing && state != OperatingState::kPaused) {  // resumed, disabled, faulted or e-stopped
     s.relaxing = false;

@@ -56,6 +56,7 @@ std::unique_ptr<CatheterUnit> make_catheter_unit(const RobotConfig& rc, BusUnit&
       [unit](const can::Frame& frame, std::chrono::steady_clock::time_point now) {
         const std::int64_t now_ns =
             std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
+        unit->bus_heard_ns.store(now_ns, std::memory_order_relaxed);
         if (unit->deflection_receiver->handle(frame, now_ns)) {
           const auto reading = unit->deflection_receiver->reading(now_ns);
           DeflectionReading out;

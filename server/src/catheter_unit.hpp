@@ -8,6 +8,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -54,6 +55,10 @@ struct CatheterUnit {
   std::unique_ptr<input::AnalogJoystickReceiver> joystick_receiver;     // bus thread
   hardware::LatestValue<DeflectionReading> deflection;
   hardware::LatestValue<input::JoystickState> analog_joystick;
+  // When the bus thread last handled any frame on this bus (steady clock ns): the readings' ages are
+  // measured against it, so that a stalled thread, which delays every frame alike, never makes a
+  // sensor look silent (reading_age_ns in catheter_control.cpp).
+  std::atomic<std::int64_t> bus_heard_ns{0};
   std::unique_ptr<input::EvdevJoystick> evdev;
   std::array<int, 4> evdev_output{-1, -1, -1, -1};  // joint → output index of the evdev mapping
   std::unique_ptr<CatheterSimulation> simulation;

@@ -45,7 +45,12 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
   rc.kind = r.string("kind");
   rc.description = r.string_or("description", "");
   rc.command_timeout_ms = static_cast<int>(r.integer_in_or("command_timeout_ms", 10, 10'000, 150));
-  rc.max_consecutive_overruns = static_cast<int>(r.integer_in_or("max_consecutive_overruns", 1, 100'000, 10));
+  if (r.has("max_consecutive_overruns"))
+    throw ConfigError(file.string() +
+                      ": max_consecutive_overruns: no longer used; remove it. A robot now faults only when "
+                      "the control loop loses more than max_lost_control_ms while it moves (README, "
+                      "\"Control-loop timing\")");
+  rc.max_lost_control_ms = static_cast<int>(r.integer_in_or("max_lost_control_ms", 1, 10'000, 0));
   rc.enable_timeout_ms = static_cast<int>(r.integer_in_or("enable_timeout_ms", 10, 60'000, 1000));
 
   const auto& buses = r.array("buses", true);

@@ -267,6 +267,8 @@ struct ImagingWorker::Plane {
   std::uint64_t version = 0;
   std::uint64_t ready_ns = 0;  // when the message was ready: its log time (the capture time is inside)
 
+  bool wanted = false;  // guarded by ImagingWorker::run_mutex_: someone subscribes to the topic
+
   mutable std::mutex stats_mutex;
   std::array<double, kTimingWindow> render_s{}, encode_s{};
   std::uint64_t frames = 0, skipped = 0, shape_errors = 0;
@@ -324,7 +326,18 @@ void ImagingWorker::start() {
       while (true) {
         {
           std::unique_lock wait(run_mutex_);
-          if (run_wake_.wait_until(wait, next, [this] { return stopping_; })) return;
+          if (!p.wanted) {
+            // Nobody watches this plane: sleep until someone does (no timer, no wake-ups).
+            run_wake_.wait(wait, [&] { return stopping_ || p.wanted; });
+            if (stopping_) return;
+            // Back on the common schedule, at its next exposure (at once if one is due).
+            const auto now = SteadyClock::now();
+            if (next < now) next += ((now - next) / period) * period;
+          }
+          if (run_wake_.wait_until(wait, next, [this, &p] { return stopping_ || !p.wanted; })) {
+            if (stopping_) return;
+            continue;  // unsubscribed while waiting for the exposure
+          }
         }
         capture(p, wall_ns());
         next += period;
@@ -338,6 +351,21 @@ void ImagingWorker::start() {
         }
       }
     });
+  }
+}
+
+void ImagingWorker::set_demand(const std::string& topic, bool wanted) {
+  for (auto& plane : planes_) {
+    if (plane->topic != topic) continue;
+    {
+      std::lock_guard lock(run_mutex_);
+      plane->wanted = wanted;
+    }
+    if (!wanted) {
+      std::lock_guard slot(plane->slot_mutex);
+      plane->payload.reset();  // the version stays, so nobody mistakes the next frame for this one
+    }
+    run_wake_.notify_all();
   }
 }
 

@@ -121,7 +121,9 @@ std::variant<std::vector<CenterlinePolyline>, ApiResult> parse_vessel(std::strin
   try {
     branches = source == "csv" ? teleop::parse_centerline_csv(body) : teleop::read_stl_centerline(body);
   } catch (const teleop::VesselInputError& e) {
-    return bad_vessel(std::string(source == "csv" ? "centerline CSV: " : "STL mesh: ") + e.what());
+    // The readers name the format and the place themselves ("centerline CSV line 2: …", "binary
+    // STL: …"); prefixing it again read "centerline CSV: centerline CSV line 2: …".
+    return bad_vessel(e.what());
   }
   if (branches.empty()) return bad_vessel("the file holds no centerline points");
   for (std::size_t k = 0; k < branches.size(); ++k) {

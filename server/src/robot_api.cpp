@@ -218,6 +218,13 @@ ApiResult RobotRuntime::operating_state(const std::string& robot) const {
                         {"is_busy", s.busy},
                         {"estop", s.estop},
                         {"drives_ready", s.drives_ready}};
+  // The loop-timing policy's record: lost control time (beyond one period) and the bound that faults
+  // a moving robot (README, "Control-loop timing").
+  out["loop_timing"] = {{"max_lost_control_ms", r.supervisor->options().max_lost_control_time * 1e3},
+                        {"lost_max_ms", s.lost_control.max_lost * 1e3},
+                        {"lost_max_moving_ms", s.lost_control.max_lost_moving * 1e3},
+                        {"stalls_over_bound", s.lost_control.stalls_over_bound},
+                        {"stalls_over_bound_at_rest", s.lost_control.stalls_over_bound_at_rest}};
   if (s.state == OperatingState::kFault || s.estop)
     out["fault"] = {
         {"code", safety::to_string(s.fault.code)},
@@ -891,6 +898,14 @@ std::string RobotRuntime::metrics() const {
   m << "# HELP tendril_control_overruns_total Control cycles that ran past their deadline.\n"
        "# TYPE tendril_control_overruns_total counter\ntendril_control_overruns_total "
     << ls.overruns << "\n";
+  m << "# HELP tendril_control_late_cycles_total Control cycles that started a full period or more late "
+       "(at least one cycle missed).\n# TYPE tendril_control_late_cycles_total counter\n"
+       "tendril_control_late_cycles_total "
+    << ls.late_cycles << "\n";
+  m << "# HELP tendril_control_lost_time_max_us Longest time the control loop went without a cycle, "
+       "beyond one period (microseconds).\n# TYPE tendril_control_lost_time_max_us gauge\n"
+       "tendril_control_lost_time_max_us "
+    << ls.lost_max_us << "\n";
   m << "# HELP tendril_control_period_error_us Absolute control period error (microseconds).\n"
        "# TYPE tendril_control_period_error_us gauge\n"
     << "tendril_control_period_error_us{quantile=\"0.5\"} " << ls.period_error_p50_us << "\n"
@@ -1054,6 +1069,8 @@ nlohmann::json diagnostics(const RobotUnit& r, const RobotSnapshot& s, const Run
        {{"p50", ls.period_error_p50_us}, {"p99", ls.period_error_p99_us}, {"max", ls.period_error_max_us}}},
       {"work_us", {{"p50", ls.work_p50_us}, {"p99", ls.work_p99_us}, {"max", ls.work_max_us}}},
       {"overruns", ls.overruns},
+      {"late_cycles", ls.late_cycles},
+      {"lost_max_us", ls.lost_max_us},
       {"bus_load", bus_load},
       {"setpoint", setpoint},
       {"measured", measured}};

@@ -32,12 +32,11 @@ void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c
 }
 }  // namespace
 
-void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now,
-                                       bool previous_overrun) noexcept {
+void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now, double lost) noexcept {
   const double t = std::chrono::duration<double>(now - start_time).count();
   now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
   ticks.fetch_add(1, std::memory_order_relaxed);
-  for (auto& r : robots) control_robot(*r, t, previous_overrun);
+  for (auto& r : robots) control_robot(*r, t, lost);
 }
 
 void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept {
@@ -187,7 +186,7 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
   ++s.commands_applied;
 }
 
-void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_overrun) noexcept {
+void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noexcept {
   auto& s = r.rt;
   auto& sup = *r.supervisor;
   const std::size_t n = r.n;
@@ -239,6 +238,17 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
                       fb[i].last_emcy_code, fb[i].last_emcy_register);
         sup.fault(t, safety::FaultCode::kDriveEmergency, static_cast<int>(i), detail);
       }
+    }
+  }
+
+  // 2b. Loop timing (safety::SupervisorOptions): a gap while moving beyond the bound faults before
+  // anything is commanded; a shorter one delays the running trajectories by the lost time, so that
+  // the setpoint continues from where it stood instead of jumping ahead by v·gap.
+  if (lost > 0.0) {
+    sup.report_cycle(t, lost, s.moving);
+    if (s.moving) {
+      r.interpolator->delay(lost);
+      if (r.catheter) r.catheter->configuration->delay(lost);
     }
   }
 
@@ -361,8 +371,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     }
   }
 
-  // 6. Safety: servo timeout, tracking error, overruns.
-  sup.report_overrun(t, previous_overrun);
+  // 6. Safety: servo timeout, tracking error.
   const bool tracking = state == OperatingState::kEnabled && s.drives_ready;
   sup.tick(t, {s.q.data(), n},
            tracking ? std::span<const double>(s.q_des.data(), n) : std::span<const double>(s.q.data(), n));
@@ -372,8 +381,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   const bool estop = sup.estop_latched();
   for (std::size_t i = 0; i < n; ++i) {
     const auto& b = r.bindings[i];
-    auto& slot = b.bus->master->command(b.drive);
-    canopen::DriveCommand dc = slot.load();
+    canopen::DriveCommand dc = b.bus->master->command(b.drive).load();
     if (estop || state == OperatingState::kFault) {
       dc.request = canopen::DriveRequest::quick_stop;
     } else if (state == OperatingState::kEnabled || state == OperatingState::kPaused) {
@@ -385,7 +393,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     }
     dc.target_position = s.q_des[i];
     ++dc.sequence;
-    slot.store(dc);
+    b.bus->master->set_command(b.drive, dc);  // wakes the bus thread for a quick stop or disable
   }
 
   // 7b. Path following: a step is reached when its move ends at the step's joint values. A move cut
@@ -396,6 +404,12 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
     if (at_goal) s.path_step = s.path_target;
     s.path_target = s.path_step;
   }
+
+  // What a stall before the next cycle would interrupt (2b).
+  bool setpoint_moving = false;
+  for (std::size_t i = 0; i < n; ++i) setpoint_moving = setpoint_moving || s.qd_des[i] != 0.0;
+  s.moving = (state == OperatingState::kEnabled || state == OperatingState::kPaused) && s.drives_ready &&
+             (setpoint_moving || !holding(r, t));
 
   // 8. Publish.
   RobotSnapshot snap;
@@ -416,6 +430,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, bool previous_ove
   snap.drives_ready = s.drives_ready;
   snap.busy = s.drives_ready ? !holding(r, t) : (s.enable_pending || s.goal_pending);
   snap.fault = sup.fault_cause();
+  snap.lost_control = sup.lost_control();
   snap.estop_tick = s.estop_tick;
   snap.commands_applied = s.commands_applied;
   snap.mailbox_full = r.mailbox_full.load(std::memory_order_relaxed);

@@ -79,7 +79,23 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
     }
     safety::SupervisorOptions so;
     so.command_timeout = rc.command_timeout_ms / 1000.0;
-    so.max_consecutive_overruns = rc.max_consecutive_overruns;
+    // Loop-timing bound (safety::lost_control_bound): half the shorter of the command timeout and the
+    // drives' heartbeat consumer time (how long a drive tolerates a silent master), unless the robot
+    // file sets a tighter one.
+    int consumer_ms = 0;
+    for (const auto& bc : rc.buses)
+      consumer_ms = consumer_ms == 0 ? bc.master_heartbeat_timeout_ms
+                                     : std::min(consumer_ms, bc.master_heartbeat_timeout_ms);
+    so.max_lost_control_time = safety::lost_control_bound(so.command_timeout, consumer_ms / 1000.0);
+    if (rc.max_lost_control_ms > 0) {
+      if (rc.max_lost_control_ms / 1000.0 > so.max_lost_control_time)
+        throw ConfigError(file + ": max_lost_control_ms: expected at most " +
+                          std::to_string(static_cast<int>(so.max_lost_control_time * 1000.0)) +
+                          " ms (half the shorter of command_timeout_ms and the buses' "
+                          "master_heartbeat_timeout_ms), got " +
+                          std::to_string(rc.max_lost_control_ms));
+      so.max_lost_control_time = rc.max_lost_control_ms / 1000.0;
+    }
     unit->supervisor = std::make_unique<safety::SafetySupervisor>(safety::LimitSet(std::move(limits)), so);
     OperatingLimits operating;
     for (std::size_t i = 0; i < unit->n; ++i) {
@@ -221,9 +237,14 @@ void RobotRuntime::start() {
     auto* bus = b.get();
     bus->sim_thread.start(
         "sim:" + bus->config.name, std::chrono::milliseconds(1),
-        [bus](std::chrono::steady_clock::time_point now, bool) {
-          for (auto& d : bus->sim_drives) d->pump(now, 0.001);
-          for (auto* p : bus->plants) p->step(0.001);
+        [bus](const CycleTiming& c) {
+          // The SIMULATED hardware keeps real time as real hardware would: a late cycle steps the
+          // time that really passed (heartbeats, PDO rates, physics), not a nominal 1 ms. Otherwise a
+          // loaded machine slows simulated time, and the ADC nodes' 100 Hz PDOs thin out until their
+          // sensors look stale. Capped at 1 s of physics per cycle.
+          const double dt = std::min(0.001 + std::chrono::duration<double>(c.lost).count(), 1.0);
+          for (auto& d : bus->sim_drives) d->pump(c.woke, dt);
+          for (auto* p : bus->plants) p->step(dt);
         },
         im.options.realtime_priority, 70);
   }
@@ -246,8 +267,8 @@ void RobotRuntime::start() {
   if (!im.options.stepped) {
     im.control_thread.start(
         "control", dt,
-        [&im](std::chrono::steady_clock::time_point deadline, bool overrun) {
-          im.control_cycle(deadline, overrun);
+        [&im](const CycleTiming& c) {
+          im.control_cycle(c.deadline, std::chrono::duration<double>(c.lost).count());
         },
         im.options.realtime_priority);
   }
@@ -271,23 +292,42 @@ void RobotRuntime::Impl::run_bus(BusUnit& b) {
     sp.sched_priority = 75;
     pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
   }
-  // Wake at least every 200 µs so urgent commands (quick stop, disable) leave within a fraction of
-  // a control period even when the SYNC cycle is longer.
-  constexpr auto kMaxSleep = std::chrono::microseconds(200);
+  // Sleeps until the master's next deadline (SYNC, heartbeat, a consumer timeout) or a frame. Urgent
+  // commands (quick stop, disable) do not wait for that: CanopenMaster::set_command() rings
+  // Bus::wake(), and the poll below sends them. The cap only bounds how long stop() may wait.
+  constexpr auto kMaxSleep = std::chrono::milliseconds(100);
+  auto handle = [&b](const can::Frame& f) {
+    const auto at = std::chrono::steady_clock::now();
+    b.master->handle(f, at);
+    for (auto& listen : b.frame_listeners) listen(f, at);
+  };
   while (!stopping.load(std::memory_order_relaxed)) {
     auto now = std::chrono::steady_clock::now();
     auto wait = std::min<std::chrono::nanoseconds>(b.master->next_deadline() - now, kMaxSleep);
     if (wait < std::chrono::nanoseconds(0)) wait = std::chrono::nanoseconds(0);
     if (auto frame = b.master_endpoint->receive(wait)) {
-      auto handle = [&b](const can::Frame& f) {
-        const auto at = std::chrono::steady_clock::now();
-        b.master->handle(f, at);
-        for (auto& listen : b.frame_listeners) listen(f, at);
-      };
+      // The watchdogs run at the time taken before the queue is drained: frames that arrived while
+      // this thread was stalled count as heard (they are stamped as handled), so a stall of this
+      // thread never looks like a silent drive.
+      now = std::chrono::steady_clock::now();
       handle(*frame);
       while (auto more = b.master_endpoint->receive(std::chrono::nanoseconds(0))) handle(*more);
+      b.master->poll(now);
+    } else {
+      b.master->poll(std::chrono::steady_clock::now());
     }
-    b.master->poll(std::chrono::steady_clock::now());
+  }
+}
+
+void RobotRuntime::Impl::step_buses(std::chrono::steady_clock::time_point now, double dt) {
+  for (auto& b : buses) {
+    for (auto& d : b->sim_drives) d->pump(now, dt);
+    for (auto* p : b->plants) p->step(dt);
+    while (auto f = b->master_endpoint->receive(std::chrono::nanoseconds(0))) {
+      b->master->handle(*f, now);
+      for (auto& listen : b->frame_listeners) listen(*f, now);
+    }
+    b->master->poll(now);
   }
 }
 
@@ -298,18 +338,36 @@ void RobotRuntime::step() {
   im.stepped_now +=
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
   const auto now = im.stepped_now;
-  for (auto& b : im.buses) {
-    for (auto& d : b->sim_drives) d->pump(now, im.period);
-    for (auto* p : b->plants) p->step(im.period);
-    while (auto f = b->master_endpoint->receive(std::chrono::nanoseconds(0))) {
-      b->master->handle(*f, now);
-      for (auto& listen : b->frame_listeners) listen(*f, now);
-    }
-    b->master->poll(now);
+  if (im.stepped_sim_lost > 0.0) {
+    // After a stall of the whole machine the highest priority runs first: the control cycle, on the
+    // feedback and readings from before the stall; then the bus and the simulated hardware catch up.
+    im.control_cycle(now, im.stepped_lost);
+    im.step_buses(now, im.period + im.stepped_sim_lost);
+  } else {
+    im.step_buses(now, im.period);
+    im.control_cycle(now, im.stepped_lost);
   }
-  im.control_cycle(now, false);
-  // Urgent requests from this cycle leave now, as the bus thread would within 200 µs.
+  im.stepped_lost = 0.0;
+  im.stepped_sim_lost = 0.0;
+  // Urgent requests from this cycle leave now, as the bus thread would when woken.
   for (auto& b : im.buses) b->master->poll(now);
+}
+
+void RobotRuntime::stall(std::chrono::nanoseconds duration, Stall what) {
+  auto& im = *impl_;
+  if (!im.options.stepped) throw std::logic_error("RobotRuntime::stall() is for stepped mode only");
+  if (!im.running.load()) throw std::logic_error("RobotRuntime::stall() before start()");
+  const auto period =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+  for (auto skipped = period; skipped <= duration; skipped += period) {
+    im.stepped_now += period;
+    if (what == Stall::control_thread) {
+      im.step_buses(im.stepped_now, im.period);  // the control cycles that should have run do not
+    } else {
+      im.stepped_sim_lost += im.period;
+    }
+  }
+  im.stepped_lost += std::chrono::duration<double>(duration).count();
 }
 
 void RobotRuntime::stop() {
@@ -317,6 +375,7 @@ void RobotRuntime::stop() {
   if (!im.running.exchange(false)) return;
   im.control_thread.stop();
   im.stopping.store(true);
+  for (auto& b : im.buses) b->master_endpoint->wake();
   for (auto& r : im.robots)
     if (r->catheter && r->catheter->evdev) r->catheter->evdev->stop();
   for (auto& b : im.buses)

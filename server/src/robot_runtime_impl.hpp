@@ -109,6 +109,7 @@ struct RobotSnapshot {
   std::array<canopen::Cia402State, kMaxJoints> drive_state{};
   std::array<bool, kMaxJoints> heartbeat_alive{};
   safety::FaultInfo fault{};
+  safety::SafetySupervisor::LostControlRecord lost_control{};  // loop-timing record (SupervisorOptions)
   std::uint64_t estop_tick = 0;  // tick at which the last e-stop reached the control thread
   std::uint64_t commands_applied = 0;
   std::uint64_t mailbox_full = 0;
@@ -219,6 +220,9 @@ struct RobotUnit {
     bool withdrawing = false;      // held: insertion moving back to withdraw_to (mm)
     double withdraw_to = 0.0;
     RelaxOutcome relax_outcome = RelaxOutcome::none;
+    // Whether the robot was moving when the last cycle ended (a move, a servo stream, a joystick,
+    // or a setpoint that changed): what a stall before the next cycle interrupts.
+    bool moving = false;
   } rt;
 };
 
@@ -246,8 +250,13 @@ struct RuntimeImplBase {
 };
 
 struct RobotRuntime::Impl : RuntimeImplBase {
-  void control_cycle(std::chrono::steady_clock::time_point now, bool previous_overrun) noexcept;
-  void control_robot(RobotUnit& r, double t, bool previous_overrun) noexcept;
+  // `lost`: time since the previous cycle ran beyond one period (s), see PeriodicThread::CycleTiming.
+  void control_cycle(std::chrono::steady_clock::time_point now, double lost) noexcept;
+  void control_robot(RobotUnit& r, double t, double lost) noexcept;
+  // Stepped mode: runs the simulated nodes over `dt` and the buses at `now`, without the control cycle.
+  void step_buses(std::chrono::steady_clock::time_point now, double dt);
+  double stepped_lost = 0.0;      // stepped mode: control time the next step() reports lost
+  double stepped_sim_lost = 0.0;  // stepped mode: simulated time the next step() catches up
   void apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept;
   // Steerable catheter parts of the control cycle (catheter_control.cpp).
   void catheter_sensors(RobotUnit& r, double t, safety::OperatingState state) noexcept;

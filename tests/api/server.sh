@@ -41,16 +41,12 @@ start_tendrild() {
   # stays requested: on a busy machine it keeps the simulated drives' heartbeats on time (where it is
   # refused, tendrild logs that and runs without).
   # The robot file as shipped, but with the catheter in free space (the shipped SIMULATED vessel makes
-  # any sizeable bend touch its wall, which would hold the robot in tests that are not about contact)
-  # and a looser overrun fault.
+  # any sizeable bend touch its wall, which would hold the robot in tests that are not about contact).
   # TENDRIL_TEST_VESSEL=1 keeps the vessel.
   node -e '
     const fs = require("fs");
     const robot = JSON.parse(fs.readFileSync(process.argv[1], "utf8"));
     if (process.argv[3] !== "1" && robot.catheter && robot.catheter.simulation) delete robot.catheter.simulation.vessel;
-    // The browser tests run Chromium with software WebGL on the same two cores: a starved 1 kHz loop
-    // must not fault the robot mid-test (the overrun fault itself is tested in tests/unit/safety).
-    robot.max_consecutive_overruns = 100;
     fs.writeFileSync(process.argv[2], JSON.stringify(robot, null, 2));
   ' "$repo_root/config/robots/srmc.json" "$tendrild_workdir/srmc.json" "${TENDRIL_TEST_VESSEL:-0}"
   cat > "$tendrild_workdir/server.json" <<JSON

@@ -272,6 +272,15 @@ TEST(PlanningServiceOnTheSampleVessel, PlansWithinTheJointLimitsAndTheRuntimeLoa
   EXPECT_EQ(planning.submit_plan_file(csv, "text/csv", {{"ds", "abc"}}).status, 400);
   EXPECT_EQ(planning.submit_plan_file(csv, "text/csv", {{"dq1", "0"}}).status, 422);
   EXPECT_EQ(planning.submit_plan_file("", "text/csv", {}).code, "bad_vessel");
+  // The reader names the format and line once (it used to read "centerline CSV: centerline CSV line 2").
+  const auto bad_line = planning.upload_vessel("0,0,0\n0,0,x\n", "text/csv", {});
+  EXPECT_EQ(bad_line.code, "bad_vessel");
+  EXPECT_EQ(bad_line.message.rfind("centerline CSV line 2: ", 0), 0u) << bad_line.message;
+  EXPECT_EQ(bad_line.message.find("centerline CSV", 1), std::string::npos) << bad_line.message;
+  const auto bad_stl = planning.upload_vessel(std::string(84, '\0'), "model/stl", {});
+  EXPECT_EQ(bad_stl.code, "bad_vessel");
+  EXPECT_EQ(bad_stl.message.find("STL", bad_stl.message.find("STL") + 1), std::string::npos)
+      << bad_stl.message;
   EXPECT_EQ(planning.upload_vessel(csv, "application/pdf", {}).status, 415);
 }
 

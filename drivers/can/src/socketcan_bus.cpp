@@ -6,11 +6,13 @@
 #include <linux/can/raw.h>
 #include <net/if.h>
 #include <poll.h>
+#include <sys/eventfd.h>
 #include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cstring>
 
@@ -84,10 +86,19 @@ SocketCanBus::SocketCanBus(const std::string& interface, std::uint32_t bitrate)
   const int flags = ::fcntl(fd_, F_GETFL, 0);
   if (flags < 0 || ::fcntl(fd_, F_SETFL, flags | O_NONBLOCK) != 0)
     fail("cannot make the socket non-blocking");
+  wake_fd_ = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+  if (wake_fd_ < 0) fail("cannot create the eventfd that wakes a waiting receive");
 }
 
 SocketCanBus::~SocketCanBus() {
   if (fd_ >= 0) ::close(fd_);
+  if (wake_fd_ >= 0) ::close(wake_fd_);
+}
+
+void SocketCanBus::wake() noexcept {
+  const std::uint64_t one = 1;
+  // Non-blocking; fails only when the counter is about to overflow, which still leaves it readable.
+  [[maybe_unused]] const ssize_t n = ::write(wake_fd_, &one, sizeof one);
 }
 
 SendResult SocketCanBus::send(const Frame& frame) noexcept {
@@ -152,12 +163,15 @@ std::optional<Frame> SocketCanBus::receive(std::chrono::nanoseconds timeout) noe
     if (n < 0 && errno == EINTR) continue;
     if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK)) return std::nullopt;  // short read / error
 
+    // No frame: a pending wake() ends the call (and is consumed), else wait for either.
+    std::uint64_t wakes = 0;
+    if (::read(wake_fd_, &wakes, sizeof wakes) == static_cast<ssize_t>(sizeof wakes)) return std::nullopt;
     const auto remaining = deadline - Clock::now();
     if (remaining <= std::chrono::nanoseconds::zero()) return std::nullopt;
     const auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(remaining).count();
     timespec ts{static_cast<time_t>(ns / 1'000'000'000), static_cast<long>(ns % 1'000'000'000)};
-    pollfd pfd{fd_, POLLIN, 0};
-    const int r = ::ppoll(&pfd, 1, &ts, nullptr);
+    std::array<pollfd, 2> pfd{pollfd{fd_, POLLIN, 0}, pollfd{wake_fd_, POLLIN, 0}};
+    const int r = ::ppoll(pfd.data(), pfd.size(), &ts, nullptr);
     if (r < 0 && errno != EINTR) return std::nullopt;
     if (r == 0) return std::nullopt;
   }

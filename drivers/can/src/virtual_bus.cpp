@@ -1,11 +1,39 @@
 #include "tendril/drivers/can/virtual_bus.hpp"
 
+#include <linux/futex.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
-#include <condition_variable>
+#include <climits>
+#include <cstdint>
+#include <ctime>
 #include <stdexcept>
 
 namespace tendril::can {
+namespace {
+
+// Waits while *word == expected, at most until `deadline` on CLOCK_MONOTONIC (the steady clock).
+void futex_wait_until(std::atomic<std::uint32_t>& word, std::uint32_t expected,
+                      Clock::time_point deadline) noexcept {
+  const auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(deadline.time_since_epoch()).count();
+  timespec ts{static_cast<time_t>(ns / 1'000'000'000), static_cast<long>(ns % 1'000'000'000)};
+  // FUTEX_WAIT_BITSET takes an absolute CLOCK_MONOTONIC deadline.
+  syscall(SYS_futex, reinterpret_cast<std::uint32_t*>(&word), FUTEX_WAIT_BITSET_PRIVATE, expected, &ts,
+          nullptr, FUTEX_BITSET_MATCH_ANY);
+}
+
+void futex_wake_all(std::atomic<std::uint32_t>& word) noexcept {
+  syscall(SYS_futex, reinterpret_cast<std::uint32_t*>(&word), FUTEX_WAKE_PRIVATE, INT_MAX, nullptr, nullptr,
+          0);
+}
+
+static_assert(sizeof(std::atomic<std::uint32_t>) == sizeof(std::uint32_t) &&
+                  std::atomic<std::uint32_t>::is_always_lock_free,
+              "the futex word must be a plain 32-bit integer");
+
+}  // namespace
 
 // One mutex per bus guards the endpoint list and every receive ring: the virtual bus is a
 // simulation aid, so simplicity wins over contention here. Rings are preallocated at attach()
@@ -21,7 +49,16 @@ struct VirtualBus::Shared {
 struct VirtualBusEndpoint::Impl {
   std::shared_ptr<VirtualBus::Shared> bus;
   std::string name;
-  std::condition_variable frame_arrived;
+  // An eventcount instead of a condition variable, so that wake() needs no lock: every frame pushed
+  // here and every wake() bumps `signal`; a receive() that found nothing sleeps on it with a futex
+  // and is woken only when someone is waiting (`waiters`).
+  std::atomic<std::uint32_t> signal{0};
+  std::atomic<int> waiters{0};
+  std::atomic<bool> woken{false};
+  void signal_waiters() noexcept {
+    signal.fetch_add(1, std::memory_order_seq_cst);
+    if (waiters.load(std::memory_order_seq_cst) > 0) futex_wake_all(signal);
+  }
   // Ring buffer, guarded by bus->mutex.
   std::vector<Frame> ring;
   std::size_t head = 0;
@@ -76,7 +113,7 @@ SendResult VirtualBusEndpoint::send(const Frame& frame) noexcept {
     for (auto* ep : impl_->bus->endpoints) {
       if (ep == impl_.get() || ep->bus_off) continue;  // no loop-back; a bus-off node hears nothing
       ep->push_locked(copy);
-      ep->frame_arrived.notify_one();
+      ep->signal_waiters();
     }
   }
   impl_->sent.fetch_add(1, std::memory_order_relaxed);
@@ -84,20 +121,35 @@ SendResult VirtualBusEndpoint::send(const Frame& frame) noexcept {
 }
 
 std::optional<Frame> VirtualBusEndpoint::receive(std::chrono::nanoseconds timeout) noexcept {
-  std::unique_lock lock(impl_->bus->mutex);
-  if (impl_->count == 0 && timeout > std::chrono::nanoseconds::zero()) {
-    impl_->frame_arrived.wait_for(lock, std::min(timeout, std::chrono::nanoseconds(std::chrono::hours(24))),
-                                  [&] { return impl_->count > 0; });
+  auto& im = *impl_;
+  const auto deadline = Clock::now() + std::clamp(timeout, std::chrono::nanoseconds::zero(),
+                                                  std::chrono::nanoseconds(std::chrono::hours(24)));
+  for (;;) {
+    const std::uint32_t seen = im.signal.load(std::memory_order_seq_cst);
+    {
+      std::unique_lock lock(im.bus->mutex);
+      if (im.count > 0) {
+        Frame f = im.pop_locked();
+        lock.unlock();
+        if (f.error) {
+          im.error_frames.fetch_add(1, std::memory_order_relaxed);
+        } else {
+          im.received.fetch_add(1, std::memory_order_relaxed);
+        }
+        return f;
+      }
+    }
+    if (im.woken.exchange(false, std::memory_order_acq_rel)) return std::nullopt;
+    if (Clock::now() >= deadline) return std::nullopt;
+    im.waiters.fetch_add(1, std::memory_order_seq_cst);
+    futex_wait_until(im.signal, seen, deadline);  // returns at once if a frame or wake() came since `seen`
+    im.waiters.fetch_sub(1, std::memory_order_seq_cst);
   }
-  if (impl_->count == 0) return std::nullopt;
-  Frame f = impl_->pop_locked();
-  lock.unlock();
-  if (f.error) {
-    impl_->error_frames.fetch_add(1, std::memory_order_relaxed);
-  } else {
-    impl_->received.fetch_add(1, std::memory_order_relaxed);
-  }
-  return f;
+}
+
+void VirtualBusEndpoint::wake() noexcept {
+  impl_->woken.store(true, std::memory_order_release);
+  impl_->signal_waiters();
 }
 
 BusState VirtualBusEndpoint::state() const noexcept { return impl_->state.load(std::memory_order_relaxed); }
@@ -175,7 +227,7 @@ void VirtualBus::set_bus_off(const std::string& endpoint_name, bool bus_off) {
       ep->state.store(BusState::error_active, std::memory_order_relaxed);
     }
     ep->push_locked(err);
-    ep->frame_arrived.notify_one();
+    ep->signal_waiters();
     return;
   }
   throw std::invalid_argument("VirtualBus '" + shared_->name + "': no endpoint named '" + endpoint_name +

@@ -321,7 +321,8 @@ struct CanopenMaster::Impl {
     const bool finished = pump_until([&] { return !sdo.busy(); }, limit, idle, &sdo);
     sdo_retries.fetch_add(sdo.retries_used(), std::memory_order_relaxed);
     if (!finished || sdo.status() != SdoClient::Status::done) {
-      const std::string reason = finished ? sdo.error() : "SDO transfer did not finish";
+      // The SDO client's error() names the node and object again; this message already does.
+      const std::string reason = finished ? sdo.reason() : "SDO transfer did not finish";
       throw CanopenError("CANopen start: drive '" + drives[i].name + "' (node " +
                          std::to_string(drives[i].node_id) + "): cannot set " + what + " (" + hex(index, 4) +
                          ":" + hex(sub, 2) + " = " + hex(value, 1) + "): " + reason);
@@ -490,6 +491,15 @@ const DriveSetup& CanopenMaster::drive_setup(std::size_t i) const { return impl_
 
 hardware::LatestValue<DriveCommand>& CanopenMaster::command(std::size_t i) noexcept {
   return impl_->slots[i].command;
+}
+
+void CanopenMaster::set_command(std::size_t i, const DriveCommand& command) noexcept {
+  auto& slot = impl_->slots[i].command;
+  const DriveRequest before = slot.load().request;
+  slot.store(command);
+  const bool stopping =
+      command.request == DriveRequest::quick_stop || command.request == DriveRequest::disable;
+  if (stopping && command.request != before) impl_->bus.wake();
 }
 
 const hardware::LatestValue<DriveFeedback>& CanopenMaster::feedback(std::size_t i) const noexcept {

@@ -52,6 +52,7 @@ void SdoClient::begin_attempt(can::Clock::time_point now) {
   status_ = Status::busy;
   abort_code_ = 0;
   error_.clear();
+  reason_.clear();
   offset_ = 0;
   toggle_ = false;
   std::uint8_t b[8]{};
@@ -110,6 +111,7 @@ void SdoClient::send_upload_segment_request(can::Clock::time_point now) {
 void SdoClient::fail(std::uint32_t code, const std::string& reason, bool send_abort) {
   status_ = Status::failed;
   abort_code_ = code;
+  reason_ = reason;
   error_ = "SDO " + std::string(upload_ ? "read of " : "write to ") + object_name() + " failed: " + reason;
   if (send_abort) {
     can::Frame f;

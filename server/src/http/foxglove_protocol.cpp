@@ -392,6 +392,8 @@ Channel channel_for_topic(std::uint32_t id, const std::string& topic) {
                 {"period_us", quantiles},
                 {"work_us", quantiles},
                 {"overruns", {{"type", "integer"}}},
+                {"late_cycles", {{"type", "integer"}}},
+                {"lost_max_us", {{"type", "number"}}},
                 {"bus_load", {{"type", "number"}}},
                 {"setpoint", numbers},
                 {"measured", numbers}}}};

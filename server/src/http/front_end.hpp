@@ -150,6 +150,8 @@ class HttpServer::Impl {
   std::vector<std::string> last_topics;
   std::uint32_t next_channel_id = 1;
   std::mutex publish_mutex;
+  // Which source topics have subscribers, as last told to their source (guarded by publish_mutex).
+  std::map<std::string, bool> source_demand;
 
   mutable std::mutex ws_mutex;
   std::map<std::uint64_t, std::weak_ptr<WsConnectionBase>> ws_sessions;
@@ -241,6 +243,8 @@ class HttpServer::Impl {
   // only_sources: publish the topic sources' new messages only (a source said one is ready), so that
   // robot topics keep their publish_rate_hz.
   void publish_once(bool only_sources = false);
+  // Tells each topic source which of its topics have subscribers now (TopicSource::set_demand).
+  void tell_sources_demand(const std::set<std::uint32_t>& wanted);
   void do_accept();
   void run_io() noexcept;  // an I/O thread: io_context::run(), re-entered after a stray exception
   std::string metrics() const;

@@ -142,6 +142,31 @@ void HttpServer::Impl::refresh_channels() {
   }
 }
 
+void HttpServer::Impl::tell_sources_demand(const std::set<std::uint32_t>& wanted) {
+  // Caller holds publish_mutex. Sources hear only changes; a topic that loses its last subscriber
+  // also loses its cached message, so a later subscriber is not sent an old one as current.
+  for (const auto& [topic, entry] : source_topics) {
+    bool now_wanted = false;
+    {
+      std::lock_guard lock(channels_mutex);
+      const auto id = topic_ids.find(topic);
+      now_wanted = id != topic_ids.end() && wanted.count(id->second) > 0;
+      if (!now_wanted && id != topic_ids.end()) {
+        const auto channel = channels.find(id->second);
+        if (channel != channels.end()) channel->second.last_payload.reset();
+      }
+    }
+    auto& told = source_demand[topic];
+    if (told == now_wanted) continue;
+    told = now_wanted;
+    try {
+      entry.first->set_demand(topic, now_wanted);
+    } catch (const std::exception&) {
+      told = !now_wanted;  // tell it again next cycle
+    }
+  }
+}
+
 void HttpServer::Impl::publish_once(bool only_sources) {
   std::lock_guard publish_lock(publish_mutex);
   refresh_channels();
@@ -149,6 +174,7 @@ void HttpServer::Impl::publish_once(bool only_sources) {
   report_new_safety_events();
   std::set<std::uint32_t> wanted;
   for (const auto& session : sessions) session->subscribed_channels(wanted);
+  tell_sources_demand(wanted);
   for (const std::uint32_t channel_id : wanted) {
     std::string topic;
     std::uint64_t since = 0;

@@ -306,6 +306,9 @@ TEST_F(MasterTest, SdoAbortDuringConfigurationNamesNodeObjectAndReason) {
     EXPECT_NE(msg.find("0x6060"), std::string::npos) << msg;
     EXPECT_NE(msg.find("mode of operation"), std::string::npos) << msg;
     EXPECT_NE(msg.find("value range"), std::string::npos) << msg;
+    // Each said once: the SDO client's own "SDO write to node 2 object 0x6060:0x00" is not repeated.
+    EXPECT_EQ(msg.find("0x6060", msg.find("0x6060") + 1), std::string::npos) << msg;
+    EXPECT_EQ(msg.find("node 2", msg.find("node 2") + 1), std::string::npos) << msg;
   }
 }
 

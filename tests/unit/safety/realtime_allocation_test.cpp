@@ -27,7 +27,7 @@ TEST(SafetyRealtime, SupervisorTickPathDoesNotAllocate) {
     s->clamp_setpoint(q, qd);
     (void)s->check_goal(q);
     (void)s->check_velocity(qd);
-    s->report_overrun(t, round % 2 == 0);
+    s->report_cycle(t, round % 2 == 0 ? 0.5 : 0.001, round % 4 == 0);
     s->tick(t += 0.5, measured, setpoint);  // servo timeout → hold event
     s->request(t, StateCommand::kPause);
     s->fault(t, FaultCode::kDriveEmergency, 1, "EMCY 0x2310 overcurrent");

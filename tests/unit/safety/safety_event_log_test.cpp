@@ -15,7 +15,7 @@ SafetyEvent make_event(int i) {
   SafetyEvent e;
   e.time = i * 0.001;
   e.kind = EventKind::kFault;
-  e.code = FaultCode::kOverrun;
+  e.code = FaultCode::kLostControlTime;
   e.joint = i % 7;
   std::snprintf(e.text, sizeof(e.text), "event %d", i);
   return e;

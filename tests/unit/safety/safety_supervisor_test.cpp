@@ -246,23 +246,52 @@ TEST(SafetySupervisor, InvalidMeasurementOrSetpointFaults) {
   EXPECT_EQ(s->fault_cause().code, FaultCode::kInvalidSetpoint);
 }
 
-TEST(SafetySupervisor, ConsecutiveOverrunsFault) {
-  auto s = make({.max_consecutive_overruns = 10});
-  s->request(0.0, StateCommand::kEnable);
+TEST(SafetySupervisor, LostControlTimeFaultsOnlyAMovingRobot) {
+  auto s = make({.max_lost_control_time = 0.075});
   double t = 0.0;
-  for (int round = 0; round < 3; ++round) {
-    for (int i = 0; i < 9; ++i) s->report_overrun(t += 0.001, true);  // N − 1 ...
-    s->report_overrun(t += 0.001, false);                             // ... then a good cycle
-    EXPECT_EQ(s->state(), OperatingState::kEnabled);
-    EXPECT_EQ(s->consecutive_overruns(), 0);
-  }
-  EXPECT_EQ(s->total_overruns(), 27u);
-  for (int i = 0; i < 9; ++i) s->report_overrun(t += 0.001, true);
+  // DISABLED: a stall of any length is counted, never faulted.
+  EXPECT_FALSE(s->report_cycle(t += 1.0, 0.500, false));
+  EXPECT_FALSE(s->report_cycle(t += 1.0, 0.500, true));
+  EXPECT_EQ(s->state(), OperatingState::kDisabled);
+  // ENABLED at rest: the drives hold by themselves; counted, not faulted, however long.
+  s->request(t, StateCommand::kEnable);
+  for (int i = 0; i < 1000; ++i) EXPECT_FALSE(s->report_cycle(t += 0.002, 0.001, false));
+  EXPECT_FALSE(s->report_cycle(t += 0.2, 0.200, false));
   EXPECT_EQ(s->state(), OperatingState::kEnabled);
-  s->report_overrun(t += 0.001, true);  // the tenth in a row
+  EXPECT_EQ(s->lost_control().stalls_over_bound_at_rest, 1u);
+  // PAUSED at rest: the same.
+  s->request(t, StateCommand::kPause);
+  EXPECT_FALSE(s->report_cycle(t += 0.2, 0.200, false));
+  s->request(t, StateCommand::kResume);
+  // Moving: sustained lateness and a gap up to the bound are tolerated ...
+  for (int i = 0; i < 1000; ++i) EXPECT_FALSE(s->report_cycle(t += 0.003, 0.002, true));
+  EXPECT_FALSE(s->report_cycle(t += 0.075, 0.075, true));
+  EXPECT_EQ(s->state(), OperatingState::kEnabled);
+  // ... a longer one faults with the lost time in the cause.
+  EXPECT_TRUE(s->report_cycle(t += 0.090, 0.090, true));
   EXPECT_EQ(s->state(), OperatingState::kFault);
-  EXPECT_EQ(s->fault_cause().code, FaultCode::kOverrun);
-  EXPECT_STREQ(s->fault_cause().text, "10 consecutive control-loop overruns (limit 10)");
+  EXPECT_EQ(s->fault_cause().code, FaultCode::kLostControlTime);
+  EXPECT_STREQ(s->fault_cause().text, "control loop lost 90 ms while moving (bound 75 ms); quick stop");
+  EXPECT_DOUBLE_EQ(s->lost_control().max_lost, 0.500);
+  EXPECT_DOUBLE_EQ(s->lost_control().max_lost_moving, 0.090);
+  EXPECT_EQ(s->lost_control().stalls_over_bound, 5u);
+  EXPECT_EQ(s->lost_control().stalls_over_bound_at_rest, 2u);
+  const auto events = drain(*s);
+  ASSERT_FALSE(events.empty());
+  EXPECT_EQ(events.back().kind, EventKind::kFault);
+  EXPECT_EQ(events.back().code, FaultCode::kLostControlTime);
+  // A non-finite report is not a stall.
+  s->request(t, StateCommand::kDisable);
+  s->request(t, StateCommand::kEnable);
+  EXPECT_FALSE(s->report_cycle(t, kNaN, true));
+  EXPECT_EQ(s->state(), OperatingState::kEnabled);
+}
+
+TEST(SafetySupervisor, LostControlBoundIsHalfTheShorterWatchdog) {
+  EXPECT_DOUBLE_EQ(lost_control_bound(0.150, 0.250), 0.075);  // the SRMC: command timeout decides
+  EXPECT_DOUBLE_EQ(lost_control_bound(0.200, 0.100), 0.050);  // a drive consumer time of 100 ms
+  EXPECT_EQ(lost_control_bound(0.0, 0.1), 0.0);
+  EXPECT_EQ(lost_control_bound(0.1, kNaN), 0.0);
 }
 
 TEST(SafetySupervisor, EventLogWrapsWithoutLosingOrderOrAllocating) {
@@ -298,7 +327,8 @@ TEST(SafetySupervisor, BadConfigurationIsRejectedWithAMessage) {
   EXPECT_THROW(LimitSet({{"a", "mm", 0.0, 1.0, 0.6, 1.0, 1.0, 1.0}}), std::invalid_argument);
   EXPECT_THROW(LimitSet({{"a", "mm", 0.0, 1.0, 0.0, 0.0, 1.0, 1.0}}), std::invalid_argument);
   EXPECT_THROW(SafetySupervisor(srmc_limits(), {.command_timeout = 0.0}), std::invalid_argument);
-  EXPECT_THROW(SafetySupervisor(srmc_limits(), {.max_consecutive_overruns = 0}), std::invalid_argument);
+  EXPECT_THROW(SafetySupervisor(srmc_limits(), {.max_lost_control_time = 0.0}), std::invalid_argument);
+  EXPECT_THROW(SafetySupervisor(srmc_limits(), {.max_lost_control_time = kNaN}), std::invalid_argument);
 }
 
 TEST(SafetyTypes, EveryEnumHasAName) {

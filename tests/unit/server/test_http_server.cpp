@@ -224,6 +224,57 @@ TEST_F(HttpServerTest, SubscribeGetsBinaryFramesWithTheSubscriptionId) {
   EXPECT_EQ(payload["position"][0], static_cast<double>(api_.joint_version.load()));
 }
 
+// A topic source that records what the front end tells it about subscribers.
+class DemandRecordingSource : public tendril::server::TopicSource {
+ public:
+  std::vector<tendril::server::TopicInfo> topics() const override {
+    return {{"/fake/image", "foxglove.CompressedImage", "{}"}};
+  }
+  std::optional<tendril::server::TopicPayload> latest(const std::string&,
+                                                      std::uint64_t since) const override {
+    if (since >= 1) return std::nullopt;
+    return tendril::server::TopicPayload{std::make_shared<const std::string>("{\"frame\":1}"), 1, 1};
+  }
+  void set_demand(const std::string& topic, bool wanted) override {
+    std::lock_guard lock(mutex);
+    calls.push_back(topic + (wanted ? " wanted" : " unwatched"));
+  }
+  std::vector<std::string> seen() {
+    std::lock_guard lock(mutex);
+    return calls;
+  }
+  std::mutex mutex;
+  std::vector<std::string> calls;
+};
+
+TEST_F(HttpServerTest, TopicSourcesHearWhenTheirTopicsGainAndLoseSubscribers) {
+  auto source = std::make_shared<DemandRecordingSource>();
+  options_.topic_sources.push_back(source);
+  start();
+  server_->publish_once();
+  EXPECT_TRUE(source->seen().empty()) << "every topic starts unwatched: nothing to say";
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  const auto greeting = client.read_greeting();
+  std::uint32_t channel = 0;
+  for (const auto& c : greeting[1]["channels"])
+    if (c["topic"] == "/fake/image") channel = c["id"];
+  ASSERT_NE(channel, 0u);
+  client.send_text(
+      json{{"op", "subscribe"}, {"subscriptions", {{{"id", 7}, {"channelId", channel}}}}}.dump());
+  for (int i = 0; i < 200 && server_->connection_stats().at(0).subscriptions == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  server_->publish_once();
+  server_->publish_once();  // told once, not every cycle
+  EXPECT_EQ(source->seen(), std::vector<std::string>{"/fake/image wanted"});
+  EXPECT_EQ(fg::parse_message_data(client.read_binary())->subscription_id, 7u);
+  client.send_text(json{{"op", "unsubscribe"}, {"subscriptionIds", {7}}}.dump());
+  for (int i = 0; i < 200 && server_->connection_stats().at(0).subscriptions != 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  server_->publish_once();
+  EXPECT_EQ(source->seen(), (std::vector<std::string>{"/fake/image wanted", "/fake/image unwatched"}));
+}
+
 TEST_F(HttpServerTest, ServiceCallsRoundTripAndRespectTheLease) {
   start();
   WsClient client;

@@ -132,19 +132,30 @@ TEST(ImagingWorker, PublishesCompressedImagesWithCaptureTimestamp) {
   EXPECT_NE(metrics.find("tendril_imaging_frames_total{view=\"ap\"} 3"), std::string::npos) << metrics;
 }
 
-TEST(ImagingWorker, ThreadsExposeAtTheConfiguredRate) {
+TEST(ImagingWorker, ThreadsExposeOnlyThePlanesSomeoneWatches) {
   ImagingWorker worker(straight_catheter(), small_config());  // 20 fps
   std::atomic<int> ready{0};
   worker.set_ready_callback([&ready] { ++ready; });
   worker.start();
-  // Bounded by a count of polls, not a timing assertion: at least 3 frames per plane arrive.
-  for (int i = 0; i < 200 && ready.load() < 6; ++i)
+  // Unwatched: nothing is rendered (10 exposures' worth of waiting at 20 fps).
+  for (int i = 0; i < 10; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(ready.load(), 0);
+  EXPECT_FALSE(worker.latest("/imaging/ap", 0));
+  // Watched: the AP plane exposes; the lateral one still does not. Bounded by a count of polls, not
+  // a timing assertion.
+  worker.set_demand("/imaging/ap", true);
+  for (int i = 0; i < 200 && ready.load() < 3; ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  worker.stop();
-  EXPECT_GE(ready.load(), 6);
+  EXPECT_GE(ready.load(), 3);
   const auto ap = worker.latest("/imaging/ap", 0);
   ASSERT_TRUE(ap);
   EXPECT_GE(ap->version, 3u);
+  EXPECT_FALSE(worker.latest("/imaging/lateral", 0));
+  EXPECT_NE(worker.metrics().find("tendril_imaging_frames_total{view=\"lateral\"} 0"), std::string::npos);
+  // Unwatched again: its last frame is dropped and rendering stops.
+  worker.set_demand("/imaging/ap", false);
+  EXPECT_FALSE(worker.latest("/imaging/ap", 0));
+  worker.stop();
   worker.stop();  // twice is fine
 }
 

@@ -128,6 +128,27 @@ TEST(QuinticInterpolator, MidMotionRetargetIsContinuousAndWithinLimits) {
   EXPECT_NEAR(end.q[1], 2.5, 1e-12);
 }
 
+TEST(QuinticInterpolator, DelayResumesTheMotionWhereItStood) {
+  QuinticInterpolator interp(1);
+  interp.reset(std::vector<double>{0.0}, 0.0);
+  ASSERT_EQ(interp.retarget(0.0, std::vector<double>{10.0}, 5.0, 20.0), RetargetStatus::kOk);
+  const double T = interp.duration();
+  const State before = sample_at(interp, 0.4 * T);
+  // The control loop lost 25 ms after sampling at 0.4 T: the next sample, one 1 ms period later in
+  // wall time, continues from there rather than 25 ms further on.
+  interp.delay(0.025);
+  const State after = sample_at(interp, 0.4 * T + 0.025 + 0.001);
+  EXPECT_NEAR(after.q[0], before.q[0] + before.qd[0] * 0.001, 1e-4);
+  EXPECT_FALSE(interp.done(T + 0.001));
+  EXPECT_TRUE(interp.done(T + 0.025));
+  EXPECT_EQ(sample_at(interp, T + 0.025).q[0], 10.0);
+  // Nonsense delays change nothing.
+  interp.delay(-1.0);
+  interp.delay(std::numeric_limits<double>::quiet_NaN());
+  interp.delay(std::numeric_limits<double>::infinity());
+  EXPECT_DOUBLE_EQ(interp.start_time(), 0.025);
+}
+
 TEST(QuinticInterpolator, ZeroDistanceGoalHoldsWithMinimumDuration) {
   QuinticInterpolator interp(2, 0.05);
   interp.reset(std::vector<double>{1.0, -2.0});

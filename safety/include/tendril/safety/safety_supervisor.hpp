@@ -6,7 +6,7 @@
 // fault and hold goes into a lock-free event log.
 //
 // Threading: the control thread owns the supervisor and is the only caller of the mutating methods
-// (request, tick, clamp_setpoint, servo_command_received, report_overrun, fault, estop, reset_estop);
+// (request, tick, clamp_setpoint, servo_command_received, report_cycle, fault, estop, reset_estop);
 // commands from other threads reach it through the command mailbox. Any thread may call state(),
 // estop_latched(), check_goal(), check_velocity(), request_estop() and read the event log.
 // All per-tick methods are noexcept and allocation-free.
@@ -31,10 +31,32 @@
 
 namespace tendril::safety {
 
+// Control-loop timing policy. A control cycle that runs late is judged by what the loop protects at
+// that moment, not by counting late 1 ms ticks:
+//   - DISABLED or FAULT: nothing; the drives' power stages are off. Late cycles are counted only.
+//   - ENABLED or PAUSED and at rest (no move, no servo stream, no joystick, setpoint still): the
+//     drives hold the last setpoint by themselves, so a stalled loop changes nothing physically.
+//     Counted only, however long.
+//   - moving: while the loop does not run, the setpoint stands still (the drives stop at it) and no
+//     safety check runs (servo timeout, tracking error, spring deflection, contact). The gap is
+//     tolerated up to max_lost_control_time; a longer one faults (quick stop) with the lost time as
+//     the cause, because the robot was moving blind for longer than its own watchdogs allow.
+// Lost control time is the time since the previous control cycle ran, beyond one period.
 struct SupervisorOptions {
-  double command_timeout = 0.150;  // s without servo_command_received() before the servo stream holds
-  int max_consecutive_overruns = 10;
+  double command_timeout = 0.150;        // s without servo_command_received() before the servo stream holds
+  double max_lost_control_time = 0.075;  // s; see lost_control_bound()
 };
+
+// The bound tendril uses for SupervisorOptions::max_lost_control_time: half the smaller of the
+// command timeout (the operator's dead-man: the servo stream must hold within it) and the drives'
+// heartbeat consumer time (the hardware backstop: a drive quick-stops by itself when the master is
+// silent that long). A moving robot may go without control for at most half of either, so that a
+// stall never takes more than half of the time those watchdogs promise to act within. With the
+// SRMC's 150 ms and 250 ms: 75 ms. (dVRK's FPGA watchdog is 30 ms, at rest or moving, on a dedicated
+// real-time PC; on shared machines a bare 1 kHz SCHED_FIFO loop itself stalls 20-35 ms, so tendril
+// leaves the always-armed watchdog to the drives' heartbeat consumer and bounds lost time while
+// moving.) Both arguments in s; returns s (0 if either is not positive).
+double lost_control_bound(double command_timeout, double drive_heartbeat_consumer_time) noexcept;
 
 // First limit violation found by a check; kind == kNone means the input is acceptable.
 struct Violation {
@@ -66,7 +88,7 @@ struct TickResult {
 
 class SafetySupervisor {
  public:
-  // Throws std::invalid_argument if the options are out of range (timeout ≤ 0, overruns < 1).
+  // Throws std::invalid_argument if the options are out of range (a timeout or bound ≤ 0).
   explicit SafetySupervisor(LimitSet limits, SupervisorOptions options = {});
 
   const LimitSet& limits() const noexcept { return limits_; }
@@ -114,14 +136,22 @@ class SafetySupervisor {
   // Servo timeout, measurement/setpoint validity and tracking error (while ENABLED or PAUSED, when the
   // drives follow a setpoint).
   TickResult tick(double t, std::span<const double> measured, std::span<const double> setpoint) noexcept;
-  // Once per control cycle: N consecutive overruns fault, a good cycle resets the count.
-  void report_overrun(double t, bool overran) noexcept;
+  // Once per control cycle, before the cycle commands anything: `lost` is the time since the previous
+  // cycle ran beyond one period (s), `moving` whether the robot was moving when that previous cycle
+  // ended. Applies the loop-timing policy above; returns true when it faulted the robot.
+  bool report_cycle(double t, double lost, bool moving) noexcept;
 
   bool servo_live() const noexcept { return servo_live_; }
   bool motion_allowed() const noexcept { return state() == OperatingState::kEnabled; }
   const FaultInfo& fault_cause() const noexcept { return fault_cause_; }  // control thread
-  int consecutive_overruns() const noexcept { return consecutive_overruns_; }
-  std::uint64_t total_overruns() const noexcept { return total_overruns_; }
+  // Loop-timing record (control thread; copied into the robot's snapshot for other threads).
+  struct LostControlRecord {
+    std::uint64_t stalls_over_bound = 0;          // gaps longer than the bound, in any state
+    std::uint64_t stalls_over_bound_at_rest = 0;  // of those, while not moving (counted, no fault)
+    double max_lost = 0.0;                        // s, the longest gap beyond one period
+    double max_lost_moving = 0.0;                 // s, the longest while moving
+  };
+  const LostControlRecord& lost_control() const noexcept { return lost_control_; }
 
   SafetyEventLog& events() noexcept { return events_; }
   const SafetyEventLog& events() const noexcept { return events_; }
@@ -144,8 +174,7 @@ class SafetySupervisor {
   FaultInfo fault_cause_{};
   bool servo_live_ = false;
   double last_servo_time_ = 0.0;
-  int consecutive_overruns_ = 0;
-  std::uint64_t total_overruns_ = 0;
+  LostControlRecord lost_control_{};
   SafetyEventLog events_;
 };
 

@@ -27,7 +27,7 @@ enum class FaultCode : std::uint8_t {
   kNone,
   kEstop,
   kTrackingError,
-  kOverrun,
+  kLostControlTime,  // the control loop did not run for longer than its bound while the robot moved
   kDriveHeartbeatLost,
   kDriveEmergency,  // CANopen EMCY from a drive
   kBusOff,

@@ -59,7 +59,10 @@ struct RobotConfig {
   std::string kind;
   std::string description;
   int command_timeout_ms = 150;
-  int max_consecutive_overruns = 10;
+  // Lost control time tolerated while the robot moves (ms); 0 = derived, see
+  // safety::lost_control_bound (half the shorter of command_timeout_ms and the drives' heartbeat
+  // consumer time master_heartbeat_timeout_ms). A set value may only be tighter.
+  int max_lost_control_ms = 0;
   int enable_timeout_ms = 1000;
   std::vector<JointConfig> joints;
   std::vector<BusConfig> buses;

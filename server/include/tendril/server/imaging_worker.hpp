@@ -1,6 +1,7 @@
 // ImagingWorker: the SIMULATED bi-plane fluoroscope of tendrild, published as WebSocket topics.
 //
-// Two threads (one per plane, AP and lateral) expose on a common schedule at `fps`: each reads the
+// Two threads (one per plane, AP and lateral) expose on a common schedule at `fps`, each only while
+// its topic has a subscriber (set_demand; an unwatched plane sleeps and costs nothing): each reads the
 // robot's backbone through ControlApi::shape (the runtime snapshot; never the RT thread), renders it
 // with sim::SimulatedFluoroscope, JPEG-encodes it and puts the serialised foxglove.CompressedImage
 // into a latest-value slot that the front end shares with every subscriber:
@@ -71,6 +72,9 @@ class ImagingWorker final : public TopicSource {
   std::vector<TopicInfo> topics() const override;
   std::optional<TopicPayload> latest(const std::string& topic, std::uint64_t since_version) const override;
   void set_ready_callback(std::function<void()> ready) override;
+  // A plane renders only while wanted; when it stops being wanted its last frame is dropped, so that a
+  // later subscriber never gets an old exposure as if it were current.
+  void set_demand(const std::string& topic, bool wanted) override;
   std::string metrics() const override;
 
   // Renders and publishes one frame of each plane now (tests; the threads need not run).

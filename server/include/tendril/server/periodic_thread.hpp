@@ -1,6 +1,7 @@
 // PeriodicThread: runs a function at a fixed rate on its own thread with absolute deadlines
 // (clock_nanosleep TIMER_ABSTIME on CLOCK_MONOTONIC), asking for SCHED_FIFO and mlockall and running
-// without them when refused. Period jitter and overruns are measured every cycle, lock-free.
+// without them when refused. Period jitter, overruns and lost time (how long the loop went without a
+// cycle beyond one period) are measured every cycle, lock-free.
 #pragma once
 
 #include <array>
@@ -36,18 +37,29 @@ class MicrosecondHistogram {
 
 struct LoopStatistics {
   std::uint64_t cycles = 0;
-  std::uint64_t overruns = 0;  // cycles whose work ran past the next deadline
+  std::uint64_t overruns = 0;     // cycles whose work ran past the next deadline
+  std::uint64_t late_cycles = 0;  // cycles that started a full period or more after the previous one
   double period_error_p50_us = 0, period_error_p99_us = 0, period_error_max_us = 0;
+  double lost_max_us = 0;  // longest time without a cycle beyond one period
   double work_p50_us = 0, work_p99_us = 0, work_max_us = 0;
   bool realtime_scheduling = false;  // SCHED_FIFO granted
   bool memory_locked = false;        // mlockall granted
 };
 
+// What a cycle learns about its own timing.
+struct CycleTiming {
+  std::chrono::steady_clock::time_point deadline;  // the absolute deadline this cycle was due at
+  std::chrono::steady_clock::time_point woke;      // when it actually started
+  // Time since the previous cycle started, beyond one period (0 for the first cycle): how long the
+  // loop went without running. A stall of 25 ms at 1 kHz shows as 25 ms on the cycle after it.
+  std::chrono::nanoseconds lost{0};
+  bool previous_overrun = false;  // the previous cycle's work ran past this cycle's deadline
+};
+
 class PeriodicThread {
  public:
-  // The cycle function gets the cycle's deadline and whether the previous cycle overran. It must
-  // be real-time safe: no allocation, no locks, no blocking.
-  using Cycle = std::function<void(std::chrono::steady_clock::time_point deadline, bool previous_overrun)>;
+  // The cycle function must be real-time safe: no allocation, no locks, no blocking.
+  using Cycle = std::function<void(const CycleTiming& timing)>;
 
   PeriodicThread() = default;
   ~PeriodicThread();
@@ -63,6 +75,7 @@ class PeriodicThread {
 
  private:
   void run();
+  static void prefault_stack() noexcept;
 
   std::string name_;
   std::chrono::nanoseconds period_{1'000'000};
@@ -72,7 +85,8 @@ class PeriodicThread {
   std::thread thread_;
   std::atomic<bool> running_{false};
   std::atomic<bool> stop_{false};
-  std::atomic<std::uint64_t> cycles_{0}, overruns_{0};
+  std::atomic<std::uint64_t> cycles_{0}, overruns_{0}, late_cycles_{0};
+  std::atomic<std::int64_t> lost_max_ns_{0};
   std::atomic<bool> realtime_{false}, locked_{false};
   MicrosecondHistogram period_error_;
   MicrosecondHistogram work_;

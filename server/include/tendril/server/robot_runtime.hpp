@@ -50,6 +50,13 @@ class RobotRuntime final : public ControlApi {
   bool drives_disabled(std::vector<std::string>* not_disabled = nullptr) const;
   // Stepped mode only: advance simulation, buses and control by one control period.
   void step();
+  // Stepped mode only: a stall of `duration` (whole periods), after which the next step() is the late
+  // control cycle that reports the lost time. Tests of the loop-timing policy
+  // (safety::SupervisorOptions). control_thread: buses and simulated drives run on, the control cycle
+  // does not. whole_process: nothing runs (the machine stalled); the simulated hardware then catches
+  // up in one step, as its real-time thread does.
+  enum class Stall : std::uint8_t { control_thread, whole_process };
+  void stall(std::chrono::nanoseconds duration, Stall what);
   // Current control time (s since start), stepped or real.
   double time() const noexcept;
 

@@ -37,6 +37,10 @@ class TopicSource {
   // By value: implementations keep the callback. The default source is polled only.
   // NOLINTNEXTLINE(performance-unnecessary-value-param)
   virtual void set_ready_callback(std::function<void()> /*ready*/) {}
+  // The front end says whether `topic` has subscribers, each time that changes (publisher thread;
+  // every topic starts unwatched). A source may produce nothing for a topic nobody watches, e.g. the
+  // simulated fluoroscope renders a plane only while someone subscribes to it. Default: ignored.
+  virtual void set_demand(const std::string& /*topic*/, bool /*wanted*/) {}
   // Prometheus text appended to GET /metrics.
   virtual std::string metrics() const { return {}; }
 };

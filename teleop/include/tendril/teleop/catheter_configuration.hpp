@@ -102,6 +102,8 @@ class ConfigurationSpaceController {
   // finite, q_des is not finite, or the map is singular at q_des.
   bool step(double t, double dt, Vector4& q_des, Vector4& qd_des) noexcept;
 
+  // Shifts the quintic `dt` later (see QuinticInterpolator::delay).
+  void delay(double dt) noexcept { interpolator_.delay(dt); }
   // Whether the quintic has reached its goal by t (false when unarmed).
   bool done(double t) const noexcept;
   // ψ goal of the current segment (ψ at reset while holding).

@@ -45,6 +45,12 @@ class QuinticInterpolator {
   // its end: the goal at rest). Output spans must have size joints(); smaller ones are left untouched.
   void sample(double t, std::span<double> q, std::span<double> qd, std::span<double> qdd) const noexcept;
 
+  // Shifts the segment `dt` later (dt > 0 and finite; anything else is ignored): after the control
+  // loop lost dt, the motion continues from where it stood instead of jumping ahead.
+  void delay(double dt) noexcept {
+    if (dt > 0.0 && dt < kMaxDuration) start_time_ += dt;
+  }
+
   bool done(double t) const noexcept { return t >= start_time_ + duration_; }
   double duration() const noexcept { return duration_; }
   double start_time() const noexcept { return start_time_; }

@@ -33,6 +33,7 @@ class SocketCanBus final : public Bus {
 
   SendResult send(const Frame& frame) noexcept override;
   std::optional<Frame> receive(std::chrono::nanoseconds timeout) noexcept override;
+  void wake() noexcept override;  // through an eventfd polled next to the socket
   BusState state() const noexcept override;
   BusStatistics statistics() const noexcept override;
   std::string name() const override;
@@ -41,6 +42,7 @@ class SocketCanBus final : public Bus {
 
  private:
   int fd_ = -1;
+  int wake_fd_ = -1;  // eventfd: readable after wake()
   std::string interface_;
   std::uint32_t bitrate_;
   std::atomic<BusState> state_{BusState::error_active};

@@ -19,6 +19,7 @@ class VirtualBusEndpoint final : public Bus {
   ~VirtualBusEndpoint() override;
   SendResult send(const Frame& frame) noexcept override;
   std::optional<Frame> receive(std::chrono::nanoseconds timeout) noexcept override;
+  void wake() noexcept override;
   BusState state() const noexcept override;
   BusStatistics statistics() const noexcept override;
   std::string name() const override;

@@ -2,7 +2,8 @@
 // for start-up configuration, and one CiA 402 drive proxy per configured node.
 //
 // Threads: the bus thread owns the master (handle/poll). The real-time thread talks to each drive
-// only through its DriveCommand / DriveFeedback LatestValue slots, so it never locks or blocks.
+// only through its DriveCommand / DriveFeedback LatestValue slots (set_command, feedback), so it never
+// locks or blocks.
 #pragma once
 
 #include <chrono>
@@ -111,6 +112,11 @@ class CanopenMaster {
   std::size_t drive_count() const noexcept;
   const DriveSetup& drive_setup(std::size_t i) const;
   hardware::LatestValue<DriveCommand>& command(std::size_t i) noexcept;
+  // Real-time thread: stores drive i's command. A request that must not wait for the next SYNC
+  // (quick stop or disable, when it differs from the request stored before) also wakes the bus
+  // thread through Bus::wake(), so it leaves within microseconds while the bus thread otherwise
+  // sleeps until its next SYNC or heartbeat. Lock-free, allocation-free.
+  void set_command(std::size_t i, const DriveCommand& command) noexcept;
   const hardware::LatestValue<DriveFeedback>& feedback(std::size_t i) const noexcept;
   MasterStatistics statistics() const noexcept;
 

@@ -40,6 +40,8 @@ class SdoClient {
   std::uint32_t abort_code() const noexcept { return abort_code_; }
   // Message for a person: node, object, what went wrong.
   const std::string& error() const noexcept { return error_; }
+  // What went wrong only, for a caller whose own message already names the node and the object.
+  const std::string& reason() const noexcept { return reason_; }
   std::uint64_t retries_used() const noexcept { return retries_used_; }
   std::uint8_t node_id() const noexcept { return node_id_; }
   can::Clock::time_point deadline() const noexcept { return deadline_; }
@@ -72,6 +74,7 @@ class SdoClient {
   can::Clock::time_point deadline_{};
   std::uint32_t abort_code_ = 0;
   std::string error_;
+  std::string reason_;
   std::uint64_t retries_used_ = 0;
 };
 
