@@ -2,8 +2,8 @@
 // server when the page was opened with ?token= goes along, and the lease belongs to that session.
 // If the server answers 401 (session lost, e.g. after a restart) and the page still holds the token
 // from its URL, the client first opens a new cookie session with it; only if that fails does it switch
-// to a Bearer header, naming itself with X-Tendril-Client so the lease has
-// a stable owner across connections.
+// to a Bearer header. Then the lease belongs to the lease token that POST /lease answered, sent as
+// X-Tendril-Lease ("new" until the first lease), so it stays this page's and no other bearer client's.
 
 export class ApiError extends Error {
   constructor(status, code, message, details = {}) {
@@ -19,7 +19,8 @@ export class Api {
     this.base = base;
     this.token = null;          // from ?token=, kept in memory only
     this.useBearer = false;     // switched on after a 401 with the cookie
-    this.clientName = `console-${Math.random().toString(36).slice(2, 10)}`;
+    this.clientName = `console-${Math.random().toString(36).slice(2, 10)}`;  // a label in lease messages
+    this.leaseToken = null;     // from POST /lease, sent with Bearer requests
   }
 
   async request(method, path, body, options = {}) {
@@ -60,6 +61,7 @@ export class Api {
     if (this.useBearer) {
       headers.Authorization = `Bearer ${this.token}`;
       headers['X-Tendril-Client'] = this.clientName;
+      headers['X-Tendril-Lease'] = this.leaseToken || 'new';
     }
     let response;
     try {
@@ -111,8 +113,10 @@ export class Api {
   estop() { return this.post('/estop', {}); }
   estopReset() { return this.post('/estop/reset', {}); }
   lease() { return this.get('/lease'); }
-  takeLease(takeoverToken) {
-    return this.post('/lease', takeoverToken ? {takeover_token: takeoverToken} : {});
+  async takeLease(takeoverToken) {
+    const granted = await this.post('/lease', takeoverToken ? {takeover_token: takeoverToken} : {});
+    if (granted && granted.lease_token) this.leaseToken = granted.lease_token;
+    return granted;
   }
   releaseLease() { return this.del('/lease'); }
   setMode(robot, mode) { return this.post(`/robots/${encodeURIComponent(robot)}/mode`, {mode}); }

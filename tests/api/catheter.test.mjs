@@ -2,11 +2,11 @@
 // switch, refused switches with their reason, configuration goals, and the console joystick as a
 // REST call and as a Foxglove client channel, with its deadman. Free space (tests/api/server.sh
 // drops the simulated vessel).
-import {test, after} from 'node:test';
+import {test, after, beforeEach} from 'node:test';
 import assert from 'node:assert/strict';
 import wsProtocol from '@foxglove/ws-protocol';
 import WebSocket from 'ws';
-import {BASE_URL, TOKEN, ROBOT, get, post, call, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
+import {BASE_URL, TOKEN, ROBOT, get, post, call, holdLease, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
 
 const {FoxgloveClient} = wsProtocol;
 const R = `/robots/${ROBOT}`;
@@ -27,7 +27,12 @@ async function switchTo(mode) {
   assert.ok(ok, `mode did not become ${mode}`);
 }
 
+// Commands here are the bearer-token identity's (README: plain curl); it (re)takes the lease before
+// each test, so a slow test cannot leave it lapsed for the next.
+beforeEach(holdLease);
+
 after(async () => {
+  await post('/lease', {});
   await post(`${R}/joystick`, {axes: [0, 0, 0, 0], deadman: false});
   await holding();
   await post(`${R}/mode`, {mode: 'joint'});
@@ -165,7 +170,9 @@ test('telemanipulation over REST: nothing moves without the deadman, the bend mo
 });
 
 test('telemanipulation over a Foxglove client channel /srmc/joystick', async () => {
-  const ws = new WebSocket(`${BASE_URL.replace(/^http/, 'ws')}/ws?token=${encodeURIComponent(TOKEN)}`,
+  // The socket is its own identity unless it presents the lease token (?lease=, or X-Tendril-Lease).
+  const {lease_token: leaseToken} = await holdLease();
+  const ws = new WebSocket(`${BASE_URL.replace(/^http/, 'ws')}/ws?token=${encodeURIComponent(TOKEN)}&lease=${leaseToken}`,
       [FoxgloveClient.SUPPORTED_SUBPROTOCOL], {headers: {'X-Tendril-Client': 'api-test'}, rejectUnauthorized: false});
   const client = new FoxgloveClient({ws});
   const statuses = [];

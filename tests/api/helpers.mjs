@@ -15,13 +15,16 @@ export const REPO_ROOT = path.resolve(path.dirname(fileURLToPath(import.meta.url
 export const ROBOT = 'srmc';
 export const robotConfig = JSON.parse(fs.readFileSync(path.join(REPO_ROOT, 'config/robots/srmc.json'), 'utf8'));
 
-// The lease belongs to a client identity; with a Bearer token and no cookie that is X-Tendril-Client.
+// X-Tendril-Client is a label (the lease holder's name in messages), never an identity. Without a
+// lease token the tests' calls are the bearer-token identity, as plain curl is (README).
 export const CLIENT_ID = 'api-test';
 
-export async function call(method, urlPath, {body, raw, token = TOKEN, client = CLIENT_ID, headers = {}} = {}) {
+// lease: a lease token to send as X-Tendril-Lease (a script with a lease of its own, see script()).
+export async function call(method, urlPath, {body, raw, token = TOKEN, client = CLIENT_ID, lease, headers = {}} = {}) {
   const h = {Accept: 'application/json', ...headers};
   if (token) h.Authorization = `Bearer ${token}`;
   if (client) h['X-Tendril-Client'] = client;
+  if (lease) h['X-Tendril-Lease'] = lease;
   let payload;
   if (raw !== undefined) {
     payload = raw;
@@ -43,6 +46,41 @@ export async function call(method, urlPath, {body, raw, token = TOKEN, client = 
 
 export const get = (p, o) => call('GET', p, o);
 export const post = (p, body = {}, o = {}) => call('POST', p, {body, ...o});
+
+// The lease lapses after 30 s without a command; a test file that commands takes (or renews) it
+// before each test, so a slow test before it cannot leave it lapsed. Bearer-token identity.
+export async function holdLease() {
+  const res = await post('/lease', {});
+  assert.equal(res.status, 200, `POST /lease: ${res.text}`);
+  return res.json;
+}
+
+// A script with a lease of its own (README): it sends its name as a label and X-Tendril-Lease with
+// the token of its last granted POST /lease ("new" before, which asks for a token-only lease), so
+// neither the bearer identity nor another script can use its lease.
+export function script(name) {
+  const s = {
+    name,
+    leaseToken: 'new',
+    call: (method, urlPath, o = {}) => call(method, urlPath, {client: name, lease: s.leaseToken, ...o}),
+    get: (urlPath, o = {}) => s.call('GET', urlPath, o),
+    post: (urlPath, body = {}, o = {}) => s.call('POST', urlPath, {body, ...o}),
+    // POST /lease (optionally confirming a takeover); keeps the granted token.
+    async takeLease(body = {}) {
+      const res = await s.post('/lease', body);
+      if (res.status === 200) s.leaseToken = res.json.lease_token;
+      return res;
+    },
+    // Takes the lease, confirming a takeover if another holds it; asserts success.
+    async takeLeaseOver() {
+      let res = await s.takeLease();
+      if (res.status === 409 && res.json.error.takeover_token) res = await s.takeLease({takeover_token: res.json.error.takeover_token});
+      assert.equal(res.status, 200, `lease for ${name}: ${res.text}`);
+      return res.json;
+    },
+  };
+  return s;
+}
 
 // API.md error shape: {"error":{"code":"snake_case","message":"for a person"}}.
 export function assertErrorShape(res, status, code) {

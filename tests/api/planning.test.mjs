@@ -5,7 +5,7 @@ import {test, after} from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import {API, TOKEN, CLIENT_ID, REPO_ROOT, ROBOT, get, post, call, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
+import {API, TOKEN, CLIENT_ID, REPO_ROOT, ROBOT, get, post, call, script, holdLease, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
 
 const R = `/robots/${ROBOT}`;
 const icaCsv = fs.readFileSync(path.join(REPO_ROOT, 'config/vessels/synthetic_ica.csv'));
@@ -42,6 +42,7 @@ function inlinePlan() {
 }
 
 after(async () => {
+  await post('/lease', {});
   await post(`${R}/state_command`, {command: 'disable'});
   await sleep(100);
   await post(`${R}/mode`, {mode: 'joint'});
@@ -143,8 +144,9 @@ test('DELETE /jobs/{id} cancels a plan job', async () => {
 });
 
 test('path following: load needs the lease; mode switch needs a plan; steps move the robot', async () => {
-  assertErrorShape(await post(`${R}/path_following`, {plan: inlinePlan()}, {client: 'not-the-holder'}), 409, 'lease_held');
-  assert.equal((await post('/lease', {})).status, 200);
+  // Taken here, not earlier: the plan jobs before may take longer than the lease lasts unused (30 s).
+  await holdLease();
+  assertErrorShape(await script('not-the-holder').post(`${R}/path_following`, {plan: inlinePlan()}), 409, 'lease_held');
   // Start from joint mode with no plan of an earlier run: a fresh server has none.
   const before = await get(`${R}/path_following`);
   assert.equal(before.status, 200, before.text);

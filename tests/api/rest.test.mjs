@@ -1,8 +1,8 @@
 // REST contract tests (API.md) against a running tendrild with simulated drives. The tests run in
 // order: lease -> enable -> move -> bad input -> e-stop -> reset, as an operator would.
-import {test, after} from 'node:test';
+import {test, after, beforeEach} from 'node:test';
 import assert from 'node:assert/strict';
-import {BASE_URL, ROBOT, robotConfig, get, post, call, assertErrorShape, pollUntil, sleep, tolerance} from './helpers.mjs';
+import {BASE_URL, ROBOT, robotConfig, get, post, call, script, holdLease, assertErrorShape, pollUntil, sleep, tolerance} from './helpers.mjs';
 
 const R = `/robots/${ROBOT}`;
 let joints = [];  // from GET /robots
@@ -19,8 +19,12 @@ async function measured() {
   return res.json;
 }
 
+// The calls here are the bearer-token identity (README: plain curl); it holds the lease in every test.
+beforeEach(holdLease);
+
 after(async () => {
   // Leave the server as we found it for the other test files: no e-stop, lease given back.
+  await post('/lease', {});
   await post('/estop/reset', {});
   await call('DELETE', '/lease');
 });
@@ -96,11 +100,24 @@ test('state endpoints have the documented shapes', async () => {
 test('the operator lease: first client gets it, a second client gets 409 lease_held', async () => {
   const mine = await post('/lease', {});
   assert.equal(mine.status, 200, mine.text);
-  const other = await post('/lease', {}, {client: 'someone-else'});
-  assertErrorShape(other, 409, 'lease_held');
-  const otherCommand = await post(`${R}/state_command`, {command: 'enable'}, {client: 'someone-else'});
+  assert.equal(mine.json.mine, true);
+  assert.match(mine.json.lease_token, /^[0-9a-f]{32}$/, 'the grant carries the lease token');
+  const other = script('someone-else');
+  assertErrorShape(await other.takeLease(), 409, 'lease_held');
+  const otherCommand = await other.post(`${R}/state_command`, {command: 'enable'});
   assertErrorShape(otherCommand, 409, 'lease_held');
+  // Copying the holder's label gives nothing: X-Tendril-Client is a name, not an identity.
+  const copycat = await post(`${R}/state_command`, {command: 'enable'}, {client: 'api-test', lease: 'new'});
+  assertErrorShape(copycat, 409, 'lease_held');
   assert.notEqual((await operatingState()).state, 'ENABLED', 'a refused command changed nothing');
+});
+
+test('duplicate JSON keys are refused with 400 duplicate_key, and nothing changes', async () => {
+  const before = (await operatingState()).mode;
+  const res = await call('POST', `${R}/mode`, {raw: '{"mode":[],"mode":"telemanipulation"}'});
+  assertErrorShape(res, 400, 'duplicate_key');
+  assert.match(res.json.error.message, /"mode"/);
+  assert.equal((await operatingState()).mode, before);
 });
 
 test('a viewer may watch but not command or take the lease (403 forbidden_role)', async () => {
@@ -249,7 +266,8 @@ test('GET /metrics is Prometheus text', async () => {
 test('the lease can be given back', async () => {
   const res = await call('DELETE', '/lease');
   assert.ok(res.status === 200 || res.status === 204, `DELETE /lease: ${res.status} ${res.text}`);
-  const other = await post('/lease', {}, {client: 'someone-else'});
-  assert.equal(other.status, 200, `after release another client gets the lease: ${other.text}`);
-  await call('DELETE', '/lease', {client: 'someone-else'});
+  const other = script('someone-else');
+  const taken = await other.takeLease();
+  assert.equal(taken.status, 200, `after release another client gets the lease: ${taken.text}`);
+  await other.call('DELETE', '/lease');
 });

@@ -366,13 +366,16 @@ class RestClient {
 
 class FoxgloveClient {
  public:
-  // client_id: sent as X-Tendril-Client so the socket shares the REST client's lease identity.
-  FoxgloveClient(unsigned short port, const std::string& token, const std::string& client_id) {
+  // client_id: sent as X-Tendril-Client (a label); lease_token: sent as X-Tendril-Lease so the socket
+  // acts under the lease the REST client took.
+  FoxgloveClient(unsigned short port, const std::string& token, const std::string& client_id,
+                 const std::string& lease_token = {}) {
     ws_.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
     ws_.next_layer().set_option(tcp::no_delay(true));
-    ws_.set_option(websocket::stream_base::decorator([client_id](websocket::request_type& req) {
+    ws_.set_option(websocket::stream_base::decorator([client_id, lease_token](websocket::request_type& req) {
       req.set(bhttp::field::sec_websocket_protocol, std::string(fg::kSubprotocol));
       if (!client_id.empty()) req.set("X-Tendril-Client", client_id);
+      if (!lease_token.empty()) req.set("X-Tendril-Lease", lease_token);
     }));
     ws_.handshake("127.0.0.1:" + std::to_string(port), "/ws?token=" + token);
   }
@@ -595,8 +598,11 @@ int run(const Options& options) {
   const std::string client_id = "latency-bench";
   RestClient rest(port, ho.token, client_id);
   const std::string robot_path = "/api/v1/robots/" + o.robot;
-  if (auto r = rest.request(bhttp::verb::post, "/api/v1/lease"); r.status != 200)
-    throw std::runtime_error("POST /api/v1/lease answered " + std::to_string(r.status) + " " + r.body.dump());
+  const auto leased = rest.request(bhttp::verb::post, "/api/v1/lease");
+  if (leased.status != 200)
+    throw std::runtime_error("POST /api/v1/lease answered " + std::to_string(leased.status) + " " +
+                             leased.body.dump());
+  const std::string lease_token = leased.body.value("lease_token", std::string());
   if (auto r = rest.request(bhttp::verb::post, robot_path + "/state_command", json{{"command", "enable"}});
       r.status >= 300)
     throw std::runtime_error("enable answered " + std::to_string(r.status) + " " + r.body.dump());
@@ -633,8 +639,8 @@ int run(const Options& options) {
   };
   const LatencyRun rest_run = measure_latency("REST", o, joints, joint, sync_period_us, watcher, rest_send);
 
-  // 3. WebSocket service call servo_jv -> CAN, on a socket sharing the REST lease identity.
-  FoxgloveClient commander(port, ho.token, client_id);
+  // 3. WebSocket service call servo_jv -> CAN, on a socket presenting the REST client's lease token.
+  FoxgloveClient commander(port, ho.token, client_id, lease_token);
   const json services = commander.read_op("advertiseServices");
   std::uint32_t servo_service = 0;
   for (const auto& s : services.at("services"))

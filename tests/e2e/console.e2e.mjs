@@ -158,13 +158,21 @@ test('every control has an accessible name and a data-testid', async () => {
   assert.ok(box.width >= 100 && box.height >= 48, `E-STOP is big: ${JSON.stringify(box)}`);
 });
 
-// Another operator (a plain REST client with its own identity).
-function otherOperatorAs(client, method, urlPath, body) {
-  return fetch(`${BASE_URL}/api/v1${urlPath}`, {
+// Another operator: a REST script with a lease of its own (X-Tendril-Lease, README), named by
+// X-Tendril-Client. Its lease token is kept from each granted POST /lease ("new" before the first).
+const leaseTokens = new Map();
+async function otherOperatorAs(client, method, urlPath, body) {
+  const response = await fetch(`${BASE_URL}/api/v1${urlPath}`, {
     method,
-    headers: {Authorization: `Bearer ${TOKEN}`, 'X-Tendril-Client': client, 'Content-Type': 'application/json'},
+    headers: {Authorization: `Bearer ${TOKEN}`, 'X-Tendril-Client': client, 'X-Tendril-Lease': leaseTokens.get(client) ?? 'new',
+              'Content-Type': 'application/json'},
     body: method === 'POST' ? JSON.stringify(body ?? {}) : undefined,
   });
+  if (method === 'POST' && urlPath === '/lease' && response.ok) {
+    const granted = await response.clone().json();
+    if (granted.lease_token) leaseTokens.set(client, granted.lease_token);
+  }
+  return response;
 }
 const otherOperator = (method, urlPath) => otherOperatorAs('e2e-other-operator', method, urlPath);
 

@@ -13,6 +13,12 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const auto body = parse_json_body(input, 64 * 1024);
   // Success means a JSON object; failure always carries the API error shape.
   if (body.ok() ? !body.body.is_object() : (body.code.empty() || body.message.empty())) std::abort();
+  if (body.ok()) {
+    // An accepted body survives a round trip (its keys are unique, so nothing was silently dropped).
+    std::string duplicate_key;
+    if (parse_json_unique_keys(body.body.dump(), duplicate_key) != body.body || !duplicate_key.empty())
+      std::abort();
+  }
   const auto target = parse_target(input);
   (void)split_path(target.path);
   (void)cookie_value(input, "tendril_session");

@@ -1,5 +1,5 @@
 // Who is calling: the bearer token, the console's cookie session or the ?token= of a WebSocket URL,
-// the requested role and the script's client name, resolved into an Identity.
+// the requested role, the lease token and the script's client name, resolved into an Identity.
 #include <algorithm>
 #include <cctype>
 
@@ -24,8 +24,7 @@ bool valid_client_name(std::string_view name) {
 HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req, const RequestTarget& target,
                                                              std::uint64_t connection_id,
                                                              bool accept_query_token,
-                                                             bool create_cookie_session,
-                                                             const char* connection_kind) {
+                                                             bool create_cookie_session, bool websocket) {
   AuthOutcome out;
   // Requested role: the header or ?role=; a session can only ever narrow to viewer, never widen.
   std::string requested_role;
@@ -37,24 +36,46 @@ HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req,
   }
   const Role asked = requested_role == "viewer" ? Role::kViewer : Role::kOperator;
 
-  std::string client_name;
+  // X-Tendril-Client names a script in lease messages; it is a label, never a credential.
+  std::string client_label;
   if (const auto it = req.find("X-Tendril-Client"); it != req.end()) {
-    client_name = std::string(it->value());
-    if (!valid_client_name(client_name)) {
+    const std::string name(it->value());
+    if (!valid_client_name(name)) {
       out.error =
           ApiResult::error(400, "bad_client_name",
                            "X-Tendril-Client must be 1-64 characters of letters, digits, '-', '_' or '.'");
       return out;
     }
+    client_label = "client:" + name;
   }
+  // The lease token from POST /api/v1/lease: a header, or ?lease= on a WebSocket URL (browsers and
+  // Foxglove Studio cannot set headers there; REST ignores secrets in URLs, as it does ?token=). Any
+  // value is a claim: one that is not the current lease's token holds nothing. It is never refused
+  // here, so a stale or garbled token cannot stand between a caller and the e-stop.
+  std::string lease_token;
+  if (const auto it = req.find("X-Tendril-Lease"); it != req.end()) lease_token = std::string(it->value());
+  if (const auto it = target.query.find("lease"); websocket && it != target.query.end())
+    lease_token = it->second;
+  // The lease key: a presented lease token wins; else the caller's own credential.
+  auto set_identity = [&](Role role, std::string key, std::string label, bool connection_bound) {
+    out.identity.role = role;
+    if (!lease_token.empty()) {
+      out.identity.lease_key = std::string(http::LeaseManager::kTokenKeyPrefix) + lease_token;
+      out.identity.label = client_label.empty() ? "api-client" : client_label;
+      return;
+    }
+    out.identity.lease_key = std::move(key);
+    out.identity.label = client_label.empty() ? std::move(label) : client_label;
+    out.identity.connection_bound = connection_bound;
+  };
+  // The bearer token alone: every such REST caller is one identity (they share the only credential
+  // there is, so nothing else could tell them apart); a WebSocket connection is its own identity.
   auto token_identity = [&]() {
-    out.identity.role = asked;
-    if (!client_name.empty()) {
-      out.identity.lease_key = "client:" + client_name;
-      out.identity.label = "client:" + client_name;
+    if (websocket) {
+      const std::string connection = "ws:" + std::to_string(connection_id);
+      set_identity(asked, connection, connection, true);
     } else {
-      out.identity.lease_key = std::string(connection_kind) + ":" + std::to_string(connection_id);
-      out.identity.label = out.identity.lease_key;
+      set_identity(asked, "bearer", "api-client", false);
     }
   };
 
@@ -76,8 +97,8 @@ HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req,
       const auto session = cookie_sessions.find(*session_id);
       // Session ids are random and looked up by hash; an unknown one is simply not a credential.
       if (session != cookie_sessions.end()) {
-        out.identity.role = session->second.role == Role::kViewer ? Role::kViewer : asked;
-        out.identity.lease_key = "session:" + *session_id;
+        set_identity(session->second.role == Role::kViewer ? Role::kViewer : asked, "session:" + *session_id,
+                     session->second.label, false);
         out.identity.label = session->second.label;
         if (!create_cookie_session || !target.query.count("token")) return out;
       }
@@ -102,8 +123,7 @@ HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req,
         cookie_sessions.erase(cookie_order.front());
         cookie_order.pop_front();
       }
-      out.identity.role = asked;
-      out.identity.lease_key = "session:" + session_id;
+      set_identity(asked, "session:" + session_id, label, false);
       out.identity.label = label;
       out.set_cookie = std::string(kCookieName) + "=" + session_id + "; Path=/; HttpOnly; SameSite=Strict";
       return out;

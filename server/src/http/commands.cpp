@@ -23,13 +23,8 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
   const bool needs_robot = command != Command::kEstopReset;
   if (needs_robot && !api.has_robot(robot)) return unknown_robot(robot);
   const auto now = SteadyClock::now();
-  if (!lease.use(who.lease_key, now)) {
-    const auto status = lease.status(who.lease_key, now);
-    return ApiResult::error(409, "lease_held",
-                            status.held ? "the operator lease is held by " + status.holder_label +
-                                              "; commands need the lease (POST /api/v1/lease)"
-                                        : "take the operator lease first (POST /api/v1/lease)");
-  }
+  const auto generation = lease.use(who.lease_key, now);
+  if (!generation) return lease_refusal(who, now, "commands need the lease");
   try {
     switch (command) {
       case Command::kStateCommand:
@@ -40,7 +35,7 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
         return api.move_jp(robot, body);
       case Command::kServoJv: {
         ApiResult result = api.servo_jv(robot, body);
-        if (result.ok()) note_servo(who.lease_key, SteadyClock::now());
+        if (result.ok()) note_servo(*generation, SteadyClock::now());
         return result;
       }
       case Command::kEstopReset:
@@ -50,7 +45,7 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
       case Command::kJoystick: {
         ApiResult result = api.joystick(robot, body);
         // A held deadman counts as streaming commands (a takeover must not cut it off silently).
-        if (result.ok() && body.value("deadman", false)) note_servo(who.lease_key, SteadyClock::now());
+        if (result.ok() && body.value("deadman", false)) note_servo(*generation, SteadyClock::now());
         return result;
       }
       case Command::kAuthorizeOnly:
@@ -64,14 +59,42 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
   return ApiResult::error(500, "internal_error", "unhandled command");
 }
 
-json HttpServer::Impl::lease_description(const Identity& who, SteadyClock::time_point now) const {
+ApiResult HttpServer::Impl::lease_refusal(const Identity& who, SteadyClock::time_point now,
+                                          const std::string& what) const {
+  // `what` says what needed the lease, e.g. "commands need the lease".
   const auto status = lease.status(who.lease_key, now);
+  std::string message;
+  if (status.held) {
+    message = "the operator lease is held by " + status.holder_label + "; " + what + " (POST /api/v1/lease)";
+  } else {
+    message = "take the operator lease first (POST /api/v1/lease)";
+  }
+  // A caller that sent a lease token which no longer holds: say so, it is the likeliest mistake.
+  if (who.lease_key.rfind(http::LeaseManager::kTokenKeyPrefix, 0) == 0) {
+    message += ". The X-Tendril-Lease token sent is not the current lease's (it lapsed after " +
+               std::to_string(lease.timeout().count() / 1000) +
+               " s without use, was released or taken over); POST /api/v1/lease answers a new one";
+  }
+  return ApiResult::error(409, "lease_held", message);
+}
+
+json HttpServer::Impl::lease_description(const Identity& who, SteadyClock::time_point now,
+                                         const std::string& lease_token) const {
+  // A grant is the caller's even when it asked with a token that held nothing (then the new token is
+  // its only key).
+  const auto status = lease.status(
+      lease_token.empty() ? who.lease_key : std::string(http::LeaseManager::kTokenKeyPrefix) + lease_token,
+      now);
   const double remaining = static_cast<double>(status.remaining.count()) / 1000.0;
   // "held/holder/mine/expires_s" is the contract; "yours/expires_in_s/you" stay for older clients.
-  return {{"held", status.held},   {"holder", status.held ? json(status.holder_label) : json(nullptr)},
-          {"mine", status.yours},  {"expires_s", remaining},
-          {"yours", status.yours}, {"expires_in_s", remaining},
-          {"you", who.label}};
+  json description = {
+      {"held", status.held},   {"holder", status.held ? json(status.holder_label) : json(nullptr)},
+      {"mine", status.yours},  {"expires_s", remaining},
+      {"yours", status.yours}, {"expires_in_s", remaining},
+      {"you", who.label}};
+  // Only the answer that grants the lease carries its token (a secret of the holder).
+  if (!lease_token.empty()) description["lease_token"] = lease_token;
+  return description;
 }
 
 ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identity& who,
@@ -82,20 +105,19 @@ ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identi
     return ApiResult::error(403, "forbidden_role", "viewers cannot take or release the operator lease");
   }
   if (action == "acquire") {
-    const bool had_it = lease.status(who.lease_key, now).yours;
-    if (lease.acquire(who.lease_key, who.label, now)) {
-      if (!had_it) {
+    const auto before = lease.status(who.lease_key, now);
+    if (const auto grant = lease.acquire(who.lease_key, who.label, random_hex(16), now)) {
+      if (!before.yours) {
         broadcast_status(
             fg::status(fg::StatusLevel::kInfo, who.label + " holds the operator lease", "lease"));
       }
-      return ApiResult::success(lease_description(who, now));
+      return ApiResult::success(lease_description(who, now, grant->lease_token));
     }
     const auto held = lease.status(who.lease_key, now);
-    const auto holder_key = lease.holder(now);
     if (!takeover_token.empty()) {
       // Confirmation of a takeover. Never while the holder streams servo commands: the stream would
       // stop in mid-motion under someone else's control.
-      if (holder_key && servo_streaming(*holder_key, now)) {
+      if (held.held && servo_streaming(held.generation, now)) {
         ApiResult refused = ApiResult::error(
             409, "servo_active",
             held.holder_label +
@@ -105,24 +127,23 @@ ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identi
         refused.error_details = {{"holder", held.holder_label}};
         return refused;
       }
-      std::string previous_key;
-      if (lease.take_over(who.lease_key, who.label, takeover_token, now, previous_key) ==
-          LeaseManager::TakeoverResult::kBadToken) {
+      const auto takeover = lease.take_over(who.lease_key, who.label, takeover_token, random_hex(16), now);
+      if (takeover.result == http::LeaseManager::TakeoverResult::kBadToken) {
         return ApiResult::error(409, "bad_takeover_token",
                                 "the takeover token is unknown, expired (it lasts 15 s) or was issued to "
                                 "another client; POST /api/v1/lease without it to get a new one");
       }
-      if (!previous_key.empty()) {
+      if (!takeover.previous_keys.empty()) {
         broadcast_status(fg::status(fg::StatusLevel::kWarning,
                                     "the operator lease was taken over by " + who.label +
                                         "; your commands are refused until you take it back",
                                     "lease"),
-                         previous_key);
+                         takeover.previous_keys);
       }
       broadcast_status(fg::status(fg::StatusLevel::kInfo,
                                   who.label + " took over the operator lease from " + held.holder_label,
                                   "lease"));
-      return ApiResult::success(lease_description(who, now));
+      return ApiResult::success(lease_description(who, now, takeover.grant.lease_token));
     }
     // Refused: offer a takeover, to be confirmed by POSTing the token back within 15 s.
     const std::string token = random_hex(16);
@@ -150,19 +171,25 @@ ApiResult HttpServer::Impl::lease_action(const std::string& action, const Identi
   return ApiResult::error(400, "bad_action", "lease action must be \"acquire\", \"release\" or \"status\"");
 }
 
+void HttpServer::Impl::connection_closed(const Identity& who) {
+  const auto now = SteadyClock::now();
+  // The holder's console went away: the robot holds now, and a reconnect must command afresh.
+  if (lease.holds(who.lease_key, now)) api.operator_lost();
+  // A lease bound to this connection has no one left who could use it: free it at once rather than
+  // leave it to a dead connection until it lapses.
+  if (who.connection_bound && lease.release_bound_to(who.lease_key, now)) {
+    broadcast_status(fg::status(fg::StatusLevel::kInfo,
+                                who.label + " closed its connection; the operator lease is free", "lease"));
+  }
+}
+
 ApiResult HttpServer::Impl::set_parameters(const json& parameters, const Identity& who) {
   if (who.role != Role::kOperator) {
     return ApiResult::error(403, "forbidden_role",
                             "this session is a viewer (read-only); only operators set parameters");
   }
   const auto now = SteadyClock::now();
-  if (!lease.use(who.lease_key, now)) {
-    const auto status = lease.status(who.lease_key, now);
-    return ApiResult::error(409, "lease_held",
-                            status.held ? "the operator lease is held by " + status.holder_label +
-                                              "; setting parameters needs the lease"
-                                        : "take the operator lease first (POST /api/v1/lease)");
-  }
+  if (!lease.use(who.lease_key, now)) return lease_refusal(who, now, "setting parameters needs the lease");
   ApiResult result;
   try {
     result = api.set_parameters(parameters);

@@ -112,7 +112,11 @@ bool get_optional_id(const json& object, std::optional<std::string>& id, std::st
 
 ClientTextMessage parse_client_text(std::string_view text) {
   if (json_nesting_exceeds(text, kMaxJsonDepth)) return ProtocolError{"message nests too deeply"};
-  const json message = json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);
+  std::string duplicate_key;
+  const json message = parse_json_unique_keys(text, duplicate_key);
+  if (message.is_discarded() && !duplicate_key.empty()) {
+    return ProtocolError{"message has the key \"" + duplicate_key + "\" twice in one object"};
+  }
   if (message.is_discarded()) return ProtocolError{"message is not valid JSON"};
   if (!message.is_object()) return ProtocolError{"message must be a JSON object"};
   std::string error;

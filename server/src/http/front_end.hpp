@@ -54,11 +54,16 @@ inline constexpr std::string_view kCookieName = "tendril_session";
 
 enum class Role { kViewer, kOperator };
 
-// Who is calling: resolved once per request or per WebSocket connection.
+// Who is calling: resolved once per request or per WebSocket connection (auth.cpp).
 struct Identity {
   Role role = Role::kOperator;
-  std::string lease_key;  // private: may embed the session id
-  std::string label;      // public name shown as lease holder
+  // Private: what a lease this caller takes is bound to, and how it is recognised as the holder
+  // (LeaseManager lists the kinds): the cookie session, the lease token it presents, the bearer
+  // token, or its own WebSocket connection. Embeds secrets; never shown.
+  std::string lease_key;
+  std::string label;  // public name shown as lease holder (X-Tendril-Client is only ever a label)
+  // lease_key is this WebSocket connection: a lease bound to it ends when the connection closes.
+  bool connection_bound = false;
 };
 
 // Robot commands as the front end dispatches them. kAuthorizeOnly: the role and lease checks of a
@@ -195,36 +200,43 @@ class HttpServer::Impl {
     std::optional<std::string> set_cookie;
   };
   AuthOutcome authenticate(const Request& req, const http::RequestTarget& target, std::uint64_t connection_id,
-                           bool accept_query_token, bool create_cookie_session, const char* connection_kind);
+                           bool accept_query_token, bool create_cookie_session, bool websocket);
 
   ApiResult execute(Command command, const std::string& robot, const nlohmann::json& body,
                     const Identity& who);
   // action: "acquire" (with an optional takeover token), "release" or "status".
   ApiResult lease_action(const std::string& action, const Identity& who,
                          const std::string& takeover_token = {});
-  nlohmann::json lease_description(const Identity& who, SteadyClock::time_point now) const;
+  // lease_token: set in the answer that grants the lease (its holder's secret), empty otherwise.
+  nlohmann::json lease_description(const Identity& who, SteadyClock::time_point now,
+                                   const std::string& lease_token = {}) const;
+  // 409 lease_held for a caller that does not hold the lease, saying who does and what to do.
+  ApiResult lease_refusal(const Identity& who, SteadyClock::time_point now, const std::string& what) const;
   // Sets parameters for `who` (operator with the lease) and pushes the new values to subscribers.
   ApiResult set_parameters(const nlohmann::json& parameters, const Identity& who);
   void publish_parameter_updates(const nlohmann::json& changed);
 
   // Servo streaming, for the takeover rule: a holder who sent a servo command within the longest
-  // command timeout of any robot is streaming and cannot be displaced.
+  // command timeout of any robot is streaming and cannot be displaced. Recorded per lease
+  // generation, since one lease may be used under several keys (its token and its owner's key).
   std::mutex servo_mutex;
-  std::string last_servo_key;
+  std::optional<std::uint64_t> last_servo_generation;
   SteadyClock::time_point last_servo_time{};
   std::chrono::milliseconds servo_window{150};
-  void note_servo(const std::string& key, SteadyClock::time_point now) {
+  void note_servo(std::uint64_t generation, SteadyClock::time_point now) {
     std::lock_guard lock(servo_mutex);
-    last_servo_key = key;
+    last_servo_generation = generation;
     last_servo_time = now;
   }
-  bool servo_streaming(const std::string& key, SteadyClock::time_point now) {
+  bool servo_streaming(std::uint64_t generation, SteadyClock::time_point now) {
     std::lock_guard lock(servo_mutex);
-    return !last_servo_key.empty() && last_servo_key == key && now - last_servo_time <= servo_window;
+    return last_servo_generation == generation && now - last_servo_time <= servo_window;
   }
+  // A WebSocket connection closed: stop the robot if it held the lease, and end a lease bound to it.
+  void connection_closed(const Identity& who);
 
-  // Status messages to WebSocket clients: to all, or only to the sockets of one lease identity.
-  void broadcast_status(const nlohmann::json& status, const std::string& only_lease_key = {});
+  // Status messages to WebSocket clients: to all, or only to the sockets whose lease key is listed.
+  void broadcast_status(const nlohmann::json& status, const std::vector<std::string>& only_lease_keys = {});
   // Faults and e-stops seen in ControlApi::faults() become status messages (newest seen so far).
   std::optional<std::string> newest_event_seen;
   void report_new_safety_events();

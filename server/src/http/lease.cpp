@@ -1,44 +1,82 @@
 #include "tendril/server/http/lease.hpp"
 
+#include "tendril/server/http/request_codec.hpp"
+
 namespace tendril::server::http {
+
+namespace {
+
+bool is_token_key(const std::string& key) { return key.rfind(LeaseManager::kTokenKeyPrefix, 0) == 0; }
+
+std::string token_key(const std::string& token) { return std::string(LeaseManager::kTokenKeyPrefix) + token; }
+
+}  // namespace
 
 LeaseManager::LeaseManager(std::chrono::milliseconds timeout) : timeout_(timeout) {}
 
 bool LeaseManager::held_by_locked(const std::string& key, Clock::time_point now) const {
-  return !holder_key_.empty() && holder_key_ == key && now < expires_;
+  // Keys carry secrets (session ids, lease tokens): compared without an early exit.
+  return live_locked(now) && !key.empty() &&
+         (constant_time_equal(key, holder_key_) || constant_time_equal(key, token_key(lease_token_)));
 }
 
-bool LeaseManager::acquire(const std::string& key, const std::string& label, Clock::time_point now) {
-  std::lock_guard lock(mutex_);
-  const bool free = holder_key_.empty() || now >= expires_;
-  if (!free && holder_key_ != key) return false;
-  holder_key_ = key;
+LeaseManager::Grant LeaseManager::grant_locked(const std::string& key, const std::string& label,
+                                               const std::string& fresh_token, Clock::time_point now) {
+  lease_token_ = fresh_token;
+  // A caller that names itself by a lease token gets a lease only the new token holds.
+  holder_key_ = is_token_key(key) ? token_key(fresh_token) : key;
   holder_label_ = label;
   expires_ = now + timeout_;
-  return true;
+  ++generation_;
+  return {lease_token_, generation_};
+}
+
+std::optional<LeaseManager::Grant> LeaseManager::acquire(const std::string& key, const std::string& label,
+                                                         const std::string& fresh_token,
+                                                         Clock::time_point now) {
+  std::lock_guard lock(mutex_);
+  if (held_by_locked(key, now)) {
+    expires_ = now + timeout_;
+    return Grant{lease_token_, generation_};
+  }
+  if (live_locked(now)) return std::nullopt;
+  return grant_locked(key, label, fresh_token, now);
 }
 
 bool LeaseManager::release(const std::string& key, Clock::time_point now) {
   std::lock_guard lock(mutex_);
   if (!held_by_locked(key, now)) return false;
   holder_key_.clear();
+  lease_token_.clear();
   holder_label_.clear();
+  ++generation_;
   return true;
 }
 
-bool LeaseManager::use(const std::string& key, Clock::time_point now) {
+bool LeaseManager::release_bound_to(const std::string& key, Clock::time_point now) {
   std::lock_guard lock(mutex_);
-  if (!held_by_locked(key, now)) return false;
-  expires_ = now + timeout_;
+  if (!live_locked(now) || key.empty() || !constant_time_equal(key, holder_key_)) return false;
+  holder_key_.clear();
+  lease_token_.clear();
+  holder_label_.clear();
+  ++generation_;
   return true;
+}
+
+std::optional<std::uint64_t> LeaseManager::use(const std::string& key, Clock::time_point now) {
+  std::lock_guard lock(mutex_);
+  if (!held_by_locked(key, now)) return std::nullopt;
+  expires_ = now + timeout_;
+  return generation_;
 }
 
 LeaseManager::Status LeaseManager::status(const std::string& key, Clock::time_point now) const {
   std::lock_guard lock(mutex_);
   Status status;
-  if (holder_key_.empty() || now >= expires_) return status;
+  status.generation = generation_;
+  if (!live_locked(now)) return status;
   status.held = true;
-  status.yours = holder_key_ == key;
+  status.yours = held_by_locked(key, now);
   status.holder_label = holder_label_;
   status.remaining = std::chrono::duration_cast<std::chrono::milliseconds>(expires_ - now);
   return status;
@@ -60,27 +98,20 @@ void LeaseManager::issue_takeover_token(const std::string& key, const std::strin
   takeover_tokens_[random] = {key, now + kTakeoverTokenLifetime};
 }
 
-LeaseManager::TakeoverResult LeaseManager::take_over(const std::string& key, const std::string& label,
-                                                     const std::string& token, Clock::time_point now,
-                                                     std::string& previous_key) {
+LeaseManager::Takeover LeaseManager::take_over(const std::string& key, const std::string& label,
+                                               const std::string& token, const std::string& fresh_token,
+                                               Clock::time_point now) {
   std::lock_guard lock(mutex_);
-  previous_key.clear();
+  Takeover out;
   const auto it = takeover_tokens_.find(token);
-  if (it == takeover_tokens_.end() || it->second.key != key || now >= it->second.expires) {
-    return TakeoverResult::kBadToken;
-  }
+  if (it == takeover_tokens_.end() || it->second.key != key || now >= it->second.expires) return out;
   takeover_tokens_.erase(it);
-  if (!holder_key_.empty() && now < expires_ && holder_key_ != key) previous_key = holder_key_;
-  holder_key_ = key;
-  holder_label_ = label;
-  expires_ = now + timeout_;
-  return TakeoverResult::kTaken;
-}
-
-std::optional<std::string> LeaseManager::holder(Clock::time_point now) const {
-  std::lock_guard lock(mutex_);
-  if (holder_key_.empty() || now >= expires_) return std::nullopt;
-  return holder_key_;
+  if (live_locked(now) && !held_by_locked(key, now)) {
+    out.previous_keys = {holder_key_, token_key(lease_token_)};
+  }
+  out.result = TakeoverResult::kTaken;
+  out.grant = grant_locked(key, label, fresh_token, now);
+  return out;
 }
 
 }  // namespace tendril::server::http

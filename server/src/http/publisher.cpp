@@ -1,6 +1,7 @@
 // Publishing: channels advertised from ControlApi's topics and the topic sources, the newest message
 // of each subscribed channel offered to every connection, status broadcasts (lease, parameters, safety
 // events) and the front end's Prometheus metrics.
+#include <algorithm>
 #include <sstream>
 
 #include "front_end.hpp"
@@ -44,9 +45,12 @@ void HttpServer::Impl::unregister_ws(std::uint64_t id) {
   ws_sessions.erase(id);
 }
 
-void HttpServer::Impl::broadcast_status(const json& status, const std::string& only_lease_key) {
+void HttpServer::Impl::broadcast_status(const json& status, const std::vector<std::string>& only_lease_keys) {
   for (const auto& session : live_sessions()) {
-    if (only_lease_key.empty() || session->identity().lease_key == only_lease_key) session->send_text(status);
+    if (only_lease_keys.empty() || std::find(only_lease_keys.begin(), only_lease_keys.end(),
+                                             session->identity().lease_key) != only_lease_keys.end()) {
+      session->send_text(status);
+    }
   }
 }
 

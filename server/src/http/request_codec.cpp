@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cctype>
+#include <unordered_set>
+#include <vector>
 
 namespace tendril::server::http {
 
@@ -31,6 +33,39 @@ bool json_nesting_exceeds(std::string_view text, int max_depth) noexcept {
   return false;
 }
 
+nlohmann::json parse_json_unique_keys(std::string_view text, std::string& duplicate_key) {
+  using Event = nlohmann::json::parse_event_t;
+  duplicate_key.clear();
+  // The keys seen so far in each object being parsed, innermost last.
+  std::vector<std::unordered_set<std::string>> open_objects;
+  bool duplicate = false;
+  const nlohmann::json::parser_callback_t track_keys = [&](int /*depth*/, Event event,
+                                                           nlohmann::json& parsed) {
+    if (event == Event::object_start) {
+      open_objects.emplace_back();
+    } else if (event == Event::object_end) {
+      if (!open_objects.empty()) open_objects.pop_back();
+    } else if (event == Event::key && !open_objects.empty() && parsed.is_string()) {
+      const auto& key = parsed.get_ref<const std::string&>();
+      if (!open_objects.back().insert(key).second && !duplicate) {
+        duplicate = true;
+        duplicate_key = key;
+      }
+    }
+    return true;
+  };
+  nlohmann::json value =
+      nlohmann::json::parse(text.begin(), text.end(), track_keys, /*allow_exceptions=*/false);
+  // The callback keeps everything, so a discarded value is a syntax error: that is the error to report,
+  // even when a duplicate key came before it.
+  if (value.is_discarded()) {
+    duplicate_key.clear();
+  } else if (duplicate) {
+    value = nlohmann::json(nlohmann::json::value_t::discarded);
+  }
+  return value;
+}
+
 ApiResult parse_json_body(std::string_view body, std::size_t max_bytes) {
   if (body.size() > max_bytes) {
     return ApiResult::error(413, "body_too_large",
@@ -44,7 +79,13 @@ ApiResult parse_json_body(std::string_view body, std::size_t max_bytes) {
     return ApiResult::error(400, "malformed_json",
                             "request body nests deeper than " + std::to_string(kMaxJsonDepth) + " levels");
   }
-  nlohmann::json value = nlohmann::json::parse(body.begin(), body.end(), nullptr, /*allow_exceptions=*/false);
+  std::string duplicate_key;
+  nlohmann::json value = parse_json_unique_keys(body, duplicate_key);
+  if (value.is_discarded() && !duplicate_key.empty()) {
+    return ApiResult::error(
+        400, "duplicate_key",
+        "request body has the key \"" + duplicate_key + "\" twice in one object; send each key once");
+  }
   if (value.is_discarded()) {
     // Re-parse with exceptions only to get a position for the message; the input is already bounded.
     std::string detail = "not valid JSON";

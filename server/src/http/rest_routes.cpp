@@ -77,7 +77,7 @@ RouteResult handle_metrics(HttpServer::Impl& server, const Request& req, const R
                            std::uint64_t connection_id) {
   if (req.method() != bhttp::verb::get) return method_not_allowed(req, "GET");
   if (origin_refused(server, req)) return origin_refusal(req);
-  auto auth = server.authenticate(req, target, connection_id, false, false, "connection");
+  auto auth = server.authenticate(req, target, connection_id, false, false, /*websocket=*/false);
   if (auth.error) return error_response(req, *auth.error);
   StringResponse res{bhttp::status::ok, req.version()};
   res.set(bhttp::field::content_type, "text/plain; version=0.0.4");
@@ -144,7 +144,7 @@ RouteResult handle_api(HttpServer::Impl& server, const Request& req, const Reque
   }
   // A browser page from another origin must not drive the robot with a stolen cookie or token.
   if (origin_refused(server, req)) return origin_refusal(req);
-  auto auth = server.authenticate(req, target, connection_id, false, false, "connection");
+  auto auth = server.authenticate(req, target, connection_id, false, false, /*websocket=*/false);
   if (auth.error) return error_response(req, *auth.error);
   const Identity& who = auth.identity;
   auto& api = server.api;
@@ -225,7 +225,7 @@ RouteResult handle_static(HttpServer::Impl& server, const Request& req, const Re
   // Opening the console URL with ?token= turns the token into a session cookie.
   std::optional<std::string> set_cookie;
   if (target.query.count("token")) {
-    auto auth = server.authenticate(req, target, connection_id, true, true, "connection");
+    auto auth = server.authenticate(req, target, connection_id, true, true, /*websocket=*/false);
     if (auth.error) return error_response(req, *auth.error);
     set_cookie = auth.set_cookie;
   }
@@ -306,7 +306,7 @@ bool admits_large_body(HttpServer::Impl& server, const Request& header, std::uin
   const RequestTarget target = parse_target(header.target());
   if (!target.valid || !takes_large_body(header.method_string(), target.path)) return false;
   if (origin_refused(server, header)) return false;
-  return !server.authenticate(header, target, connection_id, false, false, "connection").error;
+  return !server.authenticate(header, target, connection_id, false, false, /*websocket=*/false).error;
 }
 
 UpgradeDecision decide_upgrade(HttpServer::Impl& server, const Request& req, std::uint64_t connection_id) {
@@ -324,7 +324,7 @@ UpgradeDecision decide_upgrade(HttpServer::Impl& server, const Request& req, std
     return out;
   }
   auto auth = server.authenticate(req, target, connection_id, /*accept_query_token=*/true,
-                                  /*create_cookie_session=*/false, "ws");
+                                  /*create_cookie_session=*/false, /*websocket=*/true);
   if (auth.error) {
     out.refusal = error_response(req, *auth.error);
     return out;

@@ -300,8 +300,7 @@ void WsConnection::on_closed() {
     latest_order_.clear();
   }
   server_.unregister_ws(id_);
-  // The holder's console went away: the robot holds now, and a reconnect must command afresh.
-  if (server_.lease.holder(SteadyClock::now()) == identity_.lease_key) server_.api.operator_lost();
+  server_.connection_closed(identity_);
 }
 
 void WsConnection::handle_text(const std::string& text) {

@@ -155,6 +155,26 @@ inline std::map<std::string, std::string> bearer(const std::string& client = "")
   return headers;
 }
 
+// A script that wants a lease of its own, as the README shows: the bearer token, a name
+// (X-Tendril-Client, a label only) and X-Tendril-Lease with the token of its last granted
+// POST /api/v1/lease ("new" until then, which asks for a lease bound to its token alone).
+struct ScriptClient {
+  explicit ScriptClient(std::string client_name) : name(std::move(client_name)) {}
+  std::string name;
+  std::string lease_token = "new";
+  std::map<std::string, std::string> headers() const {
+    auto h = bearer(name);
+    h["X-Tendril-Lease"] = lease_token;
+    return h;
+  }
+  // POST /api/v1/lease (body: e.g. a takeover token); keeps the granted token.
+  Reply take_lease(unsigned short port, const std::string& body = "") {
+    Reply reply = http_request(port, bhttp::verb::post, "/api/v1/lease", body, headers());
+    if (reply.status == 200) lease_token = reply.body().value("lease_token", std::string());
+    return reply;
+  }
+};
+
 inline void expect_error_shape(const Reply& reply, int status, const std::string& code) {
   EXPECT_EQ(reply.status, status) << reply.raw.body();
   const json body = reply.body();

@@ -143,6 +143,42 @@ TEST(RestBody, ErrorsUseApiCodes) {
   EXPECT_EQ(ok.body["goal"].size(), 3u);
 }
 
+TEST(RestBody, DuplicateKeysAreRefusedAtEveryDepth) {
+  // nlohmann keeps the last copy: a check that read the first and an action that read the second
+  // would disagree. The issue's probe sent this to /mode and got 200.
+  const auto mode = parse_json_body(R"({"mode":[],"mode":"telemanipulation"})", 1000);
+  EXPECT_EQ(mode.status, 400);
+  EXPECT_EQ(mode.code, "duplicate_key");
+  EXPECT_NE(mode.message.find("\"mode\""), std::string::npos) << mode.message;
+  const auto nested = parse_json_body(R"({"goal":{"insertion":1,"roll":0,"insertion":80}})", 1000);
+  EXPECT_EQ(nested.code, "duplicate_key");
+  EXPECT_NE(nested.message.find("\"insertion\""), std::string::npos) << nested.message;
+  EXPECT_EQ(parse_json_body(R"({"a":[{"x":1},{"y":2,"y":3}]})", 1000).code, "duplicate_key");
+  // An escaped spelling of the same key is the same key.
+  EXPECT_EQ(parse_json_body(R"({"mode":1,"m\u006fde":2})", 1000).code, "duplicate_key");
+  // The same key in sibling or nested objects is not a duplicate.
+  const auto siblings =
+      parse_json_body(R"({"a":{"x":1},"b":{"x":2,"a":{"x":3}},"x":[{"x":4},{"x":5}]})", 1000);
+  ASSERT_TRUE(siblings.ok()) << siblings.message;
+  EXPECT_EQ(siblings.body["b"]["a"]["x"], 3);
+  // Invalid JSON is still malformed_json, with its position.
+  const auto broken = parse_json_body(R"({"a":1,"a")", 1000);
+  EXPECT_EQ(broken.code, "malformed_json");
+}
+
+TEST(FoxgloveCodec, DuplicateKeysInClientTextAreProtocolErrors) {
+  for (const char* text : {R"({"op":"subscribe","op":"unsubscribe","subscriptionIds":[1]})",
+                           R"({"op":"subscribe","subscriptions":[{"id":1,"channelId":1,"channelId":2}]})",
+                           R"({"op":"setParameters","parameters":[{"name":"a","value":1,"value":2}]})"}) {
+    const auto parsed = fg::parse_client_text(text);
+    const auto* error = std::get_if<fg::ProtocolError>(&parsed);
+    ASSERT_NE(error, nullptr) << text;
+    EXPECT_NE(error->message.find("twice"), std::string::npos) << error->message;
+  }
+  EXPECT_TRUE(std::holds_alternative<fg::SubscribeOp>(fg::parse_client_text(
+      R"({"op":"subscribe","subscriptions":[{"id":1,"channelId":1},{"id":2,"channelId":1}]})")));
+}
+
 TEST(RestBody, NestingScanSkipsBracketsInStrings) {
   EXPECT_FALSE(json_nesting_exceeds(R"({"a":"[[[[[[[[[[[["})", 2));
   EXPECT_TRUE(json_nesting_exceeds("[[[", 2));
@@ -198,22 +234,61 @@ TEST(RequestHelpers, StaticPathsCannotEscapeTheRoot) {
 }
 
 TEST(Lease, OneHolderAtATimeAndExpiresWithoutUse) {
-  LeaseManager lease(std::chrono::milliseconds(1000));
+  using std::chrono::milliseconds;
+  LeaseManager lease(milliseconds(1000));
   const LeaseManager::Clock::time_point t0{};
-  EXPECT_TRUE(lease.acquire("a", "A", t0));
-  EXPECT_FALSE(lease.acquire("b", "B", t0 + std::chrono::milliseconds(10)));
-  EXPECT_TRUE(lease.use("a", t0 + std::chrono::milliseconds(900)));  // renews to 1900
-  EXPECT_FALSE(lease.use("b", t0 + std::chrono::milliseconds(900)));
-  EXPECT_FALSE(lease.acquire("b", "B", t0 + std::chrono::milliseconds(1500)));
-  const auto status = lease.status("b", t0 + std::chrono::milliseconds(1500));
+  EXPECT_TRUE(lease.acquire("bearer", "A", "token-1", t0));
+  EXPECT_FALSE(lease.acquire("session:b", "B", "token-2", t0 + milliseconds(10)));
+  EXPECT_TRUE(lease.use("bearer", t0 + milliseconds(900)));  // renews to 1900
+  EXPECT_FALSE(lease.use("session:b", t0 + milliseconds(900)));
+  EXPECT_FALSE(lease.acquire("session:b", "B", "token-2", t0 + milliseconds(1500)));
+  const auto status = lease.status("session:b", t0 + milliseconds(1500));
   EXPECT_TRUE(status.held);
   EXPECT_FALSE(status.yours);
   EXPECT_EQ(status.holder_label, "A");
   EXPECT_EQ(status.remaining.count(), 400);
   // Expired: anyone may take it, and the old holder no longer commands.
-  EXPECT_FALSE(lease.use("a", t0 + std::chrono::milliseconds(1900)));
-  EXPECT_TRUE(lease.acquire("b", "B", t0 + std::chrono::milliseconds(1900)));
-  EXPECT_FALSE(lease.release("a", t0 + std::chrono::milliseconds(1901)));
-  EXPECT_TRUE(lease.release("b", t0 + std::chrono::milliseconds(1901)));
-  EXPECT_FALSE(lease.holder(t0 + std::chrono::milliseconds(1902)));
+  EXPECT_FALSE(lease.use("bearer", t0 + milliseconds(1900)));
+  EXPECT_TRUE(lease.acquire("session:b", "B", "token-3", t0 + milliseconds(1900)));
+  EXPECT_FALSE(lease.release("bearer", t0 + milliseconds(1901)));
+  EXPECT_TRUE(lease.release("session:b", t0 + milliseconds(1901)));
+  EXPECT_FALSE(lease.status("session:b", t0 + milliseconds(1902)).held);
+}
+
+TEST(Lease, TheTokenHoldsTheLeaseAndOnlyTheCurrentOne) {
+  using std::chrono::milliseconds;
+  LeaseManager lease(milliseconds(1000));
+  const LeaseManager::Clock::time_point t0{};
+  // Taken by a key of its own: the key and the token both hold it; renewal keeps the token.
+  const auto granted = lease.acquire("session:a", "A", "tok-a", t0);
+  ASSERT_TRUE(granted);
+  EXPECT_EQ(granted->lease_token, "tok-a");
+  EXPECT_TRUE(lease.holds("session:a", t0));
+  EXPECT_TRUE(lease.holds("lease:tok-a", t0));
+  EXPECT_FALSE(lease.holds("lease:tok-x", t0));
+  EXPECT_FALSE(lease.holds("bearer", t0));
+  const auto renewed = lease.acquire("lease:tok-a", "A", "unused", t0 + milliseconds(10));
+  ASSERT_TRUE(renewed);
+  EXPECT_EQ(renewed->lease_token, "tok-a");
+  EXPECT_EQ(renewed->generation, granted->generation) << "a renewal is the same lease";
+  // A use under either key renews the one lease and reports its generation.
+  EXPECT_EQ(lease.use("lease:tok-a", t0 + milliseconds(900)), granted->generation);
+  EXPECT_TRUE(lease.holds("session:a", t0 + milliseconds(1800)));
+  ASSERT_TRUE(lease.release("lease:tok-a", t0 + milliseconds(1800)));
+
+  // Asked for with a token that holds nothing: bound to the new token alone.
+  const auto token_only = lease.acquire("lease:new", "S", "tok-s", t0 + milliseconds(2000));
+  ASSERT_TRUE(token_only);
+  EXPECT_NE(token_only->generation, granted->generation);
+  EXPECT_TRUE(lease.holds("lease:tok-s", t0 + milliseconds(2000)));
+  EXPECT_FALSE(lease.holds("lease:new", t0 + milliseconds(2000)))
+      << "whoever else sends \"new\" holds nothing";
+  EXPECT_FALSE(lease.holds("lease:tok-a", t0 + milliseconds(2000))) << "an old lease's token holds nothing";
+
+  // release_bound_to: only a lease bound to that very key (a WebSocket connection) ends with it.
+  ASSERT_TRUE(lease.release("lease:tok-s", t0 + milliseconds(2002)));
+  ASSERT_TRUE(lease.acquire("ws:7", "ws:7", "tok-w", t0 + milliseconds(2003)));
+  EXPECT_FALSE(lease.release_bound_to("ws:8", t0 + milliseconds(2004)));
+  EXPECT_TRUE(lease.release_bound_to("ws:7", t0 + milliseconds(2004)));
+  EXPECT_FALSE(lease.holds("lease:tok-w", t0 + milliseconds(2004)));
 }

@@ -9,6 +9,17 @@
 namespace tendril_test {
 namespace {
 
+// Reads JSON messages until `pick` accepts one (skipping others); null when the connection ends.
+template <class Pick>
+json read_until(WsClient& client, Pick pick, int max_messages = 50) {
+  for (int i = 0; i < max_messages; ++i) {
+    const json message = client.read_json();
+    if (message.is_null()) return nullptr;
+    if (pick(message)) return message;
+  }
+  return nullptr;
+}
+
 TEST_F(HttpServerTest, HealthNeedsNoToken) {
   start();
   EXPECT_NE(port_, 0);
@@ -60,36 +71,112 @@ TEST_F(HttpServerTest, PageWithTokenSetsAnHttpOnlySessionCookieThatAuthenticates
 
 TEST_F(HttpServerTest, LeaseGuardsCommandsButNotTheEstop) {
   start();
+  ScriptClient a("a");
+  ScriptClient b("b");
   const std::string command = R"({"command":"enable"})";
   expect_error_shape(
-      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, bearer("a")), 409,
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, a.headers()), 409,
       "lease_held");
-  const Reply taken = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a"));
+  const Reply taken = a.take_lease(port_);
   ASSERT_EQ(taken.status, 200) << taken.raw.body();
   EXPECT_EQ(taken.body()["holder"], "client:a");
   EXPECT_GT(taken.body()["expires_in_s"].get<double>(), 0.0);
-  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("b")), 409,
-                     "lease_held");
+  EXPECT_EQ(a.lease_token.size(), 32u) << "128 random bits, hex";
+  expect_error_shape(b.take_lease(port_), 409, "lease_held");
   expect_error_shape(
-      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, bearer("b")), 409,
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, b.headers()), 409,
       "lease_held");
   EXPECT_EQ(api_.state_commands, 0);
-  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, bearer("a"))
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, a.headers())
                 .status,
             200);
   EXPECT_EQ(api_.state_commands, 1);
   // E-stop: any authenticated client, lease or not. Reset needs the lease.
-  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "{}", bearer("b")).status, 200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "{}", b.headers()).status, 200);
   EXPECT_EQ(api_.estops, 1);
-  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/estop/reset", "{}", bearer("b")), 409,
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/estop/reset", "{}", b.headers()), 409,
                      "lease_held");
-  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop/reset", "{}", bearer("a")).status, 200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop/reset", "{}", a.headers()).status, 200);
   EXPECT_EQ(api_.estop_resets, 1);
   // Release, then b may take it.
-  expect_error_shape(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", bearer("b")), 409,
+  expect_error_shape(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", b.headers()), 409,
                      "lease_held");
-  EXPECT_EQ(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", bearer("a")).status, 200);
-  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("b")).status, 200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", a.headers()).status, 200);
+  EXPECT_EQ(b.take_lease(port_).status, 200);
+}
+
+TEST_F(HttpServerTest, LeaseOwnershipCannotBeCopiedFromAName) {
+  // Issue 10: the lease was held by the X-Tendril-Client name, which any token holder could send.
+  start();
+  ScriptClient holder("robot-script");
+  ASSERT_EQ(holder.take_lease(port_).status, 200);
+  const std::string command = R"({"command":"enable"})";
+  ScriptClient copycat("robot-script");  // the same name, without the holder's lease token
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, copycat.headers()),
+      409, "lease_held");
+  // Neither the bearer token alone nor a made-up lease token holds it.
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command,
+                                  bearer("robot-script")),
+                     409, "lease_held");
+  auto forged = bearer("robot-script");
+  forged["X-Tendril-Lease"] = std::string(32, '0');
+  const Reply refused =
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, forged);
+  expect_error_shape(refused, 409, "lease_held");
+  EXPECT_NE(refused.body()["error"]["message"].get<std::string>().find("X-Tendril-Lease"), std::string::npos)
+      << "a stale or wrong lease token is named as the likely cause";
+  // A garbled token is a claim that holds nothing; it never stands between a caller and the e-stop.
+  forged["X-Tendril-Lease"] = "not a token!";
+  expect_error_shape(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, forged), 409,
+      "lease_held");
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/estop", "", forged).status, 200);
+  EXPECT_EQ(api_.state_commands, 0);
+  // The holder's token works on any connection, with or without the name.
+  auto token_only = bearer();
+  token_only["X-Tendril-Lease"] = holder.lease_token;
+  EXPECT_EQ(
+      http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command", command, token_only).status,
+      200);
+  // The token is never shown to anyone else.
+  const Reply status = http_request(port_, bhttp::verb::get, "/api/v1/lease", "", copycat.headers());
+  EXPECT_EQ(status.body()["holder"], "client:robot-script");
+  EXPECT_EQ(status.body()["mine"], false);
+  EXPECT_EQ(status.raw.body().find(holder.lease_token), std::string::npos);
+  EXPECT_FALSE(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", holder.headers())
+                   .body()
+                   .contains("lease_token"));
+}
+
+TEST_F(HttpServerTest, PlainBearerScriptKeepsTheLeaseAcrossConnections) {
+  // Issue 14: a script following API.md with plain curl (bearer token only, one connection per call)
+  // took the lease and was then refused by "connection:1", a connection that had already closed.
+  start();
+  const Reply taken = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer());
+  ASSERT_EQ(taken.status, 200) << taken.raw.body();
+  EXPECT_EQ(taken.body()["holder"], "api-client");
+  EXPECT_TRUE(taken.body()["lease_token"].is_string());
+  // Each http_request is a new TCP connection, as each curl call is.
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command",
+                         R"({"command":"enable"})", bearer())
+                .status,
+            200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/move_jp", R"({"goal":[1]})", bearer())
+                .status,
+            202);
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer()).body()["mine"], true);
+  // The bearer identity is the token's: a client name is a label, not another identity.
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("other-name")).body()["mine"],
+            true);
+  // A script with a lease token of its own is somebody else.
+  ScriptClient script("script");
+  expect_error_shape(script.take_lease(port_), 409, "lease_held");
+  EXPECT_EQ(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", bearer()).status, 200);
+  EXPECT_EQ(script.take_lease(port_).status, 200);
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command",
+                                  R"({"command":"enable"})", bearer()),
+                     409, "lease_held");
 }
 
 TEST_F(HttpServerTest, ViewersAreReadOnlyButMayStopTheRobot) {
@@ -130,6 +217,13 @@ TEST_F(HttpServerTest, BadRequestsGetTheErrorShape) {
       http_request(port_, bhttp::verb::get, "/api/v1/robots/srmc/move_jp", "", bearer("a"));
   expect_error_shape(wrong_method, 405, "method_not_allowed");
   EXPECT_EQ(wrong_method.raw[bhttp::field::allow], "POST");
+  // Duplicate keys: the issue's probe got 200 here (the last copy won).
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/mode",
+                                  R"({"mode":[],"mode":"telemanipulation"})", bearer("a")),
+                     400, "duplicate_key");
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease",
+                                  R"({"takeover_token":"x","takeover_token":"y"})", bearer("a")),
+                     400, "duplicate_key");
   const Reply accepted =
       http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/move_jp", R"({"goal":[0.1]})", bearer("a"));
   EXPECT_EQ(accepted.status, 202);
@@ -304,6 +398,16 @@ TEST_F(HttpServerTest, ServiceCallsRoundTripAndRespectTheLease) {
   EXPECT_EQ(api_.state_commands, 1);
   EXPECT_EQ(call("estop", 4, json::object())["status"], 200);
   EXPECT_EQ(api_.estops, 1);
+  // A payload with a duplicate key is refused like a REST body, and nothing runs.
+  client.send_binary(fg::encode_service_call_request(
+      ids.at("state_command"), 8, "json", R"({"robot":"srmc","command":"disable","command":"enable"})"));
+  const std::string duplicate_frame = client.read_binary();
+  const auto duplicate = fg::parse_service_call_response(duplicate_frame);
+  ASSERT_TRUE(duplicate);
+  const json duplicate_body = json::parse(duplicate->payload);
+  EXPECT_EQ(duplicate_body["status"], 400);
+  EXPECT_EQ(duplicate_body["error"]["code"], "duplicate_key");
+  EXPECT_EQ(api_.state_commands, 1);
   // Unknown service: serviceCallFailure, connection kept.
   client.send_binary(fg::encode_service_call_request(999, 5, "json", "{}"));
   const json failure = client.read_op("serviceCallFailure");
@@ -363,10 +467,14 @@ TEST_F(HttpServerTest, ClientMessageRateIsLimited) {
 
 TEST_F(HttpServerTest, ClosingTheLeaseHoldersSocketStopsServo) {
   start();
+  ScriptClient console("console");
+  ASSERT_EQ(console.take_lease(port_).status, 200);
+  // The script's WebSocket presents its lease token, so it is the holder there too.
   WsClient holder;
-  ASSERT_EQ(holder.connect(port_, ws_target(), {{"X-Tendril-Client", "console"}}), 101);
-  holder.read_greeting();
-  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("console")).status, 200);
+  ASSERT_EQ(
+      holder.connect(port_, ws_target() + "&lease=" + console.lease_token, {{"X-Tendril-Client", "console"}}),
+      101);
+  EXPECT_EQ(holder.read_greeting()[0]["metadata"]["client"], "client:console");
   WsClient bystander;
   ASSERT_EQ(bystander.connect(port_, ws_target()), 101);
   bystander.read_greeting();
@@ -380,9 +488,44 @@ TEST_F(HttpServerTest, ClosingTheLeaseHoldersSocketStopsServo) {
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   EXPECT_EQ(api_.operator_lost_calls, 1);
-  // The lease itself stays with the console until released or expired.
-  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("x")).body()["holder"],
-            "client:console");
+  // The lease belongs to the token, not to that socket: it stays until released or expired.
+  const Reply lease = http_request(port_, bhttp::verb::get, "/api/v1/lease", "", console.headers());
+  EXPECT_EQ(lease.body()["holder"], "client:console");
+  EXPECT_EQ(lease.body()["mine"], true);
+}
+
+TEST_F(HttpServerTest, ALeaseTakenOnAWebSocketEndsWithItsConnection) {
+  // A WebSocket client with the bearer token alone (Foxglove Studio with ?token=) is its own
+  // identity: nobody else can use its lease, and when it goes the lease goes with it rather than
+  // staying with a dead connection for lease_timeout.
+  start();
+  WsClient client;
+  ASSERT_EQ(client.connect(port_, ws_target()), 101);
+  client.read_greeting();
+  client.send_binary(fg::encode_service_call_request(7, 1, "json", R"({"action":"acquire"})"));
+  const std::string frame = client.read_binary();
+  const auto response = fg::parse_service_call_response(frame);
+  ASSERT_TRUE(response);
+  const json granted = json::parse(response->payload);
+  ASSERT_EQ(granted["status"], 200) << granted.dump();
+  EXPECT_EQ(granted["body"]["holder"].get<std::string>().rfind("ws:", 0), 0u);
+  // Another bearer caller is not the holder; the token handed to the socket is.
+  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command",
+                                  R"({"command":"enable"})", bearer()),
+                     409, "lease_held");
+  auto with_token = bearer();
+  with_token["X-Tendril-Lease"] = granted["body"]["lease_token"].get<std::string>();
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", with_token).body()["mine"], true);
+  client.close();
+  bool released = false;
+  for (int i = 0; i < 200 && !released; ++i) {
+    released =
+        !http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer()).body()["held"].get<bool>();
+    if (!released) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_TRUE(released) << "the lease of a closed connection is free at once";
+  EXPECT_EQ(api_.operator_lost_calls, 1);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer()).status, 200);
 }
 
 TEST_F(HttpServerTest, ClientPublishStreamsServoForTheHolderOnly) {
@@ -394,7 +537,17 @@ TEST_F(HttpServerTest, ClientPublishStreamsServoForTheHolderOnly) {
   client.send_text(R"({"op":"advertise","channels":[{"id":1,"topic":"/srmc/servo_jv","encoding":"json"}]})");
   client.send_binary(fg::encode_client_message_data(1, R"({"velocity":[0.1]})"));
   EXPECT_NE(client.read_op("status")["message"].get<std::string>().find("lease_held"), std::string::npos);
+  // A REST caller with the same name and the bearer token is not this connection.
   ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("pad")).status, 200);
+  client.send_binary(fg::encode_client_message_data(1, R"({"velocity":[0.1]})"));
+  const json refused = read_until(client, [](const json& m) {
+    return m["op"] == "status" && m["message"].get<std::string>().find("lease_held") != std::string::npos;
+  });
+  EXPECT_TRUE(refused.is_object());
+  EXPECT_EQ(api_.servo_commands, 0);
+  ASSERT_EQ(http_request(port_, bhttp::verb::delete_, "/api/v1/lease", "", bearer("pad")).status, 200);
+  client.send_binary(fg::encode_service_call_request(7, 1, "json", R"({"action":"acquire"})"));
+  ASSERT_TRUE(fg::parse_service_call_response(client.read_binary()));
   client.send_binary(fg::encode_client_message_data(1, R"({"velocity":[0.1]})"));
   for (int i = 0; i < 200 && api_.servo_commands == 0; ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
@@ -470,63 +623,52 @@ TEST_F(HttpServerTest, PortInUseIsAClearError) {
   EXPECT_THROW(HttpServer(api_, no_token), tendril::server::HttpServerError);
 }
 
-// Reads JSON messages until `pick` accepts one (skipping others); null when the connection ends.
-template <class Pick>
-json read_until(WsClient& client, Pick pick, int max_messages = 50) {
-  for (int i = 0; i < max_messages; ++i) {
-    const json message = client.read_json();
-    if (message.is_null()) return nullptr;
-    if (pick(message)) return message;
-  }
-  return nullptr;
-}
-
 TEST_F(HttpServerTest, LeaseTakeoverNeedsConfirmationAndNeverInterruptsServo) {
   start();
+  ScriptClient a("a");
+  ScriptClient b("b");
+  ScriptClient c("c");
+  ASSERT_EQ(a.take_lease(port_).status, 200);
   WsClient old_holder;
-  ASSERT_EQ(old_holder.connect(port_, ws_target(), {{"X-Tendril-Client", "a"}}), 101);
+  ASSERT_EQ(old_holder.connect(port_, ws_target() + "&lease=" + a.lease_token), 101);
   old_holder.read_greeting();
-  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a")).status, 200);
 
   // Refusal names the holder and offers a takeover token.
-  const Reply refused = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("b"));
+  const Reply refused = b.take_lease(port_);
   expect_error_shape(refused, 409, "lease_held");
   EXPECT_EQ(refused.body()["error"]["holder"], "client:a");
   const std::string token = refused.body()["error"]["takeover_token"].get<std::string>();
   EXPECT_GE(token.size(), 16u);
   // A token is bound to who asked for it, and a made-up one does nothing.
-  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease",
-                                  json{{"takeover_token", token}}.dump(), bearer("c")),
-                     409, "bad_takeover_token");
-  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease",
-                                  R"({"takeover_token":"0123456789abcdef"})", bearer("b")),
-                     409, "bad_takeover_token");
-  expect_error_shape(
-      http_request(port_, bhttp::verb::post, "/api/v1/lease", R"({"takeover_token":5})", bearer("b")), 400,
-      "bad_request");
+  c.lease_token = "c-own";
+  expect_error_shape(c.take_lease(port_, json{{"takeover_token", token}}.dump()), 409, "bad_takeover_token");
+  expect_error_shape(b.take_lease(port_, R"({"takeover_token":"0123456789abcdef"})"), 409,
+                     "bad_takeover_token");
+  expect_error_shape(b.take_lease(port_, R"({"takeover_token":5})"), 400, "bad_request");
 
   // While the holder streams servo commands the takeover is refused (and the token stays usable).
+  // The stream is sent with the token alone: the lease, not the key it was taken with, is streaming.
+  auto token_only = bearer();
+  token_only["X-Tendril-Lease"] = a.lease_token;
   ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/servo_jv", R"({"velocity":[0.1]})",
-                         bearer("a"))
+                         token_only)
                 .status,
             200);
-  const Reply servo = http_request(port_, bhttp::verb::post, "/api/v1/lease",
-                                   json{{"takeover_token", token}}.dump(), bearer("b"));
-  expect_error_shape(servo, 409, "servo_active");
-  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("a")).body()["mine"], true);
+  expect_error_shape(b.take_lease(port_, json{{"takeover_token", token}}.dump()), 409, "servo_active");
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/lease", "", a.headers()).body()["mine"], true);
 
   // After the command timeout (150 ms by default) the stream has ended: the confirmed takeover succeeds.
   std::this_thread::sleep_for(std::chrono::milliseconds(250));
-  const Reply taken = http_request(port_, bhttp::verb::post, "/api/v1/lease",
-                                   json{{"takeover_token", token}}.dump(), bearer("b"));
+  const std::string old_token = a.lease_token;
+  const Reply taken = b.take_lease(port_, json{{"takeover_token", token}}.dump());
   ASSERT_EQ(taken.status, 200) << taken.raw.body();
   EXPECT_EQ(taken.body()["holder"], "client:b");
   EXPECT_EQ(taken.body()["mine"], true);
   EXPECT_EQ(taken.body()["held"], true);
   EXPECT_GT(taken.body()["expires_s"].get<double>(), 0.0);
+  EXPECT_NE(b.lease_token, old_token) << "a takeover issues a new lease token";
   // The token was used up.
-  expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("a")), 409,
-                     "lease_held");
+  expect_error_shape(a.take_lease(port_), 409, "lease_held");
 
   // The old holder's socket is told, with a warning.
   const json warning =
@@ -534,13 +676,13 @@ TEST_F(HttpServerTest, LeaseTakeoverNeedsConfirmationAndNeverInterruptsServo) {
   ASSERT_TRUE(warning.is_object());
   EXPECT_NE(warning["message"].get<std::string>().find("taken over by client:b"), std::string::npos)
       << warning.dump();
-  const Reply status_a = http_request(port_, bhttp::verb::get, "/api/v1/lease", "", bearer("a"));
+  const Reply status_a = http_request(port_, bhttp::verb::get, "/api/v1/lease", "", a.headers());
   EXPECT_EQ(status_a.body()["held"], true);
   EXPECT_EQ(status_a.body()["mine"], false);
   EXPECT_EQ(status_a.body()["holder"], "client:b");
   // The old holder's commands are refused now.
   expect_error_shape(http_request(port_, bhttp::verb::post, "/api/v1/robots/srmc/state_command",
-                                  R"({"command":"enable"})", bearer("a")),
+                                  R"({"command":"enable"})", a.headers()),
                      409, "lease_held");
 }
 
@@ -548,17 +690,20 @@ TEST(LeaseManagerTakeover, TokensExpireAfterFifteenSecondsAndAreSingleUse) {
   using tendril::server::http::LeaseManager;
   LeaseManager lease(std::chrono::milliseconds(30000));
   const auto t0 = LeaseManager::Clock::time_point{} + std::chrono::hours(1);
-  ASSERT_TRUE(lease.acquire("a", "A", t0));
-  lease.issue_takeover_token("b", "tok1", t0);
-  std::string previous;
-  EXPECT_EQ(lease.take_over("b", "B", "tok1", t0 + std::chrono::seconds(16), previous),
+  const auto granted = lease.acquire("session:a", "A", "lease-a", t0);
+  ASSERT_TRUE(granted);
+  EXPECT_EQ(granted->lease_token, "lease-a");
+  lease.issue_takeover_token("session:b", "tok1", t0);
+  EXPECT_EQ(lease.take_over("session:b", "B", "tok1", "lease-b", t0 + std::chrono::seconds(16)).result,
             LeaseManager::TakeoverResult::kBadToken);
-  lease.issue_takeover_token("b", "tok2", t0);
-  EXPECT_EQ(lease.take_over("b", "B", "tok2", t0 + std::chrono::seconds(14), previous),
-            LeaseManager::TakeoverResult::kTaken);
-  EXPECT_EQ(previous, "a");
-  EXPECT_EQ(lease.holder(t0 + std::chrono::seconds(14)), "b");
-  EXPECT_EQ(lease.take_over("b", "B", "tok2", t0 + std::chrono::seconds(14), previous),
+  lease.issue_takeover_token("session:b", "tok2", t0);
+  const auto taken = lease.take_over("session:b", "B", "tok2", "lease-b", t0 + std::chrono::seconds(14));
+  EXPECT_EQ(taken.result, LeaseManager::TakeoverResult::kTaken);
+  EXPECT_EQ(taken.grant.lease_token, "lease-b");
+  EXPECT_EQ(taken.previous_keys, (std::vector<std::string>{"session:a", "lease:lease-a"}));
+  EXPECT_TRUE(lease.holds("session:b", t0 + std::chrono::seconds(14)));
+  EXPECT_FALSE(lease.holds("lease:lease-a", t0 + std::chrono::seconds(14)));
+  EXPECT_EQ(lease.take_over("session:b", "B", "tok2", "lease-c", t0 + std::chrono::seconds(14)).result,
             LeaseManager::TakeoverResult::kBadToken);
 }
 
@@ -588,16 +733,23 @@ TEST_F(HttpServerTest, ParametersAreReadableByAllAndWritableByTheHolderOnly) {
   EXPECT_NE(viewer_refusal["message"].get<std::string>().find("forbidden_role"), std::string::npos);
   EXPECT_EQ(viewer.read_op("parameterValues")["parameters"][0]["value"], 10.0);
 
-  WsClient operator_client;
-  ASSERT_EQ(operator_client.connect(port_, ws_target(), {{"X-Tendril-Client", "op"}}), 101);
-  operator_client.read_greeting();
-  operator_client.send_text(
+  ScriptClient op("op");
+  WsClient without_lease;
+  ASSERT_EQ(
+      without_lease.connect(port_, ws_target(), {{"X-Tendril-Client", "op"}, {"X-Tendril-Lease", "new"}}),
+      101);
+  without_lease.read_greeting();
+  without_lease.send_text(
       R"({"op":"setParameters","parameters":[{"name":"/srmc/j1/upper","value":5}],"id":"x"})");
-  EXPECT_NE(operator_client.read_op("status")["message"].get<std::string>().find("lease_held"),
+  EXPECT_NE(without_lease.read_op("status")["message"].get<std::string>().find("lease_held"),
             std::string::npos);
   EXPECT_EQ(api_.parameter_sets, 0);
 
-  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer("op")).status, 200);
+  // The operator takes the lease over REST; its socket presents the token (a handshake header).
+  ASSERT_EQ(op.take_lease(port_).status, 200);
+  WsClient operator_client;
+  ASSERT_EQ(operator_client.connect(port_, ws_target(), op.headers()), 101);
+  operator_client.read_greeting();
   operator_client.send_text(
       R"({"op":"setParameters","parameters":[{"name":"/srmc/j1/upper","value":12}],"id":"y"})");
   const json wide =
