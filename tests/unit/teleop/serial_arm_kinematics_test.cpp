@@ -193,7 +193,8 @@ void expect_bounded_through(const SerialArmKinematics& arm, ArmVector q, Eigen::
     twists[i] = v;
   }
   double worst = 0.0;
-  for (double e = -0.3; e <= 0.3; e += 5e-4) {
+  for (int i = -600; i <= 600; ++i) {
+    const double e = 5e-4 * i;
     q[joint] = centre + e;
     ASSERT_TRUE(arm.update(q, data));
     for (const Twist& v : twists) {
