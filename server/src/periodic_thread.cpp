@@ -130,7 +130,7 @@ void PeriodicThread::run() {
 void PeriodicThread::prefault_stack() noexcept {
   // Touch the stack a cycle may use, so that its pages are resident and locked before the first
   // deadline rather than faulted in on a cycle's time.
-  constexpr std::size_t kStackPrefault = 256 * 1024;
+  constexpr std::size_t kStackPrefault = std::size_t{256} * 1024;
   volatile unsigned char stack[kStackPrefault];
   for (std::size_t i = 0; i < kStackPrefault; i += 4096) stack[i] = 0;
 }
