@@ -9,7 +9,7 @@
 #        and uinput tests inside a qemu VM
 #     3. REST + Foxglove WebSocket API tests against the sanitized tendrild
 #     4. browser tests (Playwright + Debian chromium) against the sanitized tendrild
-#     5. every fuzz target for a bounded time (TENDRIL_FUZZ_SECONDS, default 20), its corpus kept
+#     5. every fuzz target for a bounded time (TENDRIL_FUZZ_SECONDS, default 10), its corpus kept
 #        between runs in ${TENDRIL_CACHE:-~/.cache/tendril}/fuzz-corpus
 #     6. clang-format on every source; clang-tidy on the translation units changed since the last
 #        commit the whole-tree clang-tidy passed on (.ci/clang-tidy-base) and those that include a
@@ -134,7 +134,7 @@ record e2e "$status" "$p" "$f"
 [ "$mode" = quick ] && finish
 
 # ---- 5. fuzzing ---------------------------------------------------------------------------------
-fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-20}
+fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-10}
 [ "$mode" = full ] && fuzz_seconds=${TENDRIL_FUZZ_SECONDS:-300}
 stage "fuzzing (libFuzzer, ${fuzz_seconds} s per target, corpus kept in $cache/fuzz-corpus)"
 read -r -a fuzz_targets < <(tr ';' ' ' < build/fuzz_targets.txt)
