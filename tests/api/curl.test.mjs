@@ -82,8 +82,8 @@ test('a curl script with a lease of its own: the bearer token alone cannot use i
   const W = `-w '\\n%{http_code}\\n'`;
   const [mine, other, status, release] = answers(await shell(`
 H=(-H "Authorization: Bearer $T")
-L=$(curl -s "\${H[@]}" -H "X-Tendril-Lease: new" -X POST $API/lease | jq -r .lease_token)
-S=("\${H[@]}" -H "X-Tendril-Lease: $L" -H "X-Tendril-Client: my-script")
+L=$(curl -s "\${H[@]}" -H "X-Tendril-Lease: new" -H "X-Tendril-Client: my-script" -X POST $API/lease | jq -r .lease_token)
+S=("\${H[@]}" -H "X-Tendril-Lease: $L")
 curl -s "\${S[@]}" ${W} -X POST -d '{"command":"disable"}' $API${R}/state_command
 curl -s "\${H[@]}" ${W} -X POST -d '{"command":"enable"}' $API${R}/state_command
 curl -s "\${H[@]}" ${W} $API/lease
