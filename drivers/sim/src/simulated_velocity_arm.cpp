@@ -145,8 +145,18 @@ void SimulatedVelocityArm::deactivate(std::chrono::milliseconds, const std::func
 
 void SimulatedVelocityArm::step(Clock::time_point now, double period, bool after_control) {
   // Commands are taken at the start of the next cycle; nothing is urgent after the control cycle.
-  if (after_control || thread_running_ || !(period > 0.0)) return;
-  tick(now, period);
+  if (after_control || thread_running_ || !(period > 0.0) || !std::isfinite(period)) return;
+  // The simulated controller keeps its own rate whatever the control period (a real UR runs at 500 Hz
+  // whether its client sends at 125 Hz or 1 kHz): every controller cycle due by `now`, each stamped
+  // with its own time; the remainder waits for the next step.
+  const double cycle = parameters_.controller_period;
+  constexpr double kSlack = 1e-9;  // s: rounding in the accumulated time
+  unsimulated_time_ += period;
+  while (unsimulated_time_ >= cycle - kSlack) {
+    unsimulated_time_ = std::max(0.0, unsimulated_time_ - cycle);
+    const auto behind = std::chrono::nanoseconds(std::llround(unsimulated_time_ * 1e9));
+    tick(now - std::chrono::duration_cast<Clock::duration>(behind), cycle);
+  }
 }
 
 void SimulatedVelocityArm::run(int fifo_priority) noexcept {

@@ -104,6 +104,45 @@ TEST(SimulatedVelocityArm, CommandsTakeEffectOneControllerPeriodLater) {
   }
 }
 
+// In stepped simulation the controller keeps its own 500 Hz whatever the control period: a runtime at
+// the seed's 8 ms (125 Hz) gets four controller cycles per step, one at 1 ms gets one every other step.
+TEST(SimulatedVelocityArm, SteppedControllerKeepsItsOwnRateWhateverTheControlPeriod) {
+  {
+    SimulatedVelocityArm arm(ur5_simulated_arm({0.0, -1.2, 1.6, -1.97, -1.57, 0.0}));
+    arm.configure({});
+    Clock::time_point now{};
+    const auto control_cycle = [&](double period, double velocity) {
+      now += std::chrono::microseconds(std::lround(period * 1e6));
+      arm.step(now, period, false);
+      for (std::size_t j = 0; j < 6; ++j)
+        arm.write(j, JointCommand{.request = PowerRequest::on, .velocity = j == 0 ? velocity : 0.0});
+      arm.step(now, period, true);
+    };
+    for (int k = 0; k < 100 && arm.truth().state != ArmControllerState::running; ++k)
+      control_cycle(0.008, 0.0);
+    ASSERT_EQ(arm.truth().state, ArmControllerState::running);
+    const double t0 = arm.truth().time;
+    control_cycle(0.008, 1.0);  // written after this step's four controller cycles
+    EXPECT_NEAR(arm.truth().time - t0, 0.008, 1e-12);
+    EXPECT_EQ(arm.truth().velocity[0], 0.0);
+    control_cycle(0.008, 1.0);
+    // Cycle 1 receives the command, cycles 2-4 apply it at the 8 rad/s² limit: 3 × 2 ms × 8 rad/s².
+    EXPECT_NEAR(arm.truth().velocity[0], 0.048, 1e-12);
+    EXPECT_NEAR(arm.truth().time - t0, 0.016, 1e-12);
+  }
+  {
+    SimulatedVelocityArm arm(ur5_simulated_arm());
+    arm.configure({});
+    Clock::time_point now{};
+    const double t0 = arm.truth().time;
+    for (int k = 1; k <= 10; ++k) {
+      now += std::chrono::microseconds(1000);
+      arm.step(now, 0.001, false);
+      EXPECT_NEAR(arm.truth().time - t0, 0.002 * (k / 2), 1e-12) << "step " << k;
+    }
+  }
+}
+
 TEST(SimulatedVelocityArm, VelocityFollowsFirstOrderWithinTheAccelerationLimit) {
   SteppedArm s;
   s.power_on();

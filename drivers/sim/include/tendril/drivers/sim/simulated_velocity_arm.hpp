@@ -4,8 +4,8 @@
 // reads joint feedback exactly as it would from an RTDE driver.
 //
 // What is simulated, per controller cycle (default 500 Hz, the UR e-series controller rate):
-//  * communication latency: a command is applied one controller period after the controller receives
-//    it (so in stepped simulation exactly one period after the control cycle wrote it);
+//  * communication latency: a command is received at the controller's first cycle after it was written
+//    and applied one controller period later (latency_periods);
 //  * joint response: each joint's velocity follows the (speed-clamped) command as a first-order system
 //    (time constant 20 ms) whose rate of change is limited by the joint's acceleration limit, and
 //    integrates (trapezoidally) to position; no torque model (effort reads 0);
@@ -25,8 +25,9 @@
 // Threads: read() and write() are called by the control thread; they only load and store LatestValue
 // slots (no lock, no allocation). The simulated controller runs either in its own periodic thread
 // (activate(): absolute deadlines with clock_nanosleep, SCHED_FIFO 70 when asked for and permitted) or,
-// in stepped simulation, in step(now, period, after_control = false); the state it owns is touched by
-// that one thread only.
+// in stepped simulation, in step(now, period, after_control = false), which runs every controller cycle
+// due in that period (four per step at the seed's 8 ms, one every other step at 1 ms); the state it
+// owns is touched by that one thread only.
 #pragma once
 
 #include <array>
@@ -161,6 +162,7 @@ class SimulatedVelocityArm final : public hardware::HardwareComponent, public ha
   ArmControllerState state_ = ArmControllerState::power_off;
   hardware::PowerRequest last_request_ = hardware::PowerRequest::off;
   double time_ = 0.0;
+  double unsimulated_time_ = 0.0;  // stepped simulation: time stepped but not yet a whole controller cycle
   double last_command_time_ = 0.0;
   double switch_on_elapsed_ = 0.0;
   std::uint32_t error_count_ = 0;
