@@ -11,7 +11,6 @@
 #include "allocation_counter.hpp"
 #include "tendril/drivers/sim/contact_surface.hpp"
 #include "tendril/drivers/sim/simulated_velocity_arm.hpp"
-#include "tendril/teleop/hybrid_force_controller.hpp"
 
 namespace tendril::sim {
 namespace {
@@ -304,66 +303,6 @@ TEST(SimulatedForceSensor, RunsInItsOwnThreadWhenActivated) {
   b.sensor.deactivate(std::chrono::milliseconds(100), {});
   EXPECT_FALSE(b.sensor.read().valid);
   EXPECT_FALSE(b.sensor.running());
-}
-
-// ---- the whole loop: the seed-002 controller on the simulated arm and sensor ----
-
-// The runtime's order in stepped simulation: every component's step(before), the control cycle reading
-// and writing the hardware interfaces, every component's step(after). The arm lags (20 ms), commands
-// arrive a period late, the sensor is noisy (0.01 N) and 2 ms late, the tissue is a 0.5 N/mm spring.
-TEST(SimulatedArmWithForceSensor, HybridControllerPressesTheProbeOnToTheTissueWithoutOvershoot) {
-  Bench b(SimulatedForceSensorParameters{}, 30.0, 0.5);
-  const teleop::HybridPositionForceController controller(teleop::HybridControlParameters{});
-  teleop::SerialArmData data = b.kinematics.make_data();
-  teleop::HybridControlState state;
-  // The surface point under the probe, 3 mm to the side.
-  teleop::HybridControlInputs in;
-  in.target = Eigen::Isometry3d::Identity();
-  {
-    teleop::ArmVector q = Eigen::Map<const teleop::ArmVector>(Bench::probe_down().data());
-    b.kinematics.forward_kinematics(q, data);
-    in.target.linear() = data.tool.linear();  // probe axis straight down
-    in.target.translation() = data.tool.translation() + Eigen::Vector3d(3.0, 0.0, -30.0);
-  }
-  double max_true_force = 0.0, sum_force = 0.0, first_acquire = -1.0;
-  int late_samples = 0;
-  for (int k = 0; k < 12500; ++k) {  // 25 s
-    b.now += std::chrono::microseconds(2000);
-    b.arm.step(b.now, kDt, false);
-    b.sensor.step(b.now, kDt, false);
-    // The control cycle.
-    for (std::size_t j = 0; j < 6; ++j) {
-      hardware::JointFeedback fb;
-      b.arm.read(j, fb);
-      in.q[static_cast<Eigen::Index>(j)] = fb.position;
-    }
-    const hardware::ForceReading f = b.sensor.read();
-    in.force = Eigen::Vector3d(f.force_n[0], f.force_n[1], f.force_n[2]);
-    in.force_valid = f.valid;
-    const bool powered = b.arm.truth().state == ArmControllerState::running;
-    const teleop::HybridControlOutput out = controller.step(b.kinematics, data, state, in, kDt);
-    for (std::size_t j = 0; j < 6; ++j) {
-      b.arm.write(j, hardware::JointCommand{
-                         .request = hardware::PowerRequest::on,
-                         .velocity = powered ? out.joint_velocity[static_cast<Eigen::Index>(j)] : 0.0});
-    }
-    b.arm.step(b.now, kDt, true);
-    b.sensor.step(b.now, kDt, true);
-    if (!powered) state.reset();  // the controller starts when the arm is on
-    const double true_force = -b.sensor.truth().force_sensor[2];
-    max_true_force = std::max(max_true_force, true_force);
-    if (k * kDt > 20.0) {
-      sum_force += true_force;
-      ++late_samples;
-    }
-    if (out.acquire && first_acquire < 0) first_acquire = k * kDt;
-  }
-  EXPECT_EQ(b.arm.truth().state, ArmControllerState::running);
-  EXPECT_LE(max_true_force, 0.85) << "REQ-CTRL-3: no overshoot beyond ~0.85 N";
-  EXPECT_NEAR(sum_force / late_samples, 0.8, 0.016) << "within 2 % of 0.8 N";
-  EXPECT_GT(first_acquire, 0.0) << "the acquisition gate opened";
-  RecordProperty("max_true_force_N", std::to_string(max_true_force));
-  RecordProperty("first_acquire_s", std::to_string(first_acquire));
 }
 
 }  // namespace
