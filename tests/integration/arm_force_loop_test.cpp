@@ -143,7 +143,7 @@ struct ProbeRig {
   ProbeControlCycle::Result cycle(const Eigen::Isometry3d& target) {
     now += std::chrono::microseconds(std::lround(dt * 1e6));
     for (hardware::HardwareComponent* c : components) c->step(now, dt, false);
-    const ProbeControlCycle::Result r = control.run(now, dt, target);
+    ProbeControlCycle::Result r = control.run(now, dt, target);
     for (hardware::HardwareComponent* c : components) c->step(now, dt, true);
     return r;
   }

@@ -138,7 +138,7 @@ TEST(SimulatedVelocityArm, SteppedControllerKeepsItsOwnRateWhateverTheControlPer
     for (int k = 1; k <= 10; ++k) {
       now += std::chrono::microseconds(1000);
       arm.step(now, 0.001, false);
-      EXPECT_NEAR(arm.truth().time - t0, 0.002 * (k / 2), 1e-12) << "step " << k;
+      EXPECT_NEAR(arm.truth().time - t0, 0.002 * std::floor(k / 2.0), 1e-12) << "step " << k;
     }
   }
 }
