@@ -1,0 +1,89 @@
+// The SIMULATED steerable catheter behind a virtual bus: the series-elastic plant (springs and
+// floating carriages on the bend drives, coupling, the vessel wall), the spring-deflection
+// potentiometers and the analog joystick as simulated CiA 401 ADC nodes on the same bus.
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+
+#include "steerable_catheter/catheter_simulation.hpp"
+#include "tendril/drivers/sim/simulated_analog_input_node.hpp"
+#include "tendril/drivers/sim/catheter_vessel_contact.hpp"
+#include "tendril/drivers/sim/simulated_analog_joystick.hpp"
+#include "tendril/drivers/sim/srmc_plant.hpp"
+
+namespace tendril::server {
+
+// Here, where CatheterSimulation is complete.
+SteerableCatheter::~SteerableCatheter() {
+  if (evdev_) evdev_->stop();
+}
+
+void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly::BusAccess& bus) {
+  const auto& s = settings_;
+  const std::string file = config_.file.string();
+  auto simulation = std::make_unique<CatheterSimulation>();
+  std::array<sim::SimulatedCia402Drive*, 4> drives{};
+  for (std::size_t j = 0; j < 4; ++j) {
+    drives[j] = assembly.simulated_drive(j);
+    if (!drives[j] || assembly.joint_bus(j) != bus.name)
+      throw ConfigError(file + ": catheter.simulation: the simulated plant needs all four drives simulated on bus '" +
+                        bus.name + "'");
+  }
+
+  sim::AnalogInputNodeParameters sensor;
+  sensor.node_id = s.deflection.node_id;
+  simulation->sensor_endpoint = bus.attach("sim:spring-deflection-adc");
+  simulation->sensor_node = std::make_unique<sim::SimulatedAnalogInputNode>(*simulation->sensor_endpoint, sensor);
+
+  sim::SrmcPlantParameters p;
+  p.spring_stiffness = s.simulation.spring_stiffness_n_per_mm;
+  p.tube_stiffness = s.simulation.tube_stiffness_n_per_mm;
+  p.potentiometer_noise = s.simulation.potentiometer_noise_mm;
+  p.coupling_mm_per_rad = s.rates.coupling_enabled ? s.rates.proximal_outer_radius * std::cos(s.rates.plane_offset) : 0.0;
+  p.potentiometer_volts_per_mm = s.deflection.volts_per_mm;
+  p.carriage_damping = s.simulation.carriage_damping_n_s_per_mm;
+  p.shape = assembled_shape(s);
+  simulation->plant = std::make_unique<sim::SrmcPlant>(drives, p);
+  simulation->plant->set_potentiometer_node(simulation->sensor_node.get());
+  if (s.simulation.vessel) {
+    vessel_ = vessel_centerline(*s.simulation.vessel);
+    lumen_radius_mm_ = s.simulation.vessel->lumen_radius_mm;
+    sim::CatheterVesselContactParameters cp;
+    cp.lumen_radius = lumen_radius_mm_;
+    cp.catheter_radius = s.simulation.catheter_outer_radius_mm;
+    cp.wall_stiffness = s.simulation.wall_stiffness_n_per_mm;
+    simulation->contact = std::make_unique<sim::CatheterVesselContact>(vessel_, assembled_shape(s), cp);
+    simulation->plant->set_vessel(simulation->contact.get());
+  }
+  bus.add_plant(simulation->plant.get());
+  bus.add_plant(simulation->sensor_node.get());
+  if (s.analog_joystick && s.simulation.analog_joystick_node) {
+    sim::AnalogJoystickNodeParameters j;
+    j.node_id = s.analog_joystick->node_id;
+    simulation->joystick_endpoint = bus.attach("sim:joystick-adc");
+    simulation->joystick_node = std::make_unique<sim::SimulatedAnalogJoystick>(*simulation->joystick_endpoint, j);
+    bus.add_plant(simulation->joystick_node.get());
+  }
+  simulation_ = std::move(simulation);
+}
+
+CatheterSimulationView SteerableCatheter::simulation_view() const noexcept {
+  CatheterSimulationView v;
+  if (!simulation_) return v;
+  const auto st = simulation_->plant->state();
+  v.present = true;
+  v.contact_force_n = st.contact_force;
+  v.max_contact_force_n = st.max_contact_force;
+  v.tip_bend_rad = st.tip_bend;
+  return v;
+}
+
+sim::SimulatedAnalogJoystick* SteerableCatheter::simulated_analog_joystick() noexcept {
+  return simulation_ ? simulation_->joystick_node.get() : nullptr;
+}
+
+sim::SimulatedAnalogInputNode* SteerableCatheter::simulated_spring_sensor() noexcept {
+  return simulation_ ? simulation_->sensor_node.get() : nullptr;
+}
+
+}  // namespace tendril::server
