@@ -69,6 +69,7 @@ std::string type_words(const json& type) {
     if (t == "integer") return std::string("an integer");
     if (t == "boolean") return std::string("true or false");
     if (t == "null") return std::string("null");
+    if (t == "number") return std::string("a finite number");  // NaN and infinities never pass
     return "a " + t;
   };
   if (type.is_string()) return one(type.get<std::string>());

@@ -136,10 +136,14 @@ std::vector<RobotDescription> RobotRuntime::robots() const {
     d.kind = r->config.kind;
     d.description = r->config.description;
     for (const auto& j : r->config.joints) d.joints.push_back(j.limit);
+    // Listed as an operator meets them: joint, the robot type's own modes, then path following (when
+    // the type's plans apply), whatever their ids.
     for (std::size_t i = 0; i < r->modes.size(); ++i) {
-      if (i == kPathFollowingMode && !r->plugin->path_following()) continue;
+      if (i == kPathFollowingMode) continue;
       d.modes.push_back({r->modes[i].name, r->modes[i].description});
     }
+    if (r->plugin->path_following())
+      d.modes.push_back({r->modes[kPathFollowingMode].name, r->modes[kPathFollowingMode].description});
     for (const auto* b : r->buses)
       d.buses.push_back({b->config.name, b->config.interface, b->virtual_bus != nullptr,
                          b->load + b->extra_bits_per_second / b->config.bitrate});

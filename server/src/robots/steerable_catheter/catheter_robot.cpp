@@ -57,8 +57,9 @@ void register_steerable_catheter(RobotTypes& types) { types.add(std::make_unique
 
 SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assembly) : config_(rc) {
   const std::string file = rc.file.string();
-  settings_ = parse_catheter_settings(rc);
+  // The kinematic model first: its error names the model that needs the four joints.
   display_ = make_catheter_display_model(rc.settings.value("kinematics", nlohmann::json::object()), rc.joints.size(), file);
+  settings_ = parse_catheter_settings(rc);
   if (const auto it = rc.settings.find("kinematics"); it != rc.settings.end()) {
     const auto g = it->find("bend_gain_rad_per_mm");
     if (g != it->end() && g->is_array() && g->size() == 2)
