@@ -28,8 +28,12 @@ int OperatingLimits::first_over_velocity(std::span<const double> v) const noexce
   return -1;
 }
 
-bool OperatingLimits::within_position(std::span<const double> q) const noexcept { return first_outside_position(q) < 0; }
-bool OperatingLimits::within_velocity(std::span<const double> v) const noexcept { return first_over_velocity(v) < 0; }
+bool OperatingLimits::within_position(std::span<const double> q) const noexcept {
+  return first_outside_position(q) < 0;
+}
+bool OperatingLimits::within_velocity(std::span<const double> v) const noexcept {
+  return first_over_velocity(v) < 0;
+}
 
 bool tightens(const OperatingLimits& t, const OperatingLimits& c, std::size_t joints, const LimitSet& names,
               std::string* why) {
@@ -38,17 +42,17 @@ bool tightens(const OperatingLimits& t, const OperatingLimits& c, std::size_t jo
     const auto& j = names[i];
     const std::string p = j.name + "/";
     if (t.lower[i] < c.lower[i])
-      out << p << "lower " << t.lower[i] << " " << j.unit << " is below the configured limit " << c.lower[i] << " "
-          << j.unit << ": limits may only be tightened";
+      out << p << "lower " << t.lower[i] << " " << j.unit << " is below the configured limit " << c.lower[i]
+          << " " << j.unit << ": limits may only be tightened";
     else if (t.upper[i] > c.upper[i])
-      out << p << "upper " << t.upper[i] << " " << j.unit << " is above the configured limit " << c.upper[i] << " "
-          << j.unit << ": limits may only be tightened";
+      out << p << "upper " << t.upper[i] << " " << j.unit << " is above the configured limit " << c.upper[i]
+          << " " << j.unit << ": limits may only be tightened";
     else if (t.lower[i] + 2 * j.soft_margin >= t.upper[i])
       out << p << "lower (" << t.lower[i] << ") must be below upper (" << t.upper[i]
           << ") by more than twice the soft margin (" << j.soft_margin << " " << j.unit << ")";
     else if (!(t.max_velocity[i] > 0) || t.max_velocity[i] > c.max_velocity[i])
-      out << p << "max_velocity " << t.max_velocity[i] << " " << j.unit << "/s must be above 0 and at most the configured "
-          << c.max_velocity[i] << " " << j.unit << "/s";
+      out << p << "max_velocity " << t.max_velocity[i] << " " << j.unit
+          << "/s must be above 0 and at most the configured " << c.max_velocity[i] << " " << j.unit << "/s";
   }
   if (out.tellp() == 0 && (!(t.servo_timeout_s >= 0.005) || t.servo_timeout_s > c.servo_timeout_s))
     out << "servo_timeout_s " << t.servo_timeout_s << " s must be between 0.005 s and the configured "

@@ -79,9 +79,11 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
       bc.bitrate = static_cast<std::uint32_t>(b.integer_in_or("bitrate", 10'000, 1'000'000, 1'000'000));
       bc.sync_period_us = static_cast<int>(b.integer_in_or("sync_period_us", 250, 100'000, 1000));
       bc.max_load = b.number_or("max_load", 0.7);
-      if (!(bc.max_load > 0 && bc.max_load <= 1)) b.fail("max_load", "a fraction in (0, 1]", b.raw("max_load"));
+      if (!(bc.max_load > 0 && bc.max_load <= 1))
+        b.fail("max_load", "a fraction in (0, 1]", b.raw("max_load"));
       bc.heartbeat_period_ms = static_cast<int>(b.integer_in_or("heartbeat_period_ms", 1, 10'000, 20));
-      bc.drive_heartbeat_period_ms = static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
+      bc.drive_heartbeat_period_ms =
+          static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
       bc.drive_heartbeat_timeout_ms = static_cast<int>(
           b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5L * bc.drive_heartbeat_period_ms));
       bc.master_heartbeat_timeout_ms = static_cast<int>(
@@ -107,12 +109,14 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
     JointConfig jc;
     auto& limit = jc.limit;
     limit.name = jr.string("name");
-    if (!joint_names.insert(limit.name).second) jr.fail("name", "a joint name not used before", jr.raw("name"));
+    if (!joint_names.insert(limit.name).second)
+      jr.fail("name", "a joint name not used before", jr.raw("name"));
     limit.unit = jr.string("unit");
     limit.lower = jr.number("lower");
     limit.upper = jr.number("upper");
     if (!(limit.upper > limit.lower))
-      jr.fail("upper", "a number greater than lower (" + nlohmann::json(limit.lower).dump() + ")", jr.raw("upper"));
+      jr.fail("upper", "a number greater than lower (" + nlohmann::json(limit.lower).dump() + ")",
+              jr.raw("upper"));
     limit.soft_margin = jr.non_negative_or("soft_margin", 0.0);
     if (2 * limit.soft_margin >= limit.upper - limit.lower)
       jr.fail("soft_margin", "less than half the range upper - lower", jr.raw("soft_margin"));
@@ -127,14 +131,17 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
       Reader d = jr.child("drive");
       DriveConfig drive;
       drive.bus = d.string("bus");
-      if (!bus_names.count(drive.bus)) d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
+      if (!bus_names.count(drive.bus))
+        d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
       drive.node_id = static_cast<int>(d.integer_in("node_id", 1, 126));
       if (!node_ids.insert({drive.bus, drive.node_id}).second)
         d.fail("node_id", "a node id not used by another joint on bus " + drive.bus, d.raw("node_id"));
       drive.counts_per_unit = d.positive("counts_per_unit");
-      drive.offset_counts = static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
+      drive.offset_counts =
+          static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
       // Positions must fit the 32-bit CiA 402 target with room to spare.
-      const double max_counts = std::max(std::abs(limit.lower), std::abs(limit.upper)) * drive.counts_per_unit;
+      const double max_counts =
+          std::max(std::abs(limit.lower), std::abs(limit.upper)) * drive.counts_per_unit;
       if (max_counts > 2.0e9)
         d.fail("counts_per_unit", "a resolution whose limits fit in 32-bit counts", d.raw("counts_per_unit"));
       jc.drive = drive;
@@ -142,19 +149,28 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
     limits.push_back(limit);
     rc.joints.push_back(std::move(jc));
   }
-  const bool some_drives = std::any_of(rc.joints.begin(), rc.joints.end(), [](const auto& jc) { return jc.drive; });
-  const bool all_drives = std::all_of(rc.joints.begin(), rc.joints.end(), [](const auto& jc) { return jc.drive; });
+  const bool some_drives =
+      std::any_of(rc.joints.begin(), rc.joints.end(), [](const auto& jc) { return jc.drive; });
+  const bool all_drives =
+      std::all_of(rc.joints.begin(), rc.joints.end(), [](const auto& jc) { return jc.drive; });
   if (some_drives && !all_drives)
-    r.fail("joints", "a drive for every joint or for none (then the robot type provides the joints)", nullptr);
+    r.fail("joints", "a drive for every joint or for none (then the robot type provides the joints)",
+           nullptr);
   // The one limit validator: the safety library's.
   try {
     safety::LimitSet check(limits);
   } catch (const std::invalid_argument& e) {
     throw ConfigError(file.string() + ": joints: " + e.what());
   }
-  static const std::set<std::string> core_keys = {"name",     "kind",       "description",        "control_rate_hz",
-                                                   "command_timeout_ms", "max_lost_control_ms",
-                                                   "enable_timeout_ms",  "joints",  "buses"};
+  static const std::set<std::string> core_keys = {"name",
+                                                  "kind",
+                                                  "description",
+                                                  "control_rate_hz",
+                                                  "command_timeout_ms",
+                                                  "max_lost_control_ms",
+                                                  "enable_timeout_ms",
+                                                  "joints",
+                                                  "buses"};
   for (const auto& [key, value] : j.items())
     if (!core_keys.count(key)) rc.settings[key] = value;
   return rc;

@@ -15,12 +15,34 @@ namespace {
 using nlohmann::json;
 
 const std::set<std::string>& known_keywords() {
-  static const std::set<std::string> keywords = {
-      "type",    "properties", "patternProperties", "additionalProperties", "required", "items", "minItems",
-      "maxItems", "enum",      "const",             "minimum",              "maximum",  "exclusiveMinimum",
-      "exclusiveMaximum",      "minLength",         "maxLength",            "pattern",  "anyOf", "oneOf",
-      "$ref",    "$defs",      "title",             "description",          "default",  "examples",
-      "$schema", "$id",        "$comment"};
+  static const std::set<std::string> keywords = {"type",
+                                                 "properties",
+                                                 "patternProperties",
+                                                 "additionalProperties",
+                                                 "required",
+                                                 "items",
+                                                 "minItems",
+                                                 "maxItems",
+                                                 "enum",
+                                                 "const",
+                                                 "minimum",
+                                                 "maximum",
+                                                 "exclusiveMinimum",
+                                                 "exclusiveMaximum",
+                                                 "minLength",
+                                                 "maxLength",
+                                                 "pattern",
+                                                 "anyOf",
+                                                 "oneOf",
+                                                 "$ref",
+                                                 "$defs",
+                                                 "title",
+                                                 "description",
+                                                 "default",
+                                                 "examples",
+                                                 "$schema",
+                                                 "$id",
+                                                 "$comment"};
   return keywords;
 }
 
@@ -56,8 +78,9 @@ bool type_matches(const std::string& type, const json& value) {
   if (type == "string") return value.is_string();
   if (type == "boolean") return value.is_boolean();
   if (type == "null") return value.is_null();
-  if (type == "integer") return value.is_number_integer() || (value.is_number_float() && std::isfinite(value.get<double>()) &&
-                                                                  std::floor(value.get<double>()) == value.get<double>());
+  if (type == "integer")
+    return value.is_number_integer() || (value.is_number_float() && std::isfinite(value.get<double>()) &&
+                                         std::floor(value.get<double>()) == value.get<double>());
   if (type == "number") return value.is_number() && std::isfinite(value.get<double>());
   return false;
 }
@@ -125,8 +148,8 @@ class Validator {
         return fail(path, "a string of at least " + it->dump() + " characters", value);
       if (const auto it = s.find("maxLength"); it != s.end() && text.size() > it->get<std::size_t>())
         return fail(path, "a string of at most " + it->dump() + " characters", value);
-      if (const auto it = s.find("pattern"); it != s.end() &&
-                                             !std::regex_search(text, std::regex(it->get<std::string>())))
+      if (const auto it = s.find("pattern");
+          it != s.end() && !std::regex_search(text, std::regex(it->get<std::string>())))
         return fail(path, "a string matching " + it->get<std::string>(), value);
     }
     if (value.is_array()) {
@@ -174,7 +197,8 @@ class Validator {
     const json* s = &schema;
     for (int depth = 0; depth < 16 && s->is_object() && s->contains("$ref"); ++depth) {
       const auto ref = (*s)["$ref"].get<std::string>();
-      if (ref.rfind("#/$defs/", 0) != 0) throw std::invalid_argument("schema: only local $ref \"#/$defs/...\"");
+      if (ref.rfind("#/$defs/", 0) != 0)
+        throw std::invalid_argument("schema: only local $ref \"#/$defs/...\"");
       s = &root_.at("$defs").at(ref.substr(8));
     }
     return *s;
@@ -182,7 +206,8 @@ class Validator {
 
   static std::string where(const std::string& path) { return path.empty() ? std::string("top level") : path; }
 
-  static std::optional<std::string> fail(const std::string& path, const std::string& expected, const json& got) {
+  static std::optional<std::string> fail(const std::string& path, const std::string& expected,
+                                         const json& got) {
     return where(path) + ": expected " + expected + ", got " + shown(got);
   }
 
@@ -251,7 +276,8 @@ void check_keywords(const json& schema, const std::string& where) {
     } else if (key == "items" || key == "additionalProperties") {
       check_keywords(value, where + "/" + key);
     } else if (key == "anyOf" || key == "oneOf") {
-      for (std::size_t i = 0; i < value.size(); ++i) check_keywords(value[i], where + "/" + key + "/" + std::to_string(i));
+      for (std::size_t i = 0; i < value.size(); ++i)
+        check_keywords(value[i], where + "/" + key + "/" + std::to_string(i));
     } else if (key == "pattern") {
       (void)std::regex(value.get<std::string>());  // throws on a bad pattern
     }

@@ -282,7 +282,8 @@ BackboneReader backbone_from(const RobotService& service, std::string robot) {
     const auto robots = service.robots();
     if (!robots.empty()) robot = robots[0].name;
   }
-  if (!service.has_robot(robot)) throw ConfigError("imaging.robot: no robot named '" + robot + "' is configured");
+  if (!service.has_robot(robot))
+    throw ConfigError("imaging.robot: no robot named '" + robot + "' is configured");
   return [&service, robot](std::vector<Eigen::Vector3d>& out) {
     const auto shape = service.shape(robot);
     if (!shape) return false;

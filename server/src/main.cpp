@@ -17,10 +17,10 @@
 
 #include "tendril/drivers/canopen/master.hpp"
 #include "tendril/server/config.hpp"
-#include "tendril/server/http/http_server.hpp"
-#include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/config_schema.hpp"
 #include "tendril/server/http/control_json.hpp"
+#include "tendril/server/http/http_server.hpp"
+#include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/planning_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/server/robot_types.hpp"
@@ -148,7 +148,8 @@ int main(int argc, char** argv) {
     // schema of each robot file.
     std::map<std::string, nlohmann::json> schemas;
     for (const auto& rc : config.robots)
-      if (const auto* type = types.find(rc.kind)) schemas[rc.name] = robot_schema(type->settings_schema(), rc.kind);
+      if (const auto* type = types.find(rc.kind))
+        schemas[rc.name] = robot_schema(type->settings_schema(), rc.kind);
     JsonControlApi api(
         runtime, [&runtime](const std::string& robot) { return runtime.api_extension(robot); },
         [&schemas](const std::string& robot) -> std::optional<nlohmann::json> {

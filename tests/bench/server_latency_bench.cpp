@@ -47,9 +47,9 @@
 
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/server/config.hpp"
+#include "tendril/server/http/control_json.hpp"
 #include "tendril/server/http/foxglove_protocol.hpp"
 #include "tendril/server/http/http_server.hpp"
-#include "tendril/server/http/control_json.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/server/robot_types.hpp"
 

@@ -9,11 +9,11 @@
 #include <numbers>
 #include <random>
 
-#include "tendril/drivers/sim/simulated_side_view_camera.hpp"
+#include "json_api.hpp"
 #include "steerable_catheter/calibration_job.hpp"
 #include "steerable_catheter/calibration_request.hpp"
+#include "tendril/drivers/sim/simulated_side_view_camera.hpp"
 #include "tendril/server/imaging_worker.hpp"
-#include "json_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
 namespace tendril::server {
@@ -150,7 +150,8 @@ TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
   ASSERT_EQ(result["written"]["file"], file.string());
   EXPECT_EQ(result["written"]["key"], "catheter.model.proximal_shape_matrix");
   // The old file is untouched; the new one carries the matrix and loads into a runtime.
-  EXPECT_FALSE(load_robot_config(dir / "srmc.json").settings["catheter"]["model"].contains("proximal_shape_matrix"));
+  EXPECT_FALSE(
+      load_robot_config(dir / "srmc.json").settings["catheter"]["model"].contains("proximal_shape_matrix"));
   const auto calibrated = load_robot_config(file);
   EXPECT_EQ(calibrated.settings["catheter"]["model"]["proximal_shape_matrix"], result["shape_matrix"]);
   RuntimeOptions o;

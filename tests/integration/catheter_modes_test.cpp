@@ -9,9 +9,9 @@
 #include <filesystem>
 #include <numbers>
 
+#include "json_api.hpp"
 #include "tendril/drivers/sim/simulated_analog_joystick.hpp"
 #include "tendril/server/config.hpp"
-#include "json_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
 namespace tendril::server {
@@ -39,7 +39,8 @@ class CatheterTest : public ::testing::Test {
     RuntimeOptions o;
     o.stepped = true;
     o.control_rate_hz = 1000;
-    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o, builtin_robot_types());
+    runtime =
+        std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o, builtin_robot_types());
     api = json_api(*runtime);
     runtime->start();
     steps(50);  // first PDOs from the drives and the ADC nodes
@@ -147,10 +148,13 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   steps(5);
   ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
   // Joint commands are for joint mode; configuration goals for configuration mode.
-  EXPECT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 0.2}}}}).status, 409);
+  EXPECT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 0.2}}}}).status,
+            409);
   mode("configuration");
   EXPECT_EQ(api->move_jp("srmc", {{"goal", {10.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
-  EXPECT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 170 * kDeg}}}}).status, 422);
+  EXPECT_EQ(
+      api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 170 * kDeg}}}}).status,
+      422);
   EXPECT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"yaw", 0.1}}}}).status, 400);
   max_step = {};
   const auto r = api->robot_command(
@@ -173,7 +177,9 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   for (std::size_t j = 0; j < 4; ++j) EXPECT_LE(max_step[j], vmax[j] * 0.001 * 1.05) << "joint " << j;
   // Coupling compensation (4.15/4.21) moves the distal drive when only the proximal bend changes.
   const double q4_before = setpoint()[3];
-  ASSERT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 10 * kDeg}}}}).status, 202);
+  ASSERT_EQ(
+      api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 10 * kDeg}}}}).status,
+      202);
   steps(5);
   ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
   EXPECT_GT(std::abs(setpoint()[3] - q4_before), 0.01);
@@ -183,7 +189,8 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
 TEST_F(CatheterTest, TelemanipulationMovesOnlyWhileTheDeadmanIsHeld) {
   start(free_space_srmc());
   enable();
-  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0.5, 0}}, {"deadman", true}}).code, "wrong_mode");
+  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0.5, 0}}, {"deadman", true}}).code,
+            "wrong_mode");
   mode("telemanipulation");
   const auto q0 = setpoint();
   joystick({0, 0, 0.5, 0}, false, 500);
@@ -196,7 +203,8 @@ TEST_F(CatheterTest, TelemanipulationMovesOnlyWhileTheDeadmanIsHeld) {
   const double after = setpoint()[2];
   steps(400);
   EXPECT_LT(setpoint()[2] - after, 0.5 * 1.0 * 0.16);
-  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 1.5, 0}}, {"deadman", true}}).status, 422);
+  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 1.5, 0}}, {"deadman", true}}).status,
+            422);
   EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0}}, {"deadman", true}}).status, 422);
 }
 
@@ -230,9 +238,9 @@ TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
 RobotConfig channel_srmc(double deflection_limit_mm) {
   auto c = load_robot_config(kSrmc);
   c.settings["catheter"]["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in},
-                                        {"bend_radius_mm", kChannel.bend_radius},
-                                        {"turn_deg", kChannel.turn_deg},
-                                        {"lumen_radius_mm", kChannel.lumen}};
+                                                    {"bend_radius_mm", kChannel.bend_radius},
+                                                    {"turn_deg", kChannel.turn_deg},
+                                                    {"lumen_radius_mm", kChannel.lumen}};
   c.settings["catheter"]["spring_deflection"]["limit_mm"] = deflection_limit_mm;
   // A potentiometer range that can read the passive run's deflection (±10 mm over 0–5 V).
   c.settings["catheter"]["spring_deflection"]["volts_per_mm"] = 0.24;

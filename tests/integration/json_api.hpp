@@ -12,8 +12,8 @@
 namespace tendril::server {
 
 inline std::unique_ptr<JsonControlApi> json_api(RobotRuntime& runtime) {
-  return std::make_unique<JsonControlApi>(runtime,
-                                          [&runtime](const std::string& robot) { return runtime.api_extension(robot); });
+  return std::make_unique<JsonControlApi>(
+      runtime, [&runtime](const std::string& robot) { return runtime.api_extension(robot); });
 }
 
 // The steerable catheter robot `robot` of a runtime (its simulated ADC nodes, for tests).

@@ -10,8 +10,8 @@
 #include <filesystem>
 #include <string>
 
-#include "tendril/drivers/sim/simulated_drive.hpp"
 #include "json_api.hpp"
+#include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
@@ -31,7 +31,8 @@ class LoopTimingTest : public ::testing::Test {
     RuntimeOptions o;
     o.stepped = true;
     o.control_rate_hz = 1000;
-    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o, builtin_robot_types());
+    runtime =
+        std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o, builtin_robot_types());
     api = json_api(*runtime);
     runtime->start();
     steps(50);

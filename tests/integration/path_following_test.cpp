@@ -11,9 +11,9 @@
 #include <sstream>
 #include <thread>
 
-#include "tendril/server/config.hpp"
-#include "steerable_catheter/planning_service.hpp"
 #include "json_api.hpp"
+#include "steerable_catheter/planning_service.hpp"
+#include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
@@ -45,7 +45,8 @@ class PathFollowingTest : public ::testing::Test {
     o.stepped = true;
     o.control_rate_hz = 1000;
     config = load_robot_config(kSrmc);
-    config.settings["catheter"]["simulation"].erase("vessel");  // free space: these bends would touch the wall
+    config.settings["catheter"]["simulation"].erase(
+        "vessel");  // free space: these bends would touch the wall
     runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o, builtin_robot_types());
     api = json_api(*runtime);
     runtime->start();

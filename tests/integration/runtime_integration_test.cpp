@@ -5,10 +5,10 @@
 #include <cmath>
 #include <filesystem>
 
+#include "json_api.hpp"
 #include "tendril/drivers/canopen/protocol.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/server/config.hpp"
-#include "json_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
 namespace tendril::server {
@@ -23,7 +23,8 @@ class RuntimeTest : public ::testing::Test {
     o.stepped = true;
     o.control_rate_hz = 1000;
     auto config = load_robot_config(kSrmc);
-    config.settings["catheter"]["simulation"].erase("vessel");  // free space: these bends would touch the wall
+    config.settings["catheter"]["simulation"].erase(
+        "vessel");  // free space: these bends would touch the wall
     runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o, builtin_robot_types());
     api = json_api(*runtime);
     tap = runtime->tap_bus("can0");

@@ -22,7 +22,8 @@ hardware::PowerState power_state(Cia402State state) noexcept {
   return PowerState::off;
 }
 
-Cia402Joints::Cia402Joints(std::vector<std::pair<CanopenMaster*, std::size_t>> drives) : drives_(std::move(drives)) {}
+Cia402Joints::Cia402Joints(std::vector<std::pair<CanopenMaster*, std::size_t>> drives)
+    : drives_(std::move(drives)) {}
 
 // The master maps RPDO1 to controlword + target position (cyclic synchronous position), so every
 // drive it runs is a position joint.

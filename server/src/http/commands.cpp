@@ -17,7 +17,8 @@ ApiResult HttpServer::Impl::execute(const CommandRef& command, const std::string
     }
   }
   if (who.role != Role::kOperator) {
-    return ApiResult::error(403, "forbidden_role", "this session is a viewer (read-only); only operators command");
+    return ApiResult::error(403, "forbidden_role",
+                            "this session is a viewer (read-only); only operators command");
   }
   const bool needs_robot = command.kind != Command::kEstopReset;
   if (needs_robot && !api.has_robot(robot)) return unknown_robot_result(robot);
@@ -51,7 +52,8 @@ ApiResult HttpServer::Impl::execute(const CommandRef& command, const std::string
           for (const auto& info : api.robot_commands(robot)) {
             if (info.name != command.name || info.motion_flag.empty()) continue;
             const auto flag = body.find(info.motion_flag);
-            if (flag != body.end() && flag->is_boolean() && flag->get<bool>()) note_servo(*generation, SteadyClock::now());
+            if (flag != body.end() && flag->is_boolean() && flag->get<bool>())
+              note_servo(*generation, SteadyClock::now());
           }
         }
         return result;

@@ -49,7 +49,11 @@ json stamp(double t) {
 }
 
 json joint_state_json(const JointStateView& v) {
-  return {{"name", v.name}, {"position", v.position}, {"velocity", v.velocity}, {"effort", v.effort}, {"timestamp", v.timestamp}};
+  return {{"name", v.name},
+          {"position", v.position},
+          {"velocity", v.velocity},
+          {"effort", v.effort},
+          {"timestamp", v.timestamp}};
 }
 
 // Reads body[key] as an array of numbers (sizes and finiteness are the service's to check, so its
@@ -59,17 +63,20 @@ std::optional<ApiResult> read_numbers(const json& body, const char* key, std::ve
     return ApiResult::error(400, "bad_request",
                             std::string("expected a JSON object with \"") + key + "\": an array of numbers");
   const auto& v = body.at(key);
-  if (!v.is_array()) return ApiResult::error(400, "bad_request", std::string("\"") + key + "\" must be an array of numbers");
+  if (!v.is_array())
+    return ApiResult::error(400, "bad_request", std::string("\"") + key + "\" must be an array of numbers");
   for (std::size_t i = 0; i < v.size(); ++i) {
     if (!v[i].is_number())
-      return ApiResult::error(400, "bad_request", std::string("\"") + key + "\"[" + std::to_string(i) + "] is not a number");
+      return ApiResult::error(400, "bad_request",
+                              std::string("\"") + key + "\"[" + std::to_string(i) + "] is not a number");
     out.push_back(v[i].get<double>());
   }
   return std::nullopt;
 }
 
 std::optional<Eigen::Vector3d> read_point(const json& p) {
-  if (!p.is_array() || p.size() != 3 || !p[0].is_number() || !p[1].is_number() || !p[2].is_number()) return std::nullopt;
+  if (!p.is_array() || p.size() != 3 || !p[0].is_number() || !p[1].is_number() || !p[2].is_number())
+    return std::nullopt;
   Eigen::Vector3d v(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
   if (!v.allFinite()) return std::nullopt;
   return v;
@@ -83,11 +90,13 @@ std::optional<ApiResult> read_pose(const json& body, CartesianPose& pose) {
   const auto position = read_point(body["position"]);
   if (!position) return ApiResult::error(422, "bad_pose", "\"position\" must be 3 finite numbers (mm)");
   const auto& o = body["orientation"];
-  if (!o.is_array() || o.size() != 4 || !std::all_of(o.begin(), o.end(), [](const json& x) { return x.is_number(); }))
+  if (!o.is_array() || o.size() != 4 ||
+      !std::all_of(o.begin(), o.end(), [](const json& x) { return x.is_number(); }))
     return ApiResult::error(422, "bad_pose", "\"orientation\" must be a quaternion [qx, qy, qz, qw]");
   Eigen::Quaterniond q(o[3].get<double>(), o[0].get<double>(), o[1].get<double>(), o[2].get<double>());
   if (!q.coeffs().allFinite() || std::abs(q.norm() - 1.0) > 1e-3)
-    return ApiResult::error(422, "bad_pose", "\"orientation\" must be a finite unit quaternion (norm 1 ± 0.001)");
+    return ApiResult::error(422, "bad_pose",
+                            "\"orientation\" must be a finite unit quaternion (norm 1 ± 0.001)");
   pose.position = *position;
   pose.orientation = q.normalized();
   return std::nullopt;
@@ -102,8 +111,12 @@ json pose_json(const PoseView& p) {
 }
 
 json hold_json(const HoldView& h) {
-  return {{"cause", h.cause}, {"message", h.message}, {"joint", h.joint.empty() ? json(nullptr) : json(h.joint)},
-          {"cleared", h.cleared}, {"next", h.next}, {"allowed", h.allowed}};
+  return {{"cause", h.cause},
+          {"message", h.message},
+          {"joint", h.joint.empty() ? json(nullptr) : json(h.joint)},
+          {"cleared", h.cleared},
+          {"next", h.next},
+          {"allowed", h.allowed}};
 }
 
 json state_json(const OperatingStateView& v) {
@@ -134,7 +147,7 @@ json state_json(const OperatingStateView& v) {
 }
 
 json event_json(const SafetyEventView& e) {
-  json j = {{"time", e.time}, {"robot", e.robot}, {"kind", e.kind}, {"code", e.code},
+  json j = {{"time", e.time}, {"robot", e.robot}, {"kind", e.kind},      {"code", e.code},
             {"from", e.from}, {"to", e.to},       {"message", e.message}};
   if (!e.joint.empty()) j["joint"] = e.joint;
   return j;
@@ -187,14 +200,15 @@ json scene_update(const std::string& robot, const ShapeView& shape, const PoseVi
       {{R.col(0), {1, 0.2, 0.2}}, {R.col(1), {0.2, 1, 0.2}}, {R.col(2), {0.3, 0.5, 1}}}};
   for (const auto& [axis, c] : axes) {
     const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitX(), axis);
-    arrows.push_back(json{{"pose",
-                           {{"position", {{"x", tip.position.x()}, {"y", tip.position.y()}, {"z", tip.position.z()}}},
-                            {"orientation", {{"x", q.x()}, {"y", q.y()}, {"z", q.z()}, {"w", q.w()}}}}},
-                          {"shaft_length", 4.0},
-                          {"shaft_diameter", 0.3},
-                          {"head_length", 1.0},
-                          {"head_diameter", 0.8},
-                          {"color", {{"r", c[0]}, {"g", c[1]}, {"b", c[2]}, {"a", 1}}}});
+    arrows.push_back(
+        json{{"pose",
+              {{"position", {{"x", tip.position.x()}, {"y", tip.position.y()}, {"z", tip.position.z()}}},
+               {"orientation", {{"x", q.x()}, {"y", q.y()}, {"z", q.z()}, {"w", q.w()}}}}},
+             {"shaft_length", 4.0},
+             {"shaft_diameter", 0.3},
+             {"head_length", 1.0},
+             {"head_diameter", 0.8},
+             {"color", {{"r", c[0]}, {"g", c[1]}, {"b", c[2]}, {"a", 1}}}});
   }
   json tip_entity = backbone;
   tip_entity["id"] = robot + "/tip_frame";
@@ -221,7 +235,9 @@ void add_path_entities(const std::string& robot, const PathView& path, json& msg
   if (path.tips.size() >= 2) line("planned_path", path.tips, 0.5, {0.3, 0.9, 0.4, 1.0});
 }
 
-json parameter_json(const Parameter& p) { return {{"name", p.name}, {"value", p.value}, {"type", "float64"}}; }
+json parameter_json(const Parameter& p) {
+  return {{"name", p.name}, {"value", p.value}, {"type", "float64"}};
+}
 
 }  // namespace
 
@@ -245,20 +261,16 @@ json JsonControlApi::robots() const {
                             {"max_acceleration", j.max_acceleration}});
     auto buses = json::array();
     for (const auto& b : d.buses)
-      buses.push_back(json{{"name", b.name}, {"interface", b.interface}, {"simulated", b.simulated}, {"load", b.load}});
+      buses.push_back(
+          json{{"name", b.name}, {"interface", b.interface}, {"simulated", b.simulated}, {"load", b.load}});
     auto modes = json::array();
     for (const auto& m : d.modes) modes.push_back(m.name);
     auto commands = json::array();
     for (const auto& c : robot_commands(d.name)) commands.push_back(c.name);
-    json robot = {{"name", d.name},
-                  {"kind", d.kind},
-                  {"description", d.description},
-                  {"joints", joints},
-                  {"modes", modes},
-                  {"buses", buses},
-                  {"commands", commands},
-                  {"cartesian", d.cartesian},
-                  {"command_timeout_ms", d.command_timeout_ms}};
+    json robot = {
+        {"name", d.name},       {"kind", d.kind},           {"description", d.description},
+        {"joints", joints},     {"modes", modes},           {"buses", buses},
+        {"commands", commands}, {"cartesian", d.cartesian}, {"command_timeout_ms", d.command_timeout_ms}};
     if (auto* ext = extension(d.name)) ext->describe(robot);
     out.push_back(std::move(robot));
   }
@@ -330,9 +342,10 @@ ApiResult JsonControlApi::operating_state(const std::string& robot) const {
 
 ApiResult JsonControlApi::state_command(const std::string& robot, const json& body) {
   if (!body.is_object() || !body.contains("command") || !body["command"].is_string())
-    return ApiResult::error(400, "bad_request",
-                            "expected {\"command\": \"enable\" | \"disable\" | \"pause\" | \"resume\" | \"home\"} or one "
-                            "of the robot type's own commands");
+    return ApiResult::error(
+        400, "bad_request",
+        "expected {\"command\": \"enable\" | \"disable\" | \"pause\" | \"resume\" | \"home\"} or one "
+        "of the robot type's own commands");
   if (!service_.has_robot(robot)) return to_api_result(unknown_robot(robot));
   const auto cmd = body["command"].get<std::string>();
   StateRequest request;
@@ -411,10 +424,12 @@ ApiResult JsonControlApi::servo_cp(const std::string& robot, const json& body) {
 ApiResult JsonControlApi::servo_cv(const std::string& robot, const json& body) {
   if (!service_.has_robot(robot)) return to_api_result(unknown_robot(robot));
   const auto linear = body.is_object() && body.contains("linear") ? read_point(body["linear"]) : std::nullopt;
-  const auto angular = body.is_object() && body.contains("angular") ? read_point(body["angular"]) : std::nullopt;
+  const auto angular =
+      body.is_object() && body.contains("angular") ? read_point(body["angular"]) : std::nullopt;
   if (!linear || !angular)
-    return ApiResult::error(400, "bad_request",
-                            "expected {\"linear\": [vx, vy, vz] (mm/s), \"angular\": [wx, wy, wz] (rad/s)}, finite");
+    return ApiResult::error(
+        400, "bad_request",
+        "expected {\"linear\": [vx, vy, vz] (mm/s), \"angular\": [wx, wy, wz] (rad/s)}, finite");
   CartesianTwist twist;
   twist.linear = *linear;
   twist.angular = *angular;
@@ -549,17 +564,19 @@ std::optional<json> JsonControlApi::topic_message(const std::string& topic, std:
   } else if (leaf == "diagnostics") {
     auto d = service_.diagnostics(robot);
     if (!d) return std::nullopt;
-    msg = {{"timestamp", stamp(d->timestamp)},
-           // The loop statistics keep the deviation from the nominal period (jitter), not the period.
-           {"nominal_period_us", d->nominal_period_us},
-           {"period_us", {{"p50", d->period_error_p50_us}, {"p99", d->period_error_p99_us}, {"max", d->period_error_max_us}}},
-           {"work_us", {{"p50", d->work_p50_us}, {"p99", d->work_p99_us}, {"max", d->work_max_us}}},
-           {"overruns", d->overruns},
-           {"late_cycles", d->late_cycles},
-           {"lost_max_us", d->lost_max_us},
-           {"bus_load", d->bus_load},
-           {"setpoint", d->setpoint},
-           {"measured", d->measured}};
+    msg = {
+        {"timestamp", stamp(d->timestamp)},
+        // The loop statistics keep the deviation from the nominal period (jitter), not the period.
+        {"nominal_period_us", d->nominal_period_us},
+        {"period_us",
+         {{"p50", d->period_error_p50_us}, {"p99", d->period_error_p99_us}, {"max", d->period_error_max_us}}},
+        {"work_us", {{"p50", d->work_p50_us}, {"p99", d->work_p99_us}, {"max", d->work_max_us}}},
+        {"overruns", d->overruns},
+        {"late_cycles", d->late_cycles},
+        {"lost_max_us", d->lost_max_us},
+        {"bus_load", d->bus_load},
+        {"setpoint", d->setpoint},
+        {"measured", d->measured}};
     key = std::to_string(static_cast<std::int64_t>(d->timestamp * 10.0));  // 10 Hz
   } else {
     return std::nullopt;
@@ -582,13 +599,15 @@ ApiResult JsonControlApi::load_path(const std::string& robot, const json& plan, 
   constexpr std::size_t kMaxSteps = 10000;
   if (steps.size() > kMaxSteps)
     return ApiResult::error(422, "too_many_steps",
-                            "the plan has " + std::to_string(steps.size()) + " steps; at most " + std::to_string(kMaxSteps) +
-                                " are accepted");
+                            "the plan has " + std::to_string(steps.size()) + " steps; at most " +
+                                std::to_string(kMaxSteps) + " are accepted");
   for (std::size_t k = 0; k < steps.size(); ++k) {
     const std::string which = "step " + std::to_string(k);
-    if (!steps[k].is_object()) return ApiResult::error(400, "bad_request", which + ": expected an object with \"q\"");
+    if (!steps[k].is_object())
+      return ApiResult::error(400, "bad_request", which + ": expected an object with \"q\"");
     std::vector<double> q;
-    if (auto e = read_numbers(steps[k], "q", q)) return ApiResult::error(e->status, e->code, which + ": " + e->message);
+    if (auto e = read_numbers(steps[k], "q", q))
+      return ApiResult::error(e->status, e->code, which + ": " + e->message);
     typed.steps.push_back(std::move(q));
     if (steps[k].contains("backbone") && steps[k]["backbone"].is_array() && !steps[k]["backbone"].empty())
       if (auto tip = read_point(steps[k]["backbone"].back())) typed.tips.push_back(*tip);
@@ -599,7 +618,8 @@ ApiResult JsonControlApi::load_path(const std::string& robot, const json& plan, 
   const auto count = typed.steps.size();
   auto r = service_.load_path(robot, std::move(typed));
   if (!r) return failed(r);
-  return ApiResult::success({{"steps", count}, {"step", -1}, {"plan", plan_id.empty() ? json() : json(plan_id)}});
+  return ApiResult::success(
+      {{"steps", count}, {"step", -1}, {"plan", plan_id.empty() ? json() : json(plan_id)}});
 }
 
 ApiResult JsonControlApi::path_step(const std::string& robot, const json& body) {
@@ -652,7 +672,8 @@ ApiResult JsonControlApi::set_parameters(const json& list) {
     const auto value = item.find("value");
     if (value != item.end() && !value->is_null()) {
       if (!value->is_number())
-        return ApiResult::error(400, "bad_parameter", "parameter " + change.name + ": value must be a number");
+        return ApiResult::error(400, "bad_parameter",
+                                "parameter " + change.name + ": value must be a number");
       change.value = value->get<double>();
     }
     changes.push_back(std::move(change));

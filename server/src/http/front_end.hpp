@@ -84,7 +84,7 @@ enum class Command {
 };
 struct CommandRef {
   Command kind = Command::kAuthorizeOnly;
-  std::string name;  // the robot type's command (kRobotCommand)
+  std::string name;                   // the robot type's command (kRobotCommand)
   CommandRef(Command k) : kind(k) {}  // NOLINT(google-explicit-constructor)
   CommandRef(Command k, std::string n) : kind(k), name(std::move(n)) {}
 };

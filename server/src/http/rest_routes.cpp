@@ -57,14 +57,11 @@ StringResponse origin_refusal(const Request& req) {
 // types' own, ControlApi::robot_commands()).
 using Getter = ApiResult (ControlApi::*)(const std::string&) const;
 const std::map<std::string, Getter>& robot_getters() {
-  static const std::map<std::string, Getter> getters = {{"measured_js", &ControlApi::measured_js},
-                                                        {"setpoint_js", &ControlApi::setpoint_js},
-                                                        {"measured_cp", &ControlApi::measured_cp},
-                                                        {"measured_cv", &ControlApi::measured_cv},
-                                                        {"measured_cf", &ControlApi::measured_cf},
-                                                        {"shape", &ControlApi::shape},
-                                                        {"operating_state", &ControlApi::operating_state},
-                                                        {"schema", &ControlApi::robot_schema}};
+  static const std::map<std::string, Getter> getters = {
+      {"measured_js", &ControlApi::measured_js},         {"setpoint_js", &ControlApi::setpoint_js},
+      {"measured_cp", &ControlApi::measured_cp},         {"measured_cv", &ControlApi::measured_cv},
+      {"measured_cf", &ControlApi::measured_cf},         {"shape", &ControlApi::shape},
+      {"operating_state", &ControlApi::operating_state}, {"schema", &ControlApi::robot_schema}};
   return getters;
 }
 

@@ -17,10 +17,13 @@ json service_schema(const json& properties, const std::vector<std::string>& requ
 }  // namespace
 
 const std::map<std::string, Command>& core_robot_commands() {
-  static const std::map<std::string, Command> commands = {
-      {"state_command", Command::kStateCommand}, {"mode", Command::kMode},         {"move_jp", Command::kMoveJp},
-      {"servo_jv", Command::kServoJv},           {"move_cp", Command::kMoveCp},     {"servo_cp", Command::kServoCp},
-      {"servo_cv", Command::kServoCv}};
+  static const std::map<std::string, Command> commands = {{"state_command", Command::kStateCommand},
+                                                          {"mode", Command::kMode},
+                                                          {"move_jp", Command::kMoveJp},
+                                                          {"servo_jv", Command::kServoJv},
+                                                          {"move_cp", Command::kMoveCp},
+                                                          {"servo_cp", Command::kServoCp},
+                                                          {"servo_cv", Command::kServoCv}};
   return commands;
 }
 
@@ -28,7 +31,8 @@ std::vector<ServiceDef> service_definitions(const ControlApi& api) {
   const json robot = {{"type", "string"}};
   const json numbers = {{"type", "array"}, {"items", {{"type", "number"}}}};
   const json point = {{"type", "array"}, {"items", {{"type", "number"}}}, {"minItems", 3}, {"maxItems", 3}};
-  const json quaternion = {{"type", "array"}, {"items", {{"type", "number"}}}, {"minItems", 4}, {"maxItems", 4}};
+  const json quaternion = {
+      {"type", "array"}, {"items", {{"type", "number"}}}, {"minItems", 4}, {"maxItems", 4}};
   std::vector<ServiceDef> defs = {
       {1, "state_command", CommandRef(Command::kStateCommand), true,
        service_schema({{"robot", robot}, {"command", {{"type", "string"}}}}, {"robot", "command"})},
@@ -49,7 +53,8 @@ std::vector<ServiceDef> service_definitions(const ControlApi& api) {
        service_schema({{"robot", robot}, {"position", point}, {"orientation", quaternion}},
                       {"robot", "position", "orientation"})},
       {10, "servo_cv", CommandRef(Command::kServoCv), true,
-       service_schema({{"robot", robot}, {"linear", point}, {"angular", point}}, {"robot", "linear", "angular"})},
+       service_schema({{"robot", robot}, {"linear", point}, {"angular", point}},
+                      {"robot", "linear", "angular"})},
   };
   // The robot types' own commands, once per name.
   std::set<std::string> seen;

@@ -421,13 +421,15 @@ void WsConnection::handle_client_advertise(const fg::ClientAdvertiseOp& advertis
       if (segments[1] == "servo_jv") command = CommandRef(Command::kServoJv);
       if (segments[1] == "servo_cv") command = CommandRef(Command::kServoCv);
       for (const auto& info : server_.api.robot_commands(segments[0]))
-        if (info.streamable && info.name == segments[1]) command = CommandRef(Command::kRobotCommand, info.name);
+        if (info.streamable && info.name == segments[1])
+          command = CommandRef(Command::kRobotCommand, info.name);
     }
     if (!command) {
-      send_text(fg::status(fg::StatusLevel::kError,
-                           "advertise: tendril accepts client channels \"/{robot}/servo_jv\", \"/{robot}/servo_cv\" "
-                           "and a robot type's streamable commands, with encoding \"json\" only; refused \"" +
-                               channel.topic + "\""));
+      send_text(fg::status(
+          fg::StatusLevel::kError,
+          "advertise: tendril accepts client channels \"/{robot}/servo_jv\", \"/{robot}/servo_cv\" "
+          "and a robot type's streamable commands, with encoding \"json\" only; refused \"" +
+              channel.topic + "\""));
       continue;
     }
     if (client_channels_.size() >= 64) {
@@ -456,7 +458,8 @@ void WsConnection::handle_binary(const std::string& data) {
       const std::string leaf = command.kind == Command::kRobotCommand ? command.name
                                : command.kind == Command::kServoCv    ? "servo_cv"
                                                                       : "servo_jv";
-      send_text(fg::status(fg::StatusLevel::kWarning, "/" + robot + "/" + leaf + ": " + result.code + ": " + result.message));
+      send_text(fg::status(fg::StatusLevel::kWarning,
+                           "/" + robot + "/" + leaf + ": " + result.code + ": " + result.message));
     }
   } else if (auto* call = std::get_if<fg::ServiceCallRequest>(&parsed)) {
     handle_service_call(*call);

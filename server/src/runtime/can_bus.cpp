@@ -17,8 +17,9 @@ void CanBusComponent::check_load(const std::string& where) {
   msg.precision(3);
   msg << where << ": buses: bus '" << config.name << "' would run at " << total * 100.0 << " % load ("
       << (load * config.bitrate + extra_bits_per_second) / 1000.0 << " kbit/s worst case of "
-      << config.bitrate / 1000.0 << " kbit/s: " << load_breakdown << extra_breakdown << "), over its ceiling of "
-      << config.max_load * 100.0 << " %. Lengthen sync_period_us, raise the bitrate, or move drives to another bus.";
+      << config.bitrate / 1000.0 << " kbit/s: " << load_breakdown << extra_breakdown
+      << "), over its ceiling of " << config.max_load * 100.0
+      << " %. Lengthen sync_period_us, raise the bitrate, or move drives to another bus.";
   throw ConfigError(msg.str());
 }
 

@@ -10,8 +10,8 @@
 namespace tendril::server {
 
 namespace {
-using safety::OperatingState;
 using hardware::PowerState;
+using safety::OperatingState;
 
 template <std::size_t N>
 void text(char (&buf)[N], const char* fmt, const char* a) noexcept {
@@ -27,7 +27,9 @@ bool UnitContext::servo_live() const noexcept {
   return s.servo_active && t - s.last_servo_time <= s.limits.servo_timeout_s &&
          (state != safety::OperatingState::kEnabled || unit_.supervisor->servo_live());
 }
-std::span<const double> UnitContext::servo_velocity() const noexcept { return {unit_.rt.servo_velocity.data(), n}; }
+std::span<const double> UnitContext::servo_velocity() const noexcept {
+  return {unit_.rt.servo_velocity.data(), n};
+}
 void UnitContext::stop_servo() noexcept { unit_.rt.servo_active = false; }
 bool UnitContext::hold(safety::FaultCode code, int joint, const char* detail) noexcept {
   if (!unit_.supervisor->hold(t, code, joint, detail)) return false;
@@ -75,7 +77,8 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
           break;
         }
       }
-      if (sup.request(t, c.state) == safety::CommandResult::kAccepted && c.state == safety::StateCommand::kEnable) {
+      if (sup.request(t, c.state) == safety::CommandResult::kAccepted &&
+          c.state == safety::StateCommand::kEnable) {
         s.enable_pending = true;
         s.enable_started = t;
         s.drives_ready = false;
@@ -104,12 +107,14 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         break;
       }
       s.servo_active = false;
-      r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
+      r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n},
+                               {r.max_acceleration.data(), r.n});
       break;
     case CommandKind::servo_jv: {
       const bool allowed = (s.mode == kJointMode && sup.state() == OperatingState::kEnabled) ||
                            r.controller->servo_allowed(ctx, values);
-      if (!allowed || !s.drives_ready || sup.check_velocity(values) || !s.limits.within_velocity(values)) break;
+      if (!allowed || !s.drives_ready || sup.check_velocity(values) || !s.limits.within_velocity(values))
+        break;
       for (std::size_t i = 0; i < r.n; ++i) s.servo_velocity[i] = values[i];
       s.servo_active = true;
       s.last_servo_time = t;
@@ -152,7 +157,8 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         break;
       s.path_target = c.index;
       s.path_goal = c.values;
-      r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
+      r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n},
+                               {r.max_acceleration.data(), r.n});
       break;
     case CommandKind::plugin:
       r.controller->apply(ctx, c.plugin);
@@ -383,7 +389,8 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     if (joints.command_mode(i) == hardware::CommandMode::velocity) {
       const double v = s.qd_des[i] + r.velocity_gain * (s.q_des[i] - s.q[i]);
       const double limit = s.limits.max_velocity[i];
-      jc.velocity = s.drives_ready && jc.request == hardware::PowerRequest::on ? std::clamp(v, -limit, limit) : 0.0;
+      jc.velocity =
+          s.drives_ready && jc.request == hardware::PowerRequest::on ? std::clamp(v, -limit, limit) : 0.0;
     }
     joints.write(i, jc);
   }

@@ -29,14 +29,15 @@ sim::DriveParameters generic_drive(const JointConfig& j) {
   return p;
 }
 
-sim::DriveParameters simulated_drive_parameters(const RobotType& type, const JointConfig& j, const std::string& file,
-                                                std::size_t index) {
+sim::DriveParameters simulated_drive_parameters(const RobotType& type, const JointConfig& j,
+                                                const std::string& file, std::size_t index) {
   std::optional<sim::DriveParameters> preset;
   if (j.simulation_preset != "generic") {
     preset = type.simulated_drive(j.simulation_preset, j);
     if (!preset)
-      throw ConfigError(file + ": joints[" + std::to_string(index) + "].simulation.preset: expected generic or a " +
-                        type.kind() + " preset, got \"" + j.simulation_preset + "\"");
+      throw ConfigError(file + ": joints[" + std::to_string(index) +
+                        "].simulation.preset: expected generic or a " + type.kind() + " preset, got \"" +
+                        j.simulation_preset + "\"");
   }
   sim::DriveParameters p = preset ? *preset : generic_drive(j);
   p.initial_position = j.initial_position;
@@ -44,8 +45,8 @@ sim::DriveParameters simulated_drive_parameters(const RobotType& type, const Joi
   if (std::abs(sim_counts - j.drive->counts_per_unit) > 1e-6 * sim_counts) {
     std::ostringstream msg;
     msg << file << ": joints[" << index << "].drive.counts_per_unit: expected " << sim_counts
-        << " to match the simulated drive '" << j.simulation_preset << "' (encoder counts per joint unit), got "
-        << j.drive->counts_per_unit;
+        << " to match the simulated drive '" << j.simulation_preset
+        << "' (encoder counts per joint unit), got " << j.drive->counts_per_unit;
     throw ConfigError(msg.str());
   }
   p.validate();
@@ -67,7 +68,9 @@ class Assembly final : public RobotAssembly {
     BusAccess access;
     access.name = name;
     access.simulated = bus->virtual_bus != nullptr;
-    access.send = [bus](const can::Frame& frame) { return bus->master_endpoint->send(frame) == can::SendResult::ok; };
+    access.send = [bus](const can::Frame& frame) {
+      return bus->master_endpoint->send(frame) == can::SendResult::ok;
+    };
     access.listen = [bus](std::function<void(const can::Frame&, std::chrono::steady_clock::time_point)> f) {
       bus->frame_listeners.push_back(std::move(f));
     };
@@ -77,7 +80,8 @@ class Assembly final : public RobotAssembly {
     }
     access.add_load = [bus, robot = unit_.config.name](double bits, const std::string& what) {
       bus->extra_bits_per_second += bits;
-      bus->extra_breakdown += "; " + robot + ": " + what + " " + std::to_string(static_cast<long>(bits)) + " bit/s";
+      bus->extra_breakdown +=
+          "; " + robot + ": " + what + " " + std::to_string(static_cast<long>(bits)) + " bit/s";
     };
     access.on_start = [bus](std::function<void()> hook) { bus->on_start.push_back(std::move(hook)); };
     return access;
@@ -85,7 +89,8 @@ class Assembly final : public RobotAssembly {
   hardware::JointInterface* joints() override { return unit_.own_joints.get(); }
   void provide_joints(hardware::JointInterface& joints) override {
     if (unit_.own_joints)
-      throw ConfigError(unit_.config.file.string() + ": joints: drives are configured, the type cannot provide them");
+      throw ConfigError(unit_.config.file.string() +
+                        ": joints: drives are configured, the type cannot provide them");
     if (joints.size() != unit_.n)
       throw ConfigError(unit_.config.file.string() + ": joints: the robot type provides " +
                         std::to_string(joints.size()) + " joints, the file lists " + std::to_string(unit_.n));
@@ -102,7 +107,8 @@ class Assembly final : public RobotAssembly {
     return nullptr;
   }
   std::string joint_bus(std::size_t joint) const override {
-    return joint < unit_.n && unit_.config.joints[joint].drive ? unit_.config.joints[joint].drive->bus : std::string();
+    return joint < unit_.n && unit_.config.joints[joint].drive ? unit_.config.joints[joint].drive->bus
+                                                               : std::string();
   }
   void add_component(std::unique_ptr<hardware::HardwareComponent> component) override {
     im_.extra_components.push_back(std::move(component));
@@ -136,7 +142,8 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
     throw ConfigError("control_rate_hz: expected a rate in (0, 10000] Hz, got " +
                       std::to_string(options.control_rate_hz));
   im.period = 1.0 / options.control_rate_hz;
-  if (robots.empty()) throw ConfigError("no robot configured: the server file must list at least one robot file");
+  if (robots.empty())
+    throw ConfigError("no robot configured: the server file must list at least one robot file");
 
   // 1. Every file against its type's merged schema; rates and names.
   std::set<std::string> names;
@@ -176,7 +183,8 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
         it = bus_by_name.find(bc.name);
       } else if (!(it->second->config == bc)) {
         throw ConfigError(rc.file.string() + ": buses: bus '" + bc.name + "' is also configured by " +
-                          bus_first_file[bc.name] + " with other settings; robots that share a bus must describe it the same way");
+                          bus_first_file[bc.name] +
+                          " with other settings; robots that share a bus must describe it the same way");
       }
       it->second->robots.push_back(rc.name);
     }
@@ -199,8 +207,8 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
       const std::string who = rc.name + "/" + j.name();
       if (auto [it, fresh] = node_owner.emplace(std::pair{bus, j.drive->node_id}, who); !fresh)
         throw ConfigError(rc.file.string() + ": joints[" + std::to_string(i) + "].drive.node_id: node " +
-                          std::to_string(j.drive->node_id) + " on bus '" + bus->config.name + "' is already " +
-                          it->second);
+                          std::to_string(j.drive->node_id) + " on bus '" + bus->config.name +
+                          "' is already " + it->second);
       const auto& bc = bus->config;
       canopen::DriveSetup ds;
       ds.name = who;
@@ -217,15 +225,16 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
         auto params = simulated_drive_parameters(type, j, rc.file.string(), i);
         if (!bus->virtual_bus) bus->virtual_bus = std::make_unique<can::VirtualBus>(bc.name, bc.bitrate);
         bus->sim_endpoints.back() = bus->virtual_bus->attach("sim:" + who);
-        bus->sim_drives.back() =
-            std::make_unique<sim::SimulatedCia402Drive>(ds.node_id, *bus->sim_endpoints.back(), std::move(params));
+        bus->sim_drives.back() = std::make_unique<sim::SimulatedCia402Drive>(
+            ds.node_id, *bus->sim_endpoints.back(), std::move(params));
       }
     }
   }
   for (auto& bus : im.buses) {
     const auto& bc = bus->config;
-    const auto load = canopen::estimate_bus_load(bc.bitrate, std::chrono::microseconds(bc.sync_period_us),
-                                                 bus->drive_setups, std::chrono::milliseconds(bc.heartbeat_period_ms));
+    const auto load =
+        canopen::estimate_bus_load(bc.bitrate, std::chrono::microseconds(bc.sync_period_us),
+                                   bus->drive_setups, std::chrono::milliseconds(bc.heartbeat_period_ms));
     bus->load = load.load;
     bus->load_breakdown = load.breakdown;
     std::string users;
@@ -376,7 +385,8 @@ void RobotRuntime::start() {
   im.start_time = std::chrono::steady_clock::now();
   im.stepped_now = im.start_time;
   im.wall_offset = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-  const auto dt = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+  const auto dt =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
 
   for (auto& b : im.buses) b->start_simulation(im.options.realtime_priority);
   for (auto* c : im.components) c->configure(c->stepped_idle());
@@ -401,7 +411,8 @@ void RobotRuntime::step() {
   auto& im = *impl_;
   if (!im.options.stepped) throw std::logic_error("RobotRuntime::step() is for stepped mode only");
   if (!im.running.load()) throw std::logic_error("RobotRuntime::step() before start()");
-  im.stepped_now += std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
+  im.stepped_now +=
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
   const auto now = im.stepped_now;
   if (im.stepped_sim_lost > 0.0) {
     // After a stall of the whole machine the highest priority runs first: the control cycle, on the

@@ -23,7 +23,8 @@ ServiceError busy_mailbox(const std::string& robot) {
 }
 
 // Checks `values` against the robot's joint count and finiteness.
-std::optional<ServiceError> check_vector(std::span<const double> values, const RobotUnit& r, const char* what) {
+std::optional<ServiceError> check_vector(std::span<const double> values, const RobotUnit& r,
+                                         const char* what) {
   if (values.size() != r.n) {
     std::string names;
     for (const auto& j : r.config.joints) names += (names.empty() ? "" : ", ") + j.name();
@@ -33,25 +34,27 @@ std::optional<ServiceError> check_vector(std::span<const double> values, const R
   }
   for (std::size_t i = 0; i < r.n; ++i)
     if (!std::isfinite(values[i]))
-      return error(ErrorKind::invalid, "not_finite", "joint '" + r.config.joints[i].name() + "': value is not finite");
+      return error(ErrorKind::invalid, "not_finite",
+                   "joint '" + r.config.joints[i].name() + "': value is not finite");
   return std::nullopt;
 }
 
 // The operating limits (tightened through parameters) are checked after the configured ones, so the
 // message names the parameter that refused the command.
-std::optional<ServiceError> operating_limit_violation(const RobotUnit& r, const safety::OperatingLimits& limits,
+std::optional<ServiceError> operating_limit_violation(const RobotUnit& r,
+                                                      const safety::OperatingLimits& limits,
                                                       std::span<const double> values, bool velocity) {
   for (std::size_t i = 0; i < r.n; ++i) {
     const auto& j = r.config.joints[i].limit;
     std::ostringstream why;
     if (velocity && std::abs(values[i]) > limits.max_velocity[i]) {
-      why << "joint '" << j.name << "' velocity " << values[i] << " " << j.unit << "/s exceeds the operating limit "
-          << limits.max_velocity[i] << " " << j.unit << "/s (parameter /" << r.config.name << "/" << j.name
-          << "/max_velocity)";
+      why << "joint '" << j.name << "' velocity " << values[i] << " " << j.unit
+          << "/s exceeds the operating limit " << limits.max_velocity[i] << " " << j.unit << "/s (parameter /"
+          << r.config.name << "/" << j.name << "/max_velocity)";
     } else if (!velocity && (values[i] < limits.lower[i] || values[i] > limits.upper[i])) {
-      why << "joint '" << j.name << "' goal " << values[i] << " " << j.unit << " is outside the operating range ["
-          << limits.lower[i] << ", " << limits.upper[i] << "] " << j.unit << " (parameters /" << r.config.name << "/"
-          << j.name << "/lower and /upper)";
+      why << "joint '" << j.name << "' goal " << values[i] << " " << j.unit
+          << " is outside the operating range [" << limits.lower[i] << ", " << limits.upper[i] << "] "
+          << j.unit << " (parameters /" << r.config.name << "/" << j.name << "/lower and /upper)";
     } else {
       continue;
     }
@@ -61,8 +64,9 @@ std::optional<ServiceError> operating_limit_violation(const RobotUnit& r, const 
 }
 
 std::string joint_name(const RobotUnit& r, int joint) {
-  return joint >= 0 && static_cast<std::size_t>(joint) < r.n ? r.config.joints[static_cast<std::size_t>(joint)].name()
-                                                             : std::string();
+  return joint >= 0 && static_cast<std::size_t>(joint) < r.n
+             ? r.config.joints[static_cast<std::size_t>(joint)].name()
+             : std::string();
 }
 
 OperatingStateView state_view(const RobotUnit& r, const RobotSnapshot& s, double wall_offset) {
@@ -80,7 +84,8 @@ OperatingStateView state_view(const RobotUnit& r, const RobotSnapshot& s, double
   v.loop_timing.stalls_over_bound = s.lost_control.stalls_over_bound;
   v.loop_timing.stalls_over_bound_at_rest = s.lost_control.stalls_over_bound_at_rest;
   if (s.state == OperatingState::kFault || s.estop)
-    v.fault = FaultView{safety::to_string(s.fault.code), std::string(s.fault.text), joint_name(r, s.fault.joint)};
+    v.fault =
+        FaultView{safety::to_string(s.fault.code), std::string(s.fault.text), joint_name(r, s.fault.joint)};
   // Why the robot holds and the way out, whenever it is PAUSED.
   if (s.state == OperatingState::kPaused && !s.estop) {
     HoldView h;
@@ -123,8 +128,8 @@ bool RobotRuntime::Impl::post(RobotUnit& r, const RobotCommand& c) {
   return false;
 }
 
-#define TENDRIL_ROBOT(name)            \
-  RobotUnit* found = impl_->find(name); \
+#define TENDRIL_ROBOT(name)               \
+  RobotUnit* found = impl_->find(name);   \
   if (!found) return unknown_robot(name); \
   RobotUnit& r = *found;
 
@@ -191,7 +196,8 @@ Result<PoseView> RobotRuntime::measured_cp(const std::string& robot) const {
   TENDRIL_ROBOT(robot)
   const auto s = r.snapshot.load();
   const auto pose = r.plugin->kinematics().tip(display_positions(r, s));
-  return PoseView{pose.position, pose.orientation, r.plugin->kinematics().frame(), impl_->wall_offset + s.time};
+  return PoseView{pose.position, pose.orientation, r.plugin->kinematics().frame(),
+                  impl_->wall_offset + s.time};
 }
 
 Result<TwistView> RobotRuntime::measured_cv(const std::string& robot) const {
@@ -199,7 +205,8 @@ Result<TwistView> RobotRuntime::measured_cv(const std::string& robot) const {
   const auto s = r.snapshot.load();
   const auto twist = r.plugin->measured_cv({s.position.data(), r.n}, {s.velocity.data(), r.n});
   if (!twist)
-    return error(ErrorKind::not_supported, "not_supported", "robot '" + robot + "' does not report a Cartesian velocity");
+    return error(ErrorKind::not_supported, "not_supported",
+                 "robot '" + robot + "' does not report a Cartesian velocity");
   return TwistView{*twist, r.plugin->kinematics().frame(), impl_->wall_offset + s.time};
 }
 
@@ -207,7 +214,8 @@ Result<WrenchView> RobotRuntime::measured_cf(const std::string& robot) const {
   TENDRIL_ROBOT(robot)
   const auto s = r.snapshot.load();
   const auto force = r.plugin->measured_cf();
-  if (!force) return error(ErrorKind::not_supported, "not_supported", "robot '" + robot + "' has no force sensor");
+  if (!force)
+    return error(ErrorKind::not_supported, "not_supported", "robot '" + robot + "' has no force sensor");
   return WrenchView{*force, "tool", impl_->wall_offset + s.time};
 }
 
@@ -242,7 +250,8 @@ Result<DiagnosticsView> RobotRuntime::diagnostics(const std::string& robot) cons
   d.overruns = ls.overruns;
   d.late_cycles = ls.late_cycles;
   d.lost_max_us = ls.lost_max_us;
-  for (const auto* b : r.buses) d.bus_load = std::max(d.bus_load, b->load + b->extra_bits_per_second / b->config.bitrate);
+  for (const auto* b : r.buses)
+    d.bus_load = std::max(d.bus_load, b->load + b->extra_bits_per_second / b->config.bitrate);
   for (std::size_t i = 0; i < r.n; ++i) {
     d.setpoint.push_back(s.setpoint[i]);
     d.measured.push_back(s.position[i]);
@@ -276,15 +285,19 @@ Result<OperatingStateView> RobotRuntime::state_command(const std::string& robot,
   }
   const auto s = r.snapshot.load();
   if (s.estop && sc != safety::StateCommand::kDisable)
-    return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
+    return error(ErrorKind::conflict, "estop_latched",
+                 "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
   using OS = OperatingState;
-  const bool allowed = (sc == safety::StateCommand::kEnable && (s.state == OS::kDisabled || s.state == OS::kEnabled)) ||
-                       sc == safety::StateCommand::kDisable ||
-                       (sc == safety::StateCommand::kPause && (s.state == OS::kEnabled || s.state == OS::kPaused)) ||
-                       (sc == safety::StateCommand::kResume && (s.state == OS::kPaused || s.state == OS::kEnabled));
+  const bool allowed =
+      (sc == safety::StateCommand::kEnable && (s.state == OS::kDisabled || s.state == OS::kEnabled)) ||
+      sc == safety::StateCommand::kDisable ||
+      (sc == safety::StateCommand::kPause && (s.state == OS::kEnabled || s.state == OS::kPaused)) ||
+      (sc == safety::StateCommand::kResume && (s.state == OS::kPaused || s.state == OS::kEnabled));
   if (!allowed) {
-    std::string why = std::string("cannot ") + name + " robot '" + robot + "' while it is " + state_name(s.state);
-    if (s.state == OS::kFault) why += " (" + std::string(s.fault.text) + "); send disable to acknowledge the fault first";
+    std::string why =
+        std::string("cannot ") + name + " robot '" + robot + "' while it is " + state_name(s.state);
+    if (s.state == OS::kFault)
+      why += " (" + std::string(s.fault.text) + "); send disable to acknowledge the fault first";
     return error(ErrorKind::conflict, "invalid_state", why);
   }
   // Resume is refused while the hold's cause persists, with the cause and what to do, rather than
@@ -292,8 +305,8 @@ Result<OperatingStateView> RobotRuntime::state_command(const std::string& robot,
   if (sc == safety::StateCommand::kResume && s.state == OS::kPaused && !s.hold_can_resume) {
     if (auto refusal = r.plugin->resume_refusal(state_view(r, s, impl_->wall_offset))) return *refusal;
     return error(ErrorKind::conflict, "hold_not_cleared",
-                 "robot '" + robot + "' is held (" + safety::to_string(s.hold_code) + ": " + std::string(s.fault.text) +
-                     ") and the cause persists; clear it before resuming");
+                 "robot '" + robot + "' is held (" + safety::to_string(s.hold_code) + ": " +
+                     std::string(s.fault.text) + ") and the cause persists; clear it before resuming");
   }
   RobotCommand c;
   c.kind = CommandKind::state;
@@ -332,8 +345,9 @@ Status RobotRuntime::mode(const std::string& robot, const std::string& m) {
   }
   const ModeId to = r.mode_id(m);
   if (to >= r.modes.size() || (to == kPathFollowingMode && !r.plugin->path_following()))
-    return error(ErrorKind::invalid, "unknown_mode",
-                 "mode '" + m + "' is not available for robot '" + robot + "' (available: " + available + ")");
+    return error(
+        ErrorKind::invalid, "unknown_mode",
+        "mode '" + m + "' is not available for robot '" + robot + "' (available: " + available + ")");
   const auto s = r.snapshot.load();
   if (s.mode == to) return Done{};
   // Every refusal is kept for operating_state, so a console that did not send the switch sees why.
@@ -349,7 +363,9 @@ Status RobotRuntime::mode(const std::string& robot, const std::string& m) {
     return refuse(ErrorKind::conflict, "invalid_state",
                   "robot '" + robot + "' is in fault (" + std::string(s.fault.text) +
                       "); send disable to acknowledge it before changing mode");
-  if (s.busy) return refuse(ErrorKind::conflict, "not_holding", "robot '" + robot + "' is moving; modes change only while it holds");
+  if (s.busy)
+    return refuse(ErrorKind::conflict, "not_holding",
+                  "robot '" + robot + "' is moving; modes change only while it holds");
   if (s.hold_code != safety::FaultCode::kNone && s.state == OperatingState::kPaused)
     return refuse(ErrorKind::conflict, "held_after_limit",
                   "robot '" + robot + "' is held after a safety limit (" + safety::to_string(s.hold_code) +
@@ -358,8 +374,8 @@ Status RobotRuntime::mode(const std::string& robot, const std::string& m) {
     std::lock_guard lock(r.path_mutex);
     if (!r.path)
       return refuse(ErrorKind::conflict, "no_plan",
-                    "no plan is loaded for robot '" + robot + "'; load one first (POST /api/v1/robots/" + robot +
-                        "/path_following {\"plan\": \"<job id>\"})");
+                    "no plan is loaded for robot '" + robot + "'; load one first (POST /api/v1/robots/" +
+                        robot + "/path_following {\"plan\": \"<job id>\"})");
   }
   if (auto why = r.plugin->refuse_mode(to, state_view(r, s, impl_->wall_offset)))
     return refuse(why->kind, why->code, why->message);
@@ -378,17 +394,21 @@ Status RobotRuntime::mode(const std::string& robot, const std::string& m) {
 Result<double> RobotRuntime::move_jp(const std::string& robot, std::span<const double> goal) {
   TENDRIL_ROBOT(robot)
   if (auto e = check_vector(goal, r, "goal")) return *e;
-  if (auto v = r.supervisor->check_goal(goal)) return error(ErrorKind::invalid, "out_of_limits", r.supervisor->describe(v));
+  if (auto v = r.supervisor->check_goal(goal))
+    return error(ErrorKind::invalid, "out_of_limits", r.supervisor->describe(v));
   const auto limits = r.operating_limits.load();
   if (auto why = operating_limit_violation(r, limits, goal, false)) return *why;
   const auto s = r.snapshot.load();
   if (s.mode != kJointMode)
     return error(ErrorKind::conflict, "wrong_mode",
-                 "robot '" + robot + "' is in " + r.mode_name(s.mode) + " mode; switch to joint mode for joint commands");
-  if (s.estop) return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
+                 "robot '" + robot + "' is in " + r.mode_name(s.mode) +
+                     " mode; switch to joint mode for joint commands");
+  if (s.estop)
+    return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled)
-    return error(ErrorKind::conflict, "not_enabled",
-                 std::string("robot '") + robot + "' is " + state_name(s.state) + "; enable it before moving");
+    return error(
+        ErrorKind::conflict, "not_enabled",
+        std::string("robot '") + robot + "' is " + state_name(s.state) + "; enable it before moving");
   RobotCommand c;
   c.kind = CommandKind::move_jp;
   c.count = static_cast<std::uint32_t>(r.n);
@@ -410,14 +430,17 @@ Status RobotRuntime::servo_jv(const std::string& robot, std::span<const double> 
     return error(ErrorKind::invalid, "out_of_limits", r.supervisor->describe(v));
   if (auto why = operating_limit_violation(r, r.operating_limits.load(), velocity, true)) return *why;
   const auto s = r.snapshot.load();
-  if (s.estop) return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
+  if (s.estop)
+    return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
   const auto type_says = r.plugin->check_servo(s.mode, state_view(r, s, impl_->wall_offset), velocity);
   if (type_says && !type_says->ok()) return type_says->error();
   if (!type_says) {
     if (s.mode != kJointMode)
       return error(ErrorKind::conflict, "wrong_mode",
-                   "robot '" + robot + "' is in " + r.mode_name(s.mode) + " mode; switch to joint mode for joint commands");
-    if (s.state != OperatingState::kEnabled || !s.drives_ready) return not_enabled(robot, s, "streaming velocities");
+                   "robot '" + robot + "' is in " + r.mode_name(s.mode) +
+                       " mode; switch to joint mode for joint commands");
+    if (s.state != OperatingState::kEnabled || !s.drives_ready)
+      return not_enabled(robot, s, "streaming velocities");
   } else if (!s.drives_ready) {
     return not_enabled(robot, s, "streaming velocities");
   }
@@ -432,13 +455,15 @@ Status RobotRuntime::servo_jv(const std::string& robot, std::span<const double> 
 
 namespace {
 template <class Post>
-Result<double> cartesian(RobotUnit& r, const std::string& robot, RobotPlugin::CartesianKind kind, const CartesianPose& pose,
-                         const CartesianTwist& twist, double wall_offset, Post&& post) {
+Result<double> cartesian(RobotUnit& r, const std::string& robot, RobotPlugin::CartesianKind kind,
+                         const CartesianPose& pose, const CartesianTwist& twist, double wall_offset,
+                         Post&& post) {
   if (!r.plugin->cartesian())
     return error(ErrorKind::not_supported, "not_supported",
                  "robot '" + robot + "' takes no Cartesian commands (its type is " + r.config.kind + ")");
   const auto s = r.snapshot.load();
-  if (s.estop) return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
+  if (s.estop)
+    return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
   if (s.state != OperatingState::kEnabled || !s.drives_ready) return not_enabled(robot, s, "moving");
   auto encoded = r.plugin->cartesian_command(kind, pose, twist, state_view(r, s, wall_offset));
   if (!encoded) return encoded.error();
@@ -521,8 +546,8 @@ Status RobotRuntime::load_path(const std::string& robot, PathPlan plan) {
   if (plan.steps.empty()) return error(ErrorKind::malformed, "bad_request", "the plan has no steps");
   if (plan.steps.size() > kMaxSteps)
     return error(ErrorKind::invalid, "too_many_steps",
-                 "the plan has " + std::to_string(plan.steps.size()) + " steps; at most " + std::to_string(kMaxSteps) +
-                     " are accepted");
+                 "the plan has " + std::to_string(plan.steps.size()) + " steps; at most " +
+                     std::to_string(kMaxSteps) + " are accepted");
   auto loaded = std::make_shared<LoadedPath>();
   loaded->plan_id = plan.id;
   const auto limits = r.operating_limits.load();
@@ -530,7 +555,8 @@ Status RobotRuntime::load_path(const std::string& robot, PathPlan plan) {
     const std::string which = "step " + std::to_string(k);
     const auto& q = plan.steps[k];
     if (auto e = check_vector(q, r, "q")) return error(e->kind, e->code, which + ": " + e->message);
-    if (auto v = r.supervisor->check_goal(q)) return error(ErrorKind::invalid, "out_of_limits", which + ": " + r.supervisor->describe(v));
+    if (auto v = r.supervisor->check_goal(q))
+      return error(ErrorKind::invalid, "out_of_limits", which + ": " + r.supervisor->describe(v));
     if (auto why = operating_limit_violation(r, limits, q, false))
       return error(ErrorKind::invalid, "out_of_limits", which + ": " + why->message);
     // The control loop holds setpoints inside the soft margins, so a step beyond them would never be reached.
@@ -538,8 +564,9 @@ Status RobotRuntime::load_path(const std::string& robot, PathPlan plan) {
       const auto& j = r.config.joints[i].limit;
       if (q[i] < j.lower + j.soft_margin || q[i] > j.upper - j.soft_margin) {
         std::ostringstream why;
-        why << which << ": joint '" << j.name << "' " << q[i] << " " << j.unit << " lies within the soft margin ("
-            << j.soft_margin << " " << j.unit << ") of its limits [" << j.lower << ", " << j.upper
+        why << which << ": joint '" << j.name << "' " << q[i] << " " << j.unit
+            << " lies within the soft margin (" << j.soft_margin << " " << j.unit << ") of its limits ["
+            << j.lower << ", " << j.upper
             << "]; the setpoint is held short of it, so the step could not be reached";
         return error(ErrorKind::invalid, "out_of_limits", why.str());
       }
@@ -555,7 +582,8 @@ Status RobotRuntime::load_path(const std::string& robot, PathPlan plan) {
     if (plan.vessel[i].allFinite()) loaded->vessel.push_back(plan.vessel[i]);
   const auto s = r.snapshot.load();
   if (s.busy)
-    return error(ErrorKind::conflict, "not_holding", "robot '" + robot + "' is moving; a plan is loaded only while it holds");
+    return error(ErrorKind::conflict, "not_holding",
+                 "robot '" + robot + "' is moving; a plan is loaded only while it holds");
   std::shared_ptr<const LoadedPath> previous;
   {
     std::lock_guard lock(r.path_mutex);
@@ -569,20 +597,24 @@ Status RobotRuntime::load_path(const std::string& robot, PathPlan plan) {
   return Done{};
 }
 
-Result<std::pair<std::int32_t, double>> RobotRuntime::path_step(const std::string& robot, std::optional<std::int32_t> step,
+Result<std::pair<std::int32_t, double>> RobotRuntime::path_step(const std::string& robot,
+                                                                std::optional<std::int32_t> step,
                                                                 std::int32_t advance) {
   TENDRIL_ROBOT(robot)
   if (!r.plugin->path_following()) return no_path_following(robot);
   const auto s = r.snapshot.load();
-  if (s.estop) return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
-  if (s.state != OperatingState::kEnabled || !s.drives_ready) return not_enabled(robot, s, "stepping along the plan");
+  if (s.estop)
+    return error(ErrorKind::conflict, "estop_latched", "the e-stop is latched; reset and enable first");
+  if (s.state != OperatingState::kEnabled || !s.drives_ready)
+    return not_enabled(robot, s, "stepping along the plan");
   if (s.mode != kPathFollowingMode)
     return error(ErrorKind::conflict, "wrong_mode",
-                 "robot '" + robot + "' is in " + r.mode_name(s.mode) + " mode; switch to path_following (POST /api/v1/robots/" +
-                     robot + "/mode) first");
+                 "robot '" + robot + "' is in " + r.mode_name(s.mode) +
+                     " mode; switch to path_following (POST /api/v1/robots/" + robot + "/mode) first");
   if (s.busy)
     return error(ErrorKind::conflict, "not_holding",
-                 "robot '" + robot + "' is still moving to step " + std::to_string(s.path_target) + "; wait until it holds");
+                 "robot '" + robot + "' is still moving to step " + std::to_string(s.path_target) +
+                     "; wait until it holds");
   std::lock_guard lock(r.path_mutex);
   if (!r.path) return error(ErrorKind::conflict, "no_plan", "no plan is loaded for robot '" + robot + "'");
   const auto count = static_cast<std::int64_t>(r.path->steps.size());
@@ -590,7 +622,8 @@ Result<std::pair<std::int32_t, double>> RobotRuntime::path_step(const std::strin
   if (k < 0 || k >= count) {
     if (step)
       return error(ErrorKind::invalid, "out_of_range",
-                   "step " + std::to_string(k) + " does not exist; the plan has steps 0.." + std::to_string(count - 1));
+                   "step " + std::to_string(k) + " does not exist; the plan has steps 0.." +
+                       std::to_string(count - 1));
     return error(ErrorKind::conflict, "end_of_plan",
                  k < 0 ? "already at the first step of the plan"
                        : "already at the last step of the plan (" + std::to_string(count - 1) + ")");
@@ -606,7 +639,8 @@ Result<std::pair<std::int32_t, double>> RobotRuntime::path_step(const std::strin
     return error(ErrorKind::invalid, "out_of_limits", "step " + std::to_string(k) + ": " + why->message);
   teleop::QuinticInterpolator predict(r.n);
   predict.reset({s.setpoint.data(), r.n}, 0.0);
-  predict.retarget(0.0, {c.values.data(), r.n}, {limits.max_velocity.data(), r.n}, {r.max_acceleration.data(), r.n});
+  predict.retarget(0.0, {c.values.data(), r.n}, {limits.max_velocity.data(), r.n},
+                   {r.max_acceleration.data(), r.n});
   c.received = std::chrono::steady_clock::now();
   if (!impl_->post(r, c)) return busy_mailbox(robot);
   return std::pair{static_cast<std::int32_t>(k), predict.duration()};
@@ -675,7 +709,8 @@ std::vector<Parameter> RobotRuntime::parameters() const {
 }
 
 Result<std::vector<Parameter>> RobotRuntime::set_parameters(const std::vector<ParameterChange>& list) {
-  if (list.empty()) return error(ErrorKind::malformed, "bad_parameter", "expected a non-empty list of {\"name\", \"value\"}");
+  if (list.empty())
+    return error(ErrorKind::malformed, "bad_parameter", "expected a non-empty list of {\"name\", \"value\"}");
   std::vector<Change> changes;
   for (const auto& item : list) {
     Change change;
@@ -685,7 +720,8 @@ Result<std::vector<Parameter>> RobotRuntime::set_parameters(const std::vector<Pa
     const auto first = name.find('/', 1);
     const auto last = name.rfind('/');
     RobotUnit* r = nullptr;
-    if (!name.empty() && name[0] == '/' && first != std::string::npos) r = impl_->find(name.substr(1, first - 1));
+    if (!name.empty() && name[0] == '/' && first != std::string::npos)
+      r = impl_->find(name.substr(1, first - 1));
     bool known = false;
     if (r) {
       const std::string leaf = name.substr(last + 1);
@@ -708,10 +744,12 @@ Result<std::vector<Parameter>> RobotRuntime::set_parameters(const std::vector<Pa
             change.field = LimitField::kUpper;
           } else if (leaf == "max_velocity") {
             change.field = LimitField::kMaxVelocity;
-          } else if (leaf == "configured_lower" || leaf == "configured_upper" || leaf == "configured_max_velocity" ||
-                     leaf == "max_acceleration" || leaf == "max_tracking_error" || leaf == "soft_margin") {
-            return error(ErrorKind::forbidden, "read_only_parameter",
-                         "parameter " + name + " is read-only (it comes from " + r->config.file.string() + ")");
+          } else if (leaf == "configured_lower" || leaf == "configured_upper" ||
+                     leaf == "configured_max_velocity" || leaf == "max_acceleration" ||
+                     leaf == "max_tracking_error" || leaf == "soft_margin") {
+            return error(
+                ErrorKind::forbidden, "read_only_parameter",
+                "parameter " + name + " is read-only (it comes from " + r->config.file.string() + ")");
           } else {
             known = false;
           }
@@ -756,14 +794,16 @@ Result<std::vector<Parameter>> RobotRuntime::set_parameters(const std::vector<Pa
     }
   }
   for (auto& [r, limits] : updated) {
-    const auto configured = safety::OperatingLimits::configured(r->supervisor->limits(), r->config.command_timeout_ms / 1000.0);
+    const auto configured =
+        safety::OperatingLimits::configured(r->supervisor->limits(), r->config.command_timeout_ms / 1000.0);
     std::string why;
     if (!safety::tightens(limits, configured, r->n, r->supervisor->limits(), &why))
       return error(ErrorKind::invalid, "out_of_range", "/" + r->config.name + "/" + why);
     // Limits change only while the robot holds inside them, so no running motion is cut short.
     const auto s = r->snapshot.load();
     if (s.busy)
-      return error(ErrorKind::conflict, "not_holding", "robot '" + r->config.name + "' is moving; limits change only while it holds");
+      return error(ErrorKind::conflict, "not_holding",
+                   "robot '" + r->config.name + "' is moving; limits change only while it holds");
     for (std::size_t i = 0; i < r->n; ++i) {
       if (s.setpoint[i] < limits.lower[i] || s.setpoint[i] > limits.upper[i])
         return error(ErrorKind::invalid, "out_of_range",
@@ -789,9 +829,9 @@ void RobotRuntime::Impl::collect_events() const {
   std::lock_guard lock(events_mutex);
   for (const auto& r : robots) {
     r->supervisor->events().drain([&](const safety::SafetyEvent& e) {
-      SafetyEventView v{wall_offset + e.time,           r->config.name,        safety::to_string(e.kind),
-                        safety::to_string(e.code),      state_name(e.from),    state_name(e.to),
-                        std::string(e.text),            std::string()};
+      SafetyEventView v{wall_offset + e.time,      r->config.name,     safety::to_string(e.kind),
+                        safety::to_string(e.code), state_name(e.from), state_name(e.to),
+                        std::string(e.text),       std::string()};
       if (e.joint >= 0 && static_cast<std::size_t>(e.joint) < r->n)
         v.joint = r->config.joints[static_cast<std::size_t>(e.joint)].name();
       events.push_back(std::move(v));
@@ -805,7 +845,8 @@ std::vector<SafetyEventView> RobotRuntime::faults(std::size_t max_events) const 
   impl_->collect_events();
   std::lock_guard lock(impl_->events_mutex);
   std::vector<SafetyEventView> out;
-  for (auto it = impl_->events.rbegin(); it != impl_->events.rend() && out.size() < max_events; ++it) out.push_back(*it);
+  for (auto it = impl_->events.rbegin(); it != impl_->events.rend() && out.size() < max_events; ++it)
+    out.push_back(*it);
   return out;
 }
 
@@ -824,7 +865,8 @@ std::vector<SafetyEventView> RobotRuntime::events_since(std::uint64_t since, std
 std::string RobotRuntime::metrics() const {
   std::ostringstream m;
   const auto ls = impl_->control_thread.statistics();
-  m << "# HELP tendril_control_cycles_total Control loop cycles run.\n# TYPE tendril_control_cycles_total counter\n"
+  m << "# HELP tendril_control_cycles_total Control loop cycles run.\n# TYPE tendril_control_cycles_total "
+       "counter\n"
     << "tendril_control_cycles_total " << impl_->ticks.load() << "\n";
   m << "# HELP tendril_control_overruns_total Control cycles that ran past their deadline.\n"
        "# TYPE tendril_control_overruns_total counter\ntendril_control_overruns_total "
@@ -854,22 +896,26 @@ std::string RobotRuntime::metrics() const {
   m << "# HELP tendril_bus_load Worst-case CAN bus load computed from the configuration (fraction).\n"
        "# TYPE tendril_bus_load gauge\n";
   for (const auto& b : impl_->buses)
-    m << "tendril_bus_load{bus=\"" << b->config.name << "\"} " << b->load + b->extra_bits_per_second / b->config.bitrate
-      << "\n";
+    m << "tendril_bus_load{bus=\"" << b->config.name << "\"} "
+      << b->load + b->extra_bits_per_second / b->config.bitrate << "\n";
   m << "# HELP tendril_bus_frames_total CAN frames by direction.\n# TYPE tendril_bus_frames_total counter\n";
   for (const auto& b : impl_->buses) {
     const auto st = b->master_endpoint->statistics();
-    m << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"sent\"} " << st.frames_sent << "\n"
-      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"received\"} " << st.frames_received
+    m << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"sent\"} " << st.frames_sent
       << "\n"
-      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"send_failed\"} " << st.send_failures
-      << "\n"
-      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"error\"} " << st.error_frames << "\n";
+      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"received\"} "
+      << st.frames_received << "\n"
+      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"send_failed\"} "
+      << st.send_failures << "\n"
+      << "tendril_bus_frames_total{bus=\"" << b->config.name << "\",direction=\"error\"} " << st.error_frames
+      << "\n";
   }
-  m << "# HELP tendril_robot_state Operating state (1 for the current one).\n# TYPE tendril_robot_state gauge\n";
+  m << "# HELP tendril_robot_state Operating state (1 for the current one).\n# TYPE tendril_robot_state "
+       "gauge\n";
   for (const auto& r : impl_->robots) {
     const auto s = r->snapshot.load();
-    for (auto st : {OperatingState::kDisabled, OperatingState::kEnabled, OperatingState::kPaused, OperatingState::kFault})
+    for (auto st : {OperatingState::kDisabled, OperatingState::kEnabled, OperatingState::kPaused,
+                    OperatingState::kFault})
       m << "tendril_robot_state{robot=\"" << r->config.name << "\",state=\"" << state_name(st) << "\"} "
         << (s.state == st ? 1 : 0) << "\n";
     m << "tendril_robot_estop{robot=\"" << r->config.name << "\"} " << (s.estop ? 1 : 0) << "\n";

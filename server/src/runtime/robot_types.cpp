@@ -24,7 +24,8 @@ std::vector<std::string> RobotTypes::kinds() const {
   return out;
 }
 
-std::optional<sim::DriveParameters> RobotType::simulated_drive(const std::string& preset, const JointConfig& joint) const {
+std::optional<sim::DriveParameters> RobotType::simulated_drive(const std::string& preset,
+                                                               const JointConfig& joint) const {
   (void)preset;
   (void)joint;
   return std::nullopt;
@@ -34,9 +35,9 @@ void RobotPlugin::display_positions(std::span<const double> measured, std::span<
   std::copy(measured.begin(), measured.end(), out.begin());
 }
 
-Result<std::pair<PluginCommand, double>> RobotPlugin::cartesian_command(CartesianKind kind, const CartesianPose& pose,
-                                                                        const CartesianTwist& twist,
-                                                                        const OperatingStateView& state) const {
+Result<std::pair<PluginCommand, double>> RobotPlugin::cartesian_command(
+    CartesianKind kind, const CartesianPose& pose, const CartesianTwist& twist,
+    const OperatingStateView& state) const {
   (void)kind;
   (void)pose;
   (void)twist;

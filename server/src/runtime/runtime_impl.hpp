@@ -85,8 +85,8 @@ struct RobotSnapshot {
   std::array<bool, kMaxJoints> link_alive{};
   safety::FaultInfo fault{};
   safety::SafetySupervisor::LostControlRecord lost_control{};  // loop-timing record (SupervisorOptions)
-  safety::FaultCode hold_code = safety::FaultCode::kNone;  // the cause of the current hold
-  bool hold_can_resume = false;                            // the robot type says the cause cleared
+  safety::FaultCode hold_code = safety::FaultCode::kNone;      // the cause of the current hold
+  bool hold_can_resume = false;                                // the robot type says the cause cleared
   std::uint64_t estop_tick = 0;  // tick at which the last e-stop reached the control thread
   std::uint64_t commands_applied = 0;
   std::uint64_t mailbox_full = 0;
@@ -115,7 +115,7 @@ struct CanBusComponent final : hardware::HardwareComponent {
   std::atomic<bool> stopping{false};
   // Other nodes on the bus: every received frame also goes to these, on the bus thread.
   std::vector<std::function<void(const can::Frame&, std::chrono::steady_clock::time_point)>> frame_listeners;
-  std::vector<sim::Plant*> plants;          // stepped after the drives (virtual buses only)
+  std::vector<sim::Plant*> plants;              // stepped after the drives (virtual buses only)
   std::vector<std::function<void()>> on_start;  // after the master is up
   bool stepped = false;
 
@@ -165,9 +165,9 @@ struct RobotUnit {
   std::atomic<std::uint64_t> mailbox_full{0};
   std::size_t n = 0;
   JointArray max_acceleration{};
-  double velocity_gain = 10.0;  // 1/s: position error fed back on velocity joints
-  std::mutex path_mutex;                                  // network threads only
-  std::shared_ptr<const LoadedPath> path;                 // guarded by path_mutex
+  double velocity_gain = 10.0;             // 1/s: position error fed back on velocity joints
+  std::mutex path_mutex;                   // network threads only
+  std::shared_ptr<const LoadedPath> path;  // guarded by path_mutex
   hardware::LatestValue<safety::OperatingLimits> operating_limits;
   std::mutex limits_write_mutex;  // network threads only: read-modify-write of operating_limits
   std::mutex refusal_mutex;

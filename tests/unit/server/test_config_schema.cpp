@@ -21,9 +21,10 @@ json read(const std::filesystem::path& file) {
 }
 
 TEST(ConfigSchema, UnknownKeysAreRefusedWithTheKeyAndWhatWasExpected) {
-  const json schema = {{"type", "object"},
-                       {"additionalProperties", false},
-                       {"properties", {{"limit_mm", {{"type", "number"}}}, {"stale_ms", {{"type", "number"}}}}}};
+  const json schema = {
+      {"type", "object"},
+      {"additionalProperties", false},
+      {"properties", {{"limit_mm", {{"type", "number"}}}, {"stale_ms", {{"type", "number"}}}}}};
   EXPECT_FALSE(schema_violation(schema, {{"limit_mm", 1.5}}));
   const auto why = schema_violation(schema, {{"limt_mm", 1.5}});
   ASSERT_TRUE(why);
@@ -33,16 +34,16 @@ TEST(ConfigSchema, UnknownKeysAreRefusedWithTheKeyAndWhatWasExpected) {
 }
 
 TEST(ConfigSchema, NestedPathsTypesRangesAndEnumsAreNamed) {
-  const json schema = {
-      {"type", "object"},
-      {"properties",
-       {{"joints",
-         {{"type", "array"},
-          {"items",
-           {{"type", "object"},
-            {"required", {"unit"}},
-            {"properties",
-             {{"unit", {{"enum", {"mm", "rad"}}}}, {"max_velocity", {{"type", "number"}, {"exclusiveMinimum", 0}}}}}}}}}}}};
+  const json schema = {{"type", "object"},
+                       {"properties",
+                        {{"joints",
+                          {{"type", "array"},
+                           {"items",
+                            {{"type", "object"},
+                             {"required", {"unit"}},
+                             {"properties",
+                              {{"unit", {{"enum", {"mm", "rad"}}}},
+                               {"max_velocity", {{"type", "number"}, {"exclusiveMinimum", 0}}}}}}}}}}}};
   auto why = schema_violation(schema, {{"joints", {{{"unit", "inch"}}}}});
   ASSERT_TRUE(why);
   EXPECT_EQ(*why, "joints[0].unit: expected one of \"mm\", \"rad\", got \"inch\"");

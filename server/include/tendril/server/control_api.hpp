@@ -65,8 +65,12 @@ class ControlApi {
   virtual ApiResult setpoint_js(const std::string& robot) const = 0;
   virtual ApiResult measured_cp(const std::string& robot) const = 0;
   // Cartesian velocity and force (CRTK measured_cv, measured_cf) for robot types that measure them.
-  virtual ApiResult measured_cv(const std::string& robot) const { return not_supported(robot, "measured_cv"); }
-  virtual ApiResult measured_cf(const std::string& robot) const { return not_supported(robot, "measured_cf"); }
+  virtual ApiResult measured_cv(const std::string& robot) const {
+    return not_supported(robot, "measured_cv");
+  }
+  virtual ApiResult measured_cf(const std::string& robot) const {
+    return not_supported(robot, "measured_cf");
+  }
   // The robot file's JSON Schema (core keys and the robot type's own sections).
   virtual ApiResult robot_schema(const std::string& robot) const { return not_supported(robot, "schema"); }
   virtual ApiResult shape(const std::string& robot) const = 0;
@@ -98,7 +102,8 @@ class ControlApi {
     (void)robot;
     return {};
   }
-  virtual ApiResult robot_command(const std::string& robot, const std::string& name, const nlohmann::json& body) {
+  virtual ApiResult robot_command(const std::string& robot, const std::string& name,
+                                  const nlohmann::json& body) {
     (void)body;
     return ApiResult::error(404, "not_found", "robot '" + robot + "' has no command '" + name + "'");
   }

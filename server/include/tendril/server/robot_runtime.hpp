@@ -101,7 +101,8 @@ class RobotRuntime final : public RobotService {
   std::vector<SafetyEventView> events_since(std::uint64_t since, std::uint64_t& total) const override;
   std::string metrics() const override;
   Status load_path(const std::string& robot, PathPlan plan) override;
-  Result<std::pair<std::int32_t, double>> path_step(const std::string& robot, std::optional<std::int32_t> step,
+  Result<std::pair<std::int32_t, double>> path_step(const std::string& robot,
+                                                    std::optional<std::int32_t> step,
                                                     std::int32_t advance) override;
   Result<PathView> path_following(const std::string& robot) const override;
   std::vector<Parameter> parameters() const override;

@@ -44,8 +44,8 @@ struct ServiceError {
 template <class T>
 class Result {
  public:
-  Result(T value) : v_(std::move(value)) {}               // NOLINT(google-explicit-constructor)
-  Result(ServiceError error) : v_(std::move(error)) {}    // NOLINT(google-explicit-constructor)
+  Result(T value) : v_(std::move(value)) {}             // NOLINT(google-explicit-constructor)
+  Result(ServiceError error) : v_(std::move(error)) {}  // NOLINT(google-explicit-constructor)
   bool ok() const noexcept { return v_.index() == 0; }
   explicit operator bool() const noexcept { return ok(); }
   const T& value() const { return std::get<0>(v_); }
@@ -61,7 +61,8 @@ struct Done {};
 using Status = Result<Done>;
 
 inline ServiceError unknown_robot(const std::string& robot) {
-  return {ErrorKind::not_found, "unknown_robot", "no robot named \"" + robot + "\"; GET /api/v1/robots lists them"};
+  return {ErrorKind::not_found, "unknown_robot",
+          "no robot named \"" + robot + "\"; GET /api/v1/robots lists them"};
 }
 
 // ---- read-outs ----
@@ -176,7 +177,7 @@ struct DiagnosticsView {
   std::uint64_t overruns = 0;
   std::uint64_t late_cycles = 0;  // cycles that started a full period or more late
   double lost_max_us = 0.0;       // longest time without a cycle beyond one period
-  double bus_load = 0.0;  // the largest of the robot's buses
+  double bus_load = 0.0;          // the largest of the robot's buses
   std::vector<double> setpoint, measured;
 };
 
@@ -258,7 +259,8 @@ class RobotService {
 
   virtual Status load_path(const std::string& robot, PathPlan plan) = 0;
   // Moves to plan step `step` (absolute) or by `advance` steps; the duration in s.
-  virtual Result<std::pair<std::int32_t, double>> path_step(const std::string& robot, std::optional<std::int32_t> step,
+  virtual Result<std::pair<std::int32_t, double>> path_step(const std::string& robot,
+                                                            std::optional<std::int32_t> step,
                                                             std::int32_t advance) = 0;
   virtual Result<PathView> path_following(const std::string& robot) const = 0;
 

@@ -67,8 +67,8 @@ class ControlContext {
   virtual ~ControlContext() = default;
   std::size_t n = 0;
   double period = 0.001;
-  double t = 0.0;              // control time, s
-  std::int64_t now_ns = 0;     // steady clock, for sensor freshness
+  double t = 0.0;           // control time, s
+  std::int64_t now_ns = 0;  // steady clock, for sensor freshness
   safety::OperatingState state = safety::OperatingState::kDisabled;
   bool drives_ready = false;
   ModeId mode = kJointMode;
@@ -232,12 +232,14 @@ class RobotPlugin {
   // encoded for the controller, with the move's duration (s; 0 for streams). Default: not supported.
   enum class CartesianKind : std::uint8_t { move_cp, servo_cp, servo_cv };
   virtual bool cartesian() const { return false; }
-  virtual Result<std::pair<PluginCommand, double>> cartesian_command(CartesianKind kind, const CartesianPose& pose,
+  virtual Result<std::pair<PluginCommand, double>> cartesian_command(CartesianKind kind,
+                                                                     const CartesianPose& pose,
                                                                      const CartesianTwist& twist,
                                                                      const OperatingStateView& state) const;
   // The tool's twist from joint positions and velocities, and the measured contact force; nullopt when
   // the type has no such measure.
-  virtual std::optional<CartesianTwist> measured_cv(std::span<const double> q, std::span<const double> qd) const {
+  virtual std::optional<CartesianTwist> measured_cv(std::span<const double> q,
+                                                    std::span<const double> qd) const {
     (void)q;
     (void)qd;
     return std::nullopt;
@@ -263,7 +265,8 @@ class RobotType {
   virtual nlohmann::json settings_schema() const = 0;
   // Drive parameters of a simulated CiA 402 drive for `preset` (from a joint's "simulation"), or
   // nullopt when the type has no such preset (the core then simulates a generic axis).
-  virtual std::optional<sim::DriveParameters> simulated_drive(const std::string& preset, const JointConfig& joint) const;
+  virtual std::optional<sim::DriveParameters> simulated_drive(const std::string& preset,
+                                                              const JointConfig& joint) const;
   // Jobs the type offers over REST for its robots (plans, designs, calibrations: planning_api.hpp), or
   // null. `robots` are the configured robots of this type.
   virtual std::unique_ptr<PlanningApi> planning_service(const std::vector<RobotConfig>& robots) const {

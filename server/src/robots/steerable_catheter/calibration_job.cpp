@@ -8,9 +8,9 @@
 #include <memory>
 #include <numbers>
 
+#include "steerable_catheter/calibration_request.hpp"
 #include "steerable_catheter/catheter_settings.hpp"
 #include "tendril/calibration/side_view_outline.hpp"
-#include "steerable_catheter/calibration_request.hpp"
 #include "tendril/teleop/shape_calibration.hpp"
 
 namespace tendril::server {

@@ -29,8 +29,9 @@ std::string mm(double v) {
 }
 
 ApiResult busy(const std::string& robot) {
-  return ApiResult::error(503, "control_busy",
-                          "the control loop of '" + robot + "' is not taking commands fast enough; try again");
+  return ApiResult::error(
+      503, "control_busy",
+      "the control loop of '" + robot + "' is not taking commands fast enough; try again");
 }
 
 class CatheterApi final : public RobotApiExtension {
@@ -81,15 +82,17 @@ class CatheterApi final : public RobotApiExtension {
     out["spring_deflection_limit_mm"] = settings.deflection.limit_mm;
     out["configuration"] = vec(robot_.map().configuration(effective_actuation(s)));
     const bool moving = s.mode == kConfigurationMode && s.configuration_moving;
-    out["configuration_goal"] = moving ? vec(Eigen::Vector4d(s.configuration_goal[0], s.configuration_goal[1],
-                                                             s.configuration_goal[2], s.configuration_goal[3]))
-                                       : json(nullptr);
+    out["configuration_goal"] = moving
+                                    ? vec(Eigen::Vector4d(s.configuration_goal[0], s.configuration_goal[1],
+                                                          s.configuration_goal[2], s.configuration_goal[3]))
+                                    : json(nullptr);
     out["retraction_only"] = s.retraction_only;
     out["hold_reason"] = s.hold_code != safety::FaultCode::kNone && s.state == OperatingState::kPaused
                              ? json(safety::to_string(s.hold_code))
                              : json(nullptr);
     out["joystick"] = {
-        {"source", s.joystick_source == JoystickSource::none ? json(nullptr) : json(to_string(s.joystick_source))},
+        {"source",
+         s.joystick_source == JoystickSource::none ? json(nullptr) : json(to_string(s.joystick_source))},
         {"deadman", s.joystick_deadman},
         {"conflict", s.joystick_conflict},
         {"axes", s.joystick_axes}};
@@ -97,8 +100,10 @@ class CatheterApi final : public RobotApiExtension {
     out["contact_force_n"] = sim.present ? json(sim.contact_force_n) : json(nullptr);
     out["max_contact_force_n"] = settings.max_contact_force_n;
     if (sim.present)
-      out["simulation"] = {{"tip_bend_rad", sim.tip_bend_rad}, {"peak_contact_force_n", sim.max_contact_force_n}};
-    if (out.contains("hold") && out["hold"].is_object() && s.state == OperatingState::kPaused) hold(s, out["hold"]);
+      out["simulation"] = {{"tip_bend_rad", sim.tip_bend_rad},
+                           {"peak_contact_force_n", sim.max_contact_force_n}};
+    if (out.contains("hold") && out["hold"].is_object() && s.state == OperatingState::kPaused)
+      hold(s, out["hold"]);
   }
 
   void scene(json& entities) const override {
@@ -108,8 +113,9 @@ class CatheterApi final : public RobotApiExtension {
     auto points = json::array();
     for (const auto& p : vessel) points.push_back(json{{"x", p.x()}, {"y", p.y()}, {"z", p.z()}});
     e["id"] = robot_.config().name + "/simulated_vessel";
-    e["metadata"] = json::array({{{"key", "lumen_radius_mm"}, {"value", std::to_string(robot_.lumen_radius_mm())}},
-                                 {{"key", "simulated"}, {"value", "true"}}});
+    e["metadata"] =
+        json::array({{{"key", "lumen_radius_mm"}, {"value", std::to_string(robot_.lumen_radius_mm())}},
+                     {{"key", "simulated"}, {"value", "true"}}});
     e["lines"][0]["points"] = std::move(points);
     e["lines"][0]["thickness"] = 2.0 * robot_.lumen_radius_mm();  // the lumen, drawn to scale
     e["lines"][0]["color"] = {{"r", 0.35}, {"g", 0.55}, {"b", 0.95}, {"a", 0.25}};
@@ -125,18 +131,24 @@ class CatheterApi final : public RobotApiExtension {
            {{"goal",
              {{"type", "object"},
               {"properties",
-               {{"insertion", number}, {"roll", number}, {"theta_proximal", number}, {"theta_distal", number}}}}}}},
+               {{"insertion", number},
+                {"roll", number},
+                {"theta_proximal", number},
+                {"theta_distal", number}}}}}}},
           {"required", {"goal"}}},
          false,
          "",
-         "configuration mode: a goal in ψ (any subset of insertion mm, roll rad, theta_proximal rad, theta_distal rad)"},
+         "configuration mode: a goal in ψ (any subset of insertion mm, roll rad, theta_proximal rad, "
+         "theta_distal rad)"},
         {"joystick",
          {{"type", "object"},
-          {"properties", {{"axes", {{"type", "array"}, {"items", number}}}, {"deadman", {{"type", "boolean"}}}}},
+          {"properties",
+           {{"axes", {{"type", "array"}, {"items", number}}}, {"deadman", {{"type", "boolean"}}}}},
           {"required", {"axes", "deadman"}}},
          true,
          "deadman",
-         "the console joystick: axes per joint in -1..1 and the deadman (telemanipulation, active compliance, "
+         "the console joystick: axes per joint in -1..1 and the deadman (telemanipulation, active "
+         "compliance, "
          "withdrawal while held)"},
         {"relax",
          {{"type", "object"}, {"properties", json::object()}},
@@ -165,14 +177,15 @@ class CatheterApi final : public RobotApiExtension {
     return LiveState{"catheter",
                      "tendril.CatheterState",
                      10.0,
-                     {"configuration", "spring_deflection_mm", "contact_force_n", "simulation", "joystick.axes",
-                      "hold.message", "hold.next"}};
+                     {"configuration", "spring_deflection_mm", "contact_force_n", "simulation",
+                      "joystick.axes", "hold.message", "hold.next"}};
   }
 
  private:
   static Eigen::Vector4d effective_actuation(const CatheterSnapshot& s) {
     // What reaches the tubes: the drive position less the spring deflection (drive − carriage).
-    return {s.position[0], s.position[1], s.position[2] - s.spring_deflection[0], s.position[3] - s.spring_deflection[1]};
+    return {s.position[0], s.position[1], s.position[2] - s.spring_deflection[0],
+            s.position[3] - s.spring_deflection[1]};
   }
 
   bool post(const PluginCommand& c) const { return post_(c); }
@@ -194,7 +207,8 @@ class CatheterApi final : public RobotApiExtension {
     const bool deflection_hold = s.hold_code == safety::FaultCode::kSpringDeflection;
     const double bound = deflection_hold ? d.resume_mm : d.limit_mm;
     const bool cleared = fresh && value <= bound && !s.relaxing;
-    const std::string relax_how = "relax the springs (the bend drives follow them down to " + mm(0.5 * d.resume_mm) + ")";
+    const std::string relax_how =
+        "relax the springs (the bend drives follow them down to " + mm(0.5 * d.resume_mm) + ")";
     std::string message = hold.value("message", "");
     std::string next = hold.value("next", "");
     if (deflection_hold) {
@@ -203,22 +217,29 @@ class CatheterApi final : public RobotApiExtension {
                       : "spring deflection over its bound; the sensor now sends no reading";
     } else if (s.hold_code == safety::FaultCode::kSensorStale) {
       hold["cause"] = "sensor_stale";
-      message = fresh ? "the spring-deflection sensor (" + node_name() + ") sent no valid reading; it reads again"
-                      : "no valid spring-deflection reading from " + node_name();
+      message =
+          fresh ? "the spring-deflection sensor (" + node_name() + ") sent no valid reading; it reads again"
+                : "no valid spring-deflection reading from " + node_name();
     }
     if (!fresh) {
-      next = "Check the spring-deflection sensor (" + node_name() + ": cable, power); Resume once the gauges read again." +
+      next = "Check the spring-deflection sensor (" + node_name() +
+             ": cable, power); Resume once the gauges read again." +
              (s.retraction_only ? " Withdrawal (insertion backwards) is allowed meanwhile." : "");
     } else if (s.relaxing) {
-      next = "Relaxing: the bend drives follow their springs until both are within " + mm(0.5 * d.resume_mm) + " (now " +
-             mm(value) + "). Pause stops it.";
+      next = "Relaxing: the bend drives follow their springs until both are within " + mm(0.5 * d.resume_mm) +
+             " (now " + mm(value) + "). Pause stops it.";
     } else if (value > bound) {
-      const bool stuck = s.relax_outcome == RelaxOutcome::timed_out || s.relax_outcome == RelaxOutcome::at_limit;
-      next = (deflection_hold ? std::string() : "Resume would hold again at once: " + which + " is deflected " + mm(value) + ". ") +
-             "Resume needs both springs within " + mm(bound) + ": " +
-             (stuck ? "the last relax stopped short (" + std::string(to_string(s.relax_outcome)) +
-                          "), so withdraw the catheter (insertion backwards) and Relax again; then Resume."
-                    : relax_how + (s.retraction_only ? " or withdraw the catheter (insertion backwards)" : "") + "; then Resume.");
+      const bool stuck =
+          s.relax_outcome == RelaxOutcome::timed_out || s.relax_outcome == RelaxOutcome::at_limit;
+      next =
+          (deflection_hold
+               ? std::string()
+               : "Resume would hold again at once: " + which + " is deflected " + mm(value) + ". ") +
+          "Resume needs both springs within " + mm(bound) + ": " +
+          (stuck ? "the last relax stopped short (" + std::string(to_string(s.relax_outcome)) +
+                       "), so withdraw the catheter (insertion backwards) and Relax again; then Resume."
+                 : relax_how + (s.retraction_only ? " or withdraw the catheter (insertion backwards)" : "") +
+                       "; then Resume.");
     } else if (s.hold_code != safety::FaultCode::kNone) {
       next = "The cause has cleared (" + which + " " + mm(value) + "): Resume to continue.";
     }
@@ -234,29 +255,35 @@ class CatheterApi final : public RobotApiExtension {
     hold["resume_bound_mm"] = bound;
     hold["withdraw"] = {{"running", s.withdrawing}};
     hold["relax"] = {{"running", s.relaxing},
-                     {"outcome", s.relax_outcome == RelaxOutcome::none ? json(nullptr) : json(to_string(s.relax_outcome))}};
+                     {"outcome", s.relax_outcome == RelaxOutcome::none ? json(nullptr)
+                                                                       : json(to_string(s.relax_outcome))}};
   }
 
   ApiResult move_configuration(const json& body) {
     const std::string& robot = robot_.config().name;
     if (!body.is_object() || !body.contains("goal") || !body["goal"].is_object() || body["goal"].empty())
-      return ApiResult::error(400, "bad_request",
-                              "expected {\"goal\": {\"insertion\": mm, \"roll\": rad, \"theta_proximal\": rad, "
-                              "\"theta_distal\": rad}} (any of them)");
+      return ApiResult::error(
+          400, "bad_request",
+          "expected {\"goal\": {\"insertion\": mm, \"roll\": rad, \"theta_proximal\": rad, "
+          "\"theta_distal\": rad}} (any of them)");
     const auto s = robot_.snapshot();
     const auto& map = robot_.map();
     // Unnamed entries keep the goal the controller is on (or the current setpoint's configuration).
-    Eigen::Vector4d psi = map.configuration(Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
+    Eigen::Vector4d psi =
+        map.configuration(Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
     if (s.configuration_moving)
-      psi = {s.configuration_goal[0], s.configuration_goal[1], s.configuration_goal[2], s.configuration_goal[3]};
+      psi = {s.configuration_goal[0], s.configuration_goal[1], s.configuration_goal[2],
+             s.configuration_goal[3]};
     for (const auto& [key, value] : body["goal"].items()) {
       int index = -1;
       for (int i = 0; i < 4; ++i)
         if (key == kConfigurationNames[i]) index = i;
       if (index < 0)
         return ApiResult::error(400, "bad_request",
-                                "unknown configuration entry '" + key + "'; expected insertion, roll, theta_proximal or theta_distal");
-      if (!value.is_number()) return ApiResult::error(400, "bad_request", "goal." + key + " must be a number");
+                                "unknown configuration entry '" + key +
+                                    "'; expected insertion, roll, theta_proximal or theta_distal");
+      if (!value.is_number())
+        return ApiResult::error(400, "bad_request", "goal." + key + " must be a number");
       const double v = value.get<double>();
       if (!std::isfinite(v)) return ApiResult::error(422, "not_finite", "goal." + key + " is not finite");
       psi[index] = v;
@@ -275,8 +302,9 @@ class CatheterApi final : public RobotApiExtension {
       const double v = q[static_cast<Eigen::Index>(i)];
       if (v < j.lower || v > j.upper)
         return ApiResult::error(422, "out_of_limits",
-                                std::string("goal.") + names[i] + " needs joint '" + j.name + "' at " + std::to_string(v) +
-                                    " " + j.unit + ", outside [" + std::to_string(j.lower) + ", " + std::to_string(j.upper) +
+                                std::string("goal.") + names[i] + " needs joint '" + j.name + "' at " +
+                                    std::to_string(v) + " " + j.unit + ", outside [" +
+                                    std::to_string(j.lower) + ", " + std::to_string(j.upper) +
                                     "] (joint limits as in GET /robots; configuration bounds there too)");
     }
     // The operating limits (tightened through parameters).
@@ -286,25 +314,28 @@ class CatheterApi final : public RobotApiExtension {
         const double v = q[static_cast<Eigen::Index>(i)];
         if ((p.name == prefix + "lower" && v < p.value) || (p.name == prefix + "upper" && v > p.value))
           return ApiResult::error(422, "out_of_limits",
-                                  "the goal needs joint '" + joints[i].name() + "' at " + std::to_string(v) + " " +
-                                      joints[i].unit() + ", outside its operating range (parameters /" + robot + "/" +
-                                      joints[i].name() + "/lower and /upper)");
+                                  "the goal needs joint '" + joints[i].name() + "' at " + std::to_string(v) +
+                                      " " + joints[i].unit() + ", outside its operating range (parameters /" +
+                                      robot + "/" + joints[i].name() + "/lower and /upper)");
       }
     }
     if (s.mode != kConfigurationMode) {
       const auto state = service_.operating_state(robot);
-      return ApiResult::error(409, "wrong_mode",
-                              "robot '" + robot + "' is in " + (state ? state->mode : std::string("another")) +
-                                  " mode; switch to configuration (POST /api/v1/robots/" + robot + "/mode) first");
+      return ApiResult::error(
+          409, "wrong_mode",
+          "robot '" + robot + "' is in " + (state ? state->mode : std::string("another")) +
+              " mode; switch to configuration (POST /api/v1/robots/" + robot + "/mode) first");
     }
     const auto state = service_.operating_state(robot);
     if (state && state->estop)
       return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset and enable first");
     if (s.state != OperatingState::kEnabled || !s.drives_ready)
-      return ApiResult::error(409, "not_enabled",
-                              "robot '" + robot + "' is " + safety::to_string(s.state) + "; enable it before moving");
+      return ApiResult::error(
+          409, "not_enabled",
+          "robot '" + robot + "' is " + safety::to_string(s.state) + "; enable it before moving");
     // Duration as the controller will plan it: the same quintic in ψ from the current configuration.
-    const Eigen::Vector4d from = map.configuration(Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
+    const Eigen::Vector4d from =
+        map.configuration(Eigen::Vector4d(s.setpoint[0], s.setpoint[1], s.setpoint[2], s.setpoint[3]));
     teleop::QuinticInterpolator predict(4);
     predict.reset({from.data(), 4}, 0.0);
     predict.retarget(0.0, {psi.data(), 4}, {robot_.psi_max_velocity().data(), 4},
@@ -314,16 +345,18 @@ class CatheterApi final : public RobotApiExtension {
     c.count = 4;
     for (std::size_t i = 0; i < 4; ++i) c.values[i] = psi[static_cast<Eigen::Index>(i)];
     if (!post(c)) return busy(robot);
-    return ApiResult::success({{"duration_s", predict.duration()}, {"goal", vec(psi)}, {"joints", vec(q)}}, 202);
+    return ApiResult::success({{"duration_s", predict.duration()}, {"goal", vec(psi)}, {"joints", vec(q)}},
+                              202);
   }
 
   ApiResult joystick(const json& body) {
     const std::string& robot = robot_.config().name;
-    if (!body.is_object() || !body.contains("axes") || !body["axes"].is_array() || !body.contains("deadman") ||
-        !body["deadman"].is_boolean())
-      return ApiResult::error(400, "bad_request",
-                              "expected {\"axes\": [insertion, roll, proximal_bend, distal_bend] (each -1..1), "
-                              "\"deadman\": true|false}");
+    if (!body.is_object() || !body.contains("axes") || !body["axes"].is_array() ||
+        !body.contains("deadman") || !body["deadman"].is_boolean())
+      return ApiResult::error(
+          400, "bad_request",
+          "expected {\"axes\": [insertion, roll, proximal_bend, distal_bend] (each -1..1), "
+          "\"deadman\": true|false}");
     const auto& axes = body["axes"];
     if (axes.size() != 4)
       return ApiResult::error(422, "wrong_size",
@@ -333,7 +366,8 @@ class CatheterApi final : public RobotApiExtension {
     c.id = static_cast<std::uint16_t>(CatheterCommand::joystick);
     c.count = 4;
     for (std::size_t i = 0; i < 4; ++i) {
-      if (!axes[i].is_number()) return ApiResult::error(400, "bad_request", "axes[" + std::to_string(i) + "] is not a number");
+      if (!axes[i].is_number())
+        return ApiResult::error(400, "bad_request", "axes[" + std::to_string(i) + "] is not a number");
       const double v = axes[i].get<double>();
       if (!std::isfinite(v) || v < -1.0 || v > 1.0)
         return ApiResult::error(422, "out_of_range", "axes[" + std::to_string(i) + "] must be within -1..1");
@@ -344,10 +378,11 @@ class CatheterApi final : public RobotApiExtension {
     if (c.flag != 0 && s.mode != kTelemanipulationMode && s.mode != kActiveComplianceMode &&
         !(s.retraction_only && s.state == OperatingState::kPaused)) {
       const auto state = service_.operating_state(robot);
-      return ApiResult::error(409, "wrong_mode",
-                              "robot '" + robot + "' is in " + (state ? state->mode : std::string("another")) +
-                                  " mode; the joystick moves it in telemanipulation (all joints) or active_compliance "
-                                  "(insertion and roll)");
+      return ApiResult::error(
+          409, "wrong_mode",
+          "robot '" + robot + "' is in " + (state ? state->mode : std::string("another")) +
+              " mode; the joystick moves it in telemanipulation (all joints) or active_compliance "
+              "(insertion and roll)");
     }
     if (!post(c)) return busy(robot);
     return ApiResult::success({{"command_timeout_ms", robot_.config().command_timeout_ms}});
@@ -359,12 +394,14 @@ class CatheterApi final : public RobotApiExtension {
     const auto s = robot_.snapshot();
     const auto state = service_.operating_state(robot);
     if (state && state->estop)
-      return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
+      return ApiResult::error(409, "estop_latched",
+                              "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
     if (s.state != OperatingState::kPaused)
-      return ApiResult::error(409, "invalid_state",
-                              "relax is a way out of a hold: robot '" + robot + "' is " + safety::to_string(s.state) +
-                                  ", not held (PAUSED); in active_compliance mode the bend drives follow their springs "
-                                  "anyway");
+      return ApiResult::error(
+          409, "invalid_state",
+          "relax is a way out of a hold: robot '" + robot + "' is " + safety::to_string(s.state) +
+              ", not held (PAUSED); in active_compliance mode the bend drives follow their springs "
+              "anyway");
     if (!s.drives_ready)
       return ApiResult::error(409, "not_enabled", "the drives of robot '" + robot + "' are not ready yet");
     if (!s.deflection_fresh)
@@ -372,7 +409,8 @@ class CatheterApi final : public RobotApiExtension {
                               "relax needs the spring-deflection sensor, and " + node_name() +
                                   " sends no valid reading; check its cable and power");
     if (s.relaxing)
-      return ApiResult::success({{"state", "PAUSED"}, {"relaxing", true}, {"resume_bound_mm", d.resume_mm}}, 202);
+      return ApiResult::success({{"state", "PAUSED"}, {"relaxing", true}, {"resume_bound_mm", d.resume_mm}},
+                                202);
     const double a = std::abs(s.spring_deflection[0]), b = std::abs(s.spring_deflection[1]);
     if (std::max(a, b) <= d.resume_mm)
       return ApiResult::error(409, "already_relaxed",
@@ -381,36 +419,44 @@ class CatheterApi final : public RobotApiExtension {
     PluginCommand c;
     c.id = static_cast<std::uint16_t>(CatheterCommand::relax);
     if (!post(c)) return busy(robot);
-    return ApiResult::success(
-        {{"state", "PAUSED"}, {"relaxing", true}, {"resume_bound_mm", d.resume_mm}, {"timeout_s", d.relax_timeout_s}}, 202);
+    return ApiResult::success({{"state", "PAUSED"},
+                               {"relaxing", true},
+                               {"resume_bound_mm", d.resume_mm},
+                               {"timeout_s", d.relax_timeout_s}},
+                              202);
   }
 
   ApiResult withdraw(const json& body) {
     const std::string& robot = robot_.config().name;
     constexpr double kMaxDistanceMm = 10.0;  // one press; more is more presses, each a deliberate act
     if (!body.is_object() || !body.contains("distance_mm") || !body["distance_mm"].is_number())
-      return ApiResult::error(400, "bad_request", "expected {\"command\": \"withdraw\", \"distance_mm\": d} with 0 < d <= 10");
+      return ApiResult::error(400, "bad_request",
+                              "expected {\"command\": \"withdraw\", \"distance_mm\": d} with 0 < d <= 10");
     const double distance = body["distance_mm"].get<double>();
     if (!std::isfinite(distance) || distance <= 0.0 || distance > kMaxDistanceMm)
       return ApiResult::error(422, "out_of_range", "distance_mm must be greater than 0 and at most 10 mm");
     const auto s = robot_.snapshot();
     const auto state = service_.operating_state(robot);
     if (state && state->estop)
-      return ApiResult::error(409, "estop_latched", "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
+      return ApiResult::error(409, "estop_latched",
+                              "the e-stop is latched; reset it (POST /api/v1/estop/reset) first");
     if (s.state != OperatingState::kPaused || !s.retraction_only)
       return ApiResult::error(409, "invalid_state",
                               "withdraw is the way out of a limit hold: robot '" + robot + "' is " +
-                                  safety::to_string(s.state) + (s.state == OperatingState::kPaused ? " by the operator" : "") +
+                                  safety::to_string(s.state) +
+                                  (s.state == OperatingState::kPaused ? " by the operator" : "") +
                                   "; move the insertion in joint mode or with a joystick instead");
-    if (!s.drives_ready) return ApiResult::error(409, "not_enabled", "the drives of robot '" + robot + "' are not ready yet");
+    if (!s.drives_ready)
+      return ApiResult::error(409, "not_enabled", "the drives of robot '" + robot + "' are not ready yet");
     const auto& insertion = robot_.config().joints[0].limit;
     double lowest = insertion.lower + insertion.soft_margin;
     for (const auto& p : service_.parameters())
       if (p.name == "/" + robot + "/" + insertion.name + "/lower") lowest = std::max(lowest, p.value);
     const double to = std::max(s.setpoint[0] - distance, lowest);
     if (!(to < s.setpoint[0]))
-      return ApiResult::error(422, "out_of_limits",
-                              "the insertion is at its lower limit (" + mm(lowest) + "): nothing left to withdraw");
+      return ApiResult::error(
+          422, "out_of_limits",
+          "the insertion is at its lower limit (" + mm(lowest) + "): nothing left to withdraw");
     PluginCommand c;
     c.id = static_cast<std::uint16_t>(CatheterCommand::withdraw);
     c.count = 1;

@@ -70,7 +70,8 @@ const char* to_string(JoystickSource source) noexcept {
 
 // Velocity per joint from the joystick sources whose deadman is held. Exactly one such source moves
 // the robot; two at once cancel (two hands on one catheter is a conflict, not a sum).
-void CatheterController::joystick_velocity(const ControlContext& ctx, std::array<double, kJoints>& v) noexcept {
+void CatheterController::joystick_velocity(const ControlContext& ctx,
+                                           std::array<double, kJoints>& v) noexcept {
   std::array<double, kJoints> axes{};
   int held = 0;
   JoystickSource source = JoystickSource::none;
@@ -86,7 +87,8 @@ void CatheterController::joystick_velocity(const ControlContext& ctx, std::array
     if (st.connected && st.deadman) {
       std::array<double, kJoints> a{};
       for (std::size_t j = 0; j < kJoints; ++j)
-        if (robot_.evdev_output_[j] >= 0) a[j] = st.outputs[static_cast<std::size_t>(robot_.evdev_output_[j])];
+        if (robot_.evdev_output_[j] >= 0)
+          a[j] = st.outputs[static_cast<std::size_t>(robot_.evdev_output_[j])];
       take(JoystickSource::evdev, a);
     }
   }
@@ -133,7 +135,8 @@ void CatheterController::sense(ControlContext& ctx) noexcept {
   for (std::size_t i = 0; i < 2; ++i) {
     if (std::abs(spring_deflection_[i]) <= settings.deflection.limit_mm) continue;
     char detail[80];
-    std::snprintf(detail, sizeof detail, "%.2f mm, bound %.2f mm", spring_deflection_[i], settings.deflection.limit_mm);
+    std::snprintf(detail, sizeof detail, "%.2f mm, bound %.2f mm", spring_deflection_[i],
+                  settings.deflection.limit_mm);
     held(safety::FaultCode::kSpringDeflection, static_cast<int>(2 + i), detail);
     return;
   }
@@ -206,7 +209,8 @@ void CatheterController::retraction(ControlContext& ctx) noexcept {
   if (withdrawing_) {
     // A requested distance goes at the joystick's full insertion speed and stops on the millimetre.
     const double remaining = ctx.q_des[0] - withdraw_to_;
-    const double speed = std::min(robot_.settings_.telemanipulation_max_speed[0], ctx.limits->max_velocity[0]);
+    const double speed =
+        std::min(robot_.settings_.telemanipulation_max_speed[0], ctx.limits->max_velocity[0]);
     if (remaining <= 1e-9 || speed <= 0.0)
       withdrawing_ = false;
     else
@@ -236,7 +240,8 @@ void CatheterController::relax(ControlContext& ctx) noexcept {
     relaxing_ = false;
     relax_outcome_ = outcome;
     ctx.qd_des[2] = ctx.qd_des[3] = 0.0;
-    ctx.supervisor->record(ctx.t, safety::EventKind::kRecovery, safety::FaultCode::kSpringDeflection, -1, text);
+    ctx.supervisor->record(ctx.t, safety::EventKind::kRecovery, safety::FaultCode::kSpringDeflection, -1,
+                           text);
   };
   if (!deflection_fresh_) {
     std::snprintf(text, sizeof text, "relax stopped: no valid spring-deflection reading");
@@ -247,8 +252,8 @@ void CatheterController::relax(ControlContext& ctx) noexcept {
   const double worst = std::max(std::abs(spring_deflection_[0]), std::abs(spring_deflection_[1]));
   relax_settled_s_ = worst <= 0.5 * d.resume_mm ? relax_settled_s_ + ctx.period : 0.0;
   if (relax_settled_s_ >= kRelaxSettleS) {
-    std::snprintf(text, sizeof text, "springs relaxed (%.2f mm, resume bound %.2f mm): resume is possible", worst,
-                  d.resume_mm);
+    std::snprintf(text, sizeof text, "springs relaxed (%.2f mm, resume bound %.2f mm): resume is possible",
+                  worst, d.resume_mm);
     return end(RelaxOutcome::relaxed);
   }
   if (ctx.t - relax_started_ > d.relax_timeout_s) {
@@ -264,7 +269,8 @@ void CatheterController::relax(ControlContext& ctx) noexcept {
     const auto& j = robot_.config_.joints[i].limit;
     const double lo = std::max(j.lower + j.soft_margin, ctx.limits->lower[i]);
     const double hi = std::min(j.upper - j.soft_margin, ctx.limits->upper[i]);
-    if ((ctx.q_des[i] < lo && ctx.q_des[i] < current[i]) || (ctx.q_des[i] > hi && ctx.q_des[i] > current[i])) {
+    if ((ctx.q_des[i] < lo && ctx.q_des[i] < current[i]) ||
+        (ctx.q_des[i] > hi && ctx.q_des[i] > current[i])) {
       ctx.q_des[i] = current[i];
       std::snprintf(text, sizeof text, "relax stopped: drive '%s' at its limit with %.2f mm left; withdraw",
                     j.name.c_str(), worst);
@@ -286,8 +292,8 @@ void CatheterController::apply(ControlContext& ctx, const PluginCommand& command
   switch (static_cast<CatheterCommand>(command.id)) {
     case CatheterCommand::move_configuration:
       if (ctx.mode != kConfigurationMode || ctx.state != OperatingState::kEnabled || !ctx.drives_ready) break;
-      robot_.configuration_->retarget(ctx.t, Eigen::Vector4d(command.values[0], command.values[1], command.values[2],
-                                                             command.values[3]));
+      robot_.configuration_->retarget(
+          ctx.t, Eigen::Vector4d(command.values[0], command.values[1], command.values[2], command.values[3]));
       break;
     case CatheterCommand::joystick:
       for (std::size_t i = 0; i < kJoints; ++i) console_axes_[i] = command.values[i];
@@ -353,13 +359,17 @@ bool CatheterController::servo_allowed(const ControlContext& ctx, std::span<cons
   // backwards only.
   const bool bends_still = v.size() == kJoints && v[2] == 0.0 && v[3] == 0.0;
   return (ctx.mode == kActiveComplianceMode && ctx.state == OperatingState::kEnabled && bends_still) ||
-         (retraction_only_ && ctx.state == OperatingState::kPaused && bends_still && v[1] == 0.0 && v[0] <= 0.0);
+         (retraction_only_ && ctx.state == OperatingState::kPaused && bends_still && v[1] == 0.0 &&
+          v[0] <= 0.0);
 }
 
-bool CatheterController::hold_cleared(const ControlContext& ctx, char* why, std::size_t why_size) const noexcept {
+bool CatheterController::hold_cleared(const ControlContext& ctx, char* why,
+                                      std::size_t why_size) const noexcept {
   const auto& d = robot_.settings_.deflection;
   if (!deflection_fresh_) {
-    if (why) std::snprintf(why, why_size, "resume refused: no valid spring-deflection reading from node 0x%02X", d.node_id);
+    if (why)
+      std::snprintf(why, why_size, "resume refused: no valid spring-deflection reading from node 0x%02X",
+                    d.node_id);
     return false;
   }
   if (relaxing_) {
@@ -370,8 +380,8 @@ bool CatheterController::hold_cleared(const ControlContext& ctx, char* why, std:
   const double bound = ctx.hold_cause() == safety::FaultCode::kSpringDeflection ? d.resume_mm : d.limit_mm;
   if (value <= bound) return true;
   if (why)
-    std::snprintf(why, why_size, "resume refused: spring deflected %.2f mm, over %.2f mm; relax or withdraw", value,
-                  bound);
+    std::snprintf(why, why_size, "resume refused: spring deflected %.2f mm, over %.2f mm; relax or withdraw",
+                  value, bound);
   return false;
 }
 

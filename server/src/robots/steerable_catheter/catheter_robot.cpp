@@ -8,8 +8,8 @@
 
 #include "steerable_catheter/catheter_simulation.hpp"
 #include "steerable_catheter/planning_service.hpp"
-#include "tendril/drivers/canopen/bus_load.hpp"
 #include "steerable_catheter/steerable_catheter_schema.hpp"
+#include "tendril/drivers/canopen/bus_load.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/server/robot_api_extension.hpp"
 #include "tendril/server/robot_types.hpp"
@@ -35,7 +35,8 @@ class SteerableCatheterType final : public RobotType {
     static const nlohmann::json schema = nlohmann::json::parse(schema_files::k_steerable_catheter);
     return schema;
   }
-  std::optional<sim::DriveParameters> simulated_drive(const std::string& preset, const JointConfig& joint) const override {
+  std::optional<sim::DriveParameters> simulated_drive(const std::string& preset,
+                                                      const JointConfig& joint) const override {
     // The SRMC's drive hardware: Velmex lead screws on the bends; the insertion stage and roll gear
     // as assumed in drivers/sim/README.md.
     if (preset == "srmc_insertion") return sim::DriveParameters::srmc_insertion(joint.name());
@@ -58,7 +59,8 @@ void register_steerable_catheter(RobotTypes& types) { types.add(std::make_unique
 SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assembly) : config_(rc) {
   const std::string file = rc.file.string();
   // The kinematic model first: its error names the model that needs the four joints.
-  display_ = make_catheter_display_model(rc.settings.value("kinematics", nlohmann::json::object()), rc.joints.size(), file);
+  display_ = make_catheter_display_model(rc.settings.value("kinematics", nlohmann::json::object()),
+                                         rc.joints.size(), file);
   settings_ = parse_catheter_settings(rc);
   if (const auto it = rc.settings.find("kinematics"); it != rc.settings.end()) {
     const auto g = it->find("bend_gain_rad_per_mm");
@@ -92,13 +94,16 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
     psi_max_velocity_[i] = headroom * j.max_velocity * slope;
     psi_max_acceleration_[i] = headroom * j.max_acceleration * slope;
   }
-  configuration_ = std::make_unique<teleop::ConfigurationSpaceController>(*map_, psi_max_velocity_, psi_max_acceleration_);
+  configuration_ =
+      std::make_unique<teleop::ConfigurationSpaceController>(*map_, psi_max_velocity_, psi_max_acceleration_);
 
   // Spring-deflection potentiometers and the analog joystick: CiA 401 ADC nodes on the bend drives' bus.
   const std::string bus_name = assembly.joint_bus(2);
   if (bus_name.empty())
-    throw ConfigError(file + ": joints[2].drive: the steerable catheter's sensors sit on the bus of its bend drives, "
-                             "which need CiA 402 drives");
+    throw ConfigError(
+        file +
+        ": joints[2].drive: the steerable catheter's sensors sit on the bus of its bend drives, "
+        "which need CiA 402 drives");
   auto bus = assembly.bus(bus_name);
   const auto& d = settings_.deflection;
   canopen::AnalogInputSetup deflection_setup;
@@ -108,7 +113,8 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
   if (settings_.analog_joystick)
     joystick_receiver_ = std::make_unique<input::AnalogJoystickReceiver>(*settings_.analog_joystick);
   bus.listen([this](const can::Frame& frame, std::chrono::steady_clock::time_point now) {
-    const std::int64_t now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
+    const std::int64_t now_ns =
+        std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
     bus_heard_ns_.store(now_ns, std::memory_order_relaxed);
     if (deflection_receiver_->handle(frame, now_ns)) {
       const auto reading = deflection_receiver_->reading(now_ns);
@@ -155,7 +161,9 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
 
 std::vector<ModeInfo> SteerableCatheter::modes() const {
   return {{"configuration", "move_configuration goals in ψ = (insertion, roll, θ_L1, θ_L2) through eq. 4.21"},
-          {"active_compliance", "the bend drives follow their springs (eqs. 4.24-4.26); insertion and roll from servo_jv or a joystick"},
+          {"active_compliance",
+           "the bend drives follow their springs (eqs. 4.24-4.26); insertion and roll from servo_jv or a "
+           "joystick"},
           {"telemanipulation", "joint velocities from a joystick while its deadman is held"}};
 }
 
@@ -164,7 +172,8 @@ void SteerableCatheter::display_positions(std::span<const double> measured, std:
   // the spring deflection (drive − carriage), divided by the display model's bend gains.
   const auto s = published_.load();
   const std::array<double, 2> d = s.deflection_fresh ? s.spring_deflection : std::array<double, 2>{};
-  const auto psi = map_->configuration(Eigen::Vector4d(measured[0], measured[1], measured[2] - d[0], measured[3] - d[1]));
+  const auto psi =
+      map_->configuration(Eigen::Vector4d(measured[0], measured[1], measured[2] - d[0], measured[3] - d[1]));
   out[0] = measured[0];
   out[1] = measured[1];
   out[2] = psi[2] / display_gains_[0];
@@ -179,18 +188,19 @@ std::optional<Status> SteerableCatheter::check_servo(ModeId mode, const Operatin
   if (s.retraction_only && state.state == safety::OperatingState::kPaused) {
     // Held after a limit: only withdrawal of the catheter.
     if (!bends_still || v[1] != 0.0 || v[0] > 0.0)
-      return Status(ServiceError{ErrorKind::conflict, "retraction_only",
-                                 "robot '" + robot + "' is held after a safety limit (" +
-                                     safety::to_string(s.hold_code) +
-                                     "); only retraction (negative insertion velocity, all else 0) may move it"});
+      return Status(ServiceError{
+          ErrorKind::conflict, "retraction_only",
+          "robot '" + robot + "' is held after a safety limit (" + safety::to_string(s.hold_code) +
+              "); only retraction (negative insertion velocity, all else 0) may move it"});
     return Status(Done{});
   }
   if (mode == kActiveComplianceMode) {
     if (!bends_still)
-      return Status(ServiceError{ErrorKind::conflict, "wrong_mode",
-                                 "robot '" + robot +
-                                     "' is in active_compliance mode: the bend drives follow their springs, so their "
-                                     "velocities must be 0 (insertion and roll may move)"});
+      return Status(
+          ServiceError{ErrorKind::conflict, "wrong_mode",
+                       "robot '" + robot +
+                           "' is in active_compliance mode: the bend drives follow their springs, so their "
+                           "velocities must be 0 (insertion and roll may move)"});
     if (state.state != safety::OperatingState::kEnabled)
       return Status(ServiceError{ErrorKind::conflict, "not_enabled",
                                  "robot '" + robot + "' is " + safety::to_string(state.state) +
@@ -205,16 +215,19 @@ std::optional<ServiceError> SteerableCatheter::resume_refusal(const OperatingSta
   const auto s = published_.load();
   const auto& d = settings_.deflection;
   const std::string& robot = config_.name;
-  const std::string held = s.hold_code == safety::FaultCode::kNone ? std::string("paused by the operator")
-                                                                    : std::string("held: ") + safety::to_string(s.hold_code);
+  const std::string held = s.hold_code == safety::FaultCode::kNone
+                               ? std::string("paused by the operator")
+                               : std::string("held: ") + safety::to_string(s.hold_code);
   char node[48];
   std::snprintf(node, sizeof node, "ADC node 0x%02X", d.node_id);
   if (!s.deflection_fresh)
-    return ServiceError{ErrorKind::conflict, "hold_not_cleared",
-                        "cannot resume robot '" + robot + "' (" + held + "): there is no valid spring-deflection reading from " +
-                            node + ", so it would hold again at once; check the sensor's cable and power and resume once it "
-                                   "reads again" +
-                            (s.retraction_only ? " (withdrawal is allowed meanwhile)" : "")};
+    return ServiceError{
+        ErrorKind::conflict, "hold_not_cleared",
+        "cannot resume robot '" + robot + "' (" + held +
+            "): there is no valid spring-deflection reading from " + node +
+            ", so it would hold again at once; check the sensor's cable and power and resume once it "
+            "reads again" +
+            (s.retraction_only ? " (withdrawal is allowed meanwhile)" : "")};
   const double a = std::abs(s.spring_deflection[0]), b = std::abs(s.spring_deflection[1]);
   const int spring = a >= b ? 0 : 1;
   const double value = std::max(a, b);
@@ -223,22 +236,27 @@ std::optional<ServiceError> SteerableCatheter::resume_refusal(const OperatingSta
   const double bound = deflection_hold ? d.resume_mm : d.limit_mm;
   if (s.relaxing)
     return ServiceError{ErrorKind::conflict, "hold_not_cleared",
-                        "cannot resume robot '" + robot + "' yet: the springs are relaxing (the " + names[spring] + " at " +
-                            mm(value) + ", resume at " + mm(d.resume_mm) + "); wait until the relax ends"};
+                        "cannot resume robot '" + robot + "' yet: the springs are relaxing (the " +
+                            names[spring] + " at " + mm(value) + ", resume at " + mm(d.resume_mm) +
+                            "); wait until the relax ends"};
   if (value <= bound) return std::nullopt;
   return ServiceError{ErrorKind::conflict, "hold_not_cleared",
-                      "cannot resume robot '" + robot + "' (" + held + "): the " + names[spring] + " spring is deflected " +
-                          mm(value) + ", over the " + (deflection_hold ? "resume bound " : "hold bound ") + mm(bound) +
+                      "cannot resume robot '" + robot + "' (" + held + "): the " + names[spring] +
+                          " spring is deflected " + mm(value) + ", over the " +
+                          (deflection_hold ? "resume bound " : "hold bound ") + mm(bound) +
                           "; relax the springs first (POST /api/v1/robots/" + robot +
-                          "/state_command {\"command\": \"relax\"})" + (s.retraction_only ? " or withdraw the catheter" : "")};
+                          "/state_command {\"command\": \"relax\"})" +
+                          (s.retraction_only ? " or withdraw the catheter" : "")};
 }
 
-std::optional<ServiceError> SteerableCatheter::refuse_mode(ModeId mode, const OperatingStateView& state) const {
+std::optional<ServiceError> SteerableCatheter::refuse_mode(ModeId mode,
+                                                           const OperatingStateView& state) const {
   (void)state;
   const auto s = published_.load();
   if (mode == kActiveComplianceMode && !s.deflection_fresh)
-    return ServiceError{ErrorKind::conflict, "sensor_stale",
-                        "robot '" + config_.name + "' has no valid spring-deflection reading; active compliance needs it"};
+    return ServiceError{
+        ErrorKind::conflict, "sensor_stale",
+        "robot '" + config_.name + "' has no valid spring-deflection reading; active compliance needs it"};
   return std::nullopt;
 }
 

@@ -181,8 +181,8 @@ class SteerableCatheter final : public RobotPlugin {
   std::unique_ptr<teleop::CatheterConfigurationMap> map_;
   std::unique_ptr<teleop::ConfigurationSpaceController> configuration_;  // control thread
   Eigen::Vector4d psi_max_velocity_, psi_max_acceleration_;              // its quintic's bounds in ψ
-  std::unique_ptr<canopen::AnalogInputReceiver> deflection_receiver_;   // bus thread
-  std::unique_ptr<input::AnalogJoystickReceiver> joystick_receiver_;    // bus thread
+  std::unique_ptr<canopen::AnalogInputReceiver> deflection_receiver_;    // bus thread
+  std::unique_ptr<input::AnalogJoystickReceiver> joystick_receiver_;     // bus thread
   hardware::LatestValue<DeflectionReading> deflection_;
   hardware::LatestValue<input::JoystickState> analog_joystick_;
   // When the bus thread last handled any frame on the ADC nodes' bus (steady clock ns): the readings'
@@ -199,8 +199,8 @@ class SteerableCatheter final : public RobotPlugin {
 };
 
 // The display model of the robot file's "kinematics" (constant curvature; catheter_display_model.cpp).
-std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& kinematics, std::size_t joints,
-                                                            const std::string& file);
+std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& kinematics,
+                                                             std::size_t joints, const std::string& file);
 
 // The type's part of the network API (catheter_api.cpp).
 std::unique_ptr<RobotApiExtension> make_catheter_api(SteerableCatheter& robot, RobotService& service,

@@ -5,8 +5,8 @@
 #include <numbers>
 #include <sstream>
 
-#include "tendril/server/config_reader.hpp"
 #include "tendril/drivers/sim/catheter_vessel_contact.hpp"
+#include "tendril/server/config_reader.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::server {
@@ -75,7 +75,8 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
                       ": catheter: a steerable catheter has 4 joints (insertion, roll, proximal and "
                       "distal bend drives), this robot has " +
                       std::to_string(rc.joints.size()));
-  const nlohmann::json& catheter = rc.settings.contains("catheter") ? rc.settings["catheter"] : nlohmann::json::object();
+  const nlohmann::json& catheter =
+      rc.settings.contains("catheter") ? rc.settings["catheter"] : nlohmann::json::object();
   const Reader r(catheter, file, "catheter");
   CatheterSettings s;
 
@@ -176,7 +177,8 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     }
   } else {
     for (std::size_t i = 0; i < 4; ++i)
-      s.telemanipulation_max_speed[i] = std::min(s.telemanipulation_max_speed[i], rc.joints[i].limit.max_velocity);
+      s.telemanipulation_max_speed[i] =
+          std::min(s.telemanipulation_max_speed[i], rc.joints[i].limit.max_velocity);
   }
   s.retraction_only_while_held = r.boolean_or("retraction_only_while_held", true);
   s.max_contact_force_n = r.positive_or("max_contact_force_n", s.max_contact_force_n);

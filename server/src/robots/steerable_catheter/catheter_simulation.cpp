@@ -6,8 +6,8 @@
 #include <cmath>
 
 #include "steerable_catheter/catheter_simulation.hpp"
-#include "tendril/drivers/sim/simulated_analog_input_node.hpp"
 #include "tendril/drivers/sim/catheter_vessel_contact.hpp"
+#include "tendril/drivers/sim/simulated_analog_input_node.hpp"
 #include "tendril/drivers/sim/simulated_analog_joystick.hpp"
 #include "tendril/drivers/sim/srmc_plant.hpp"
 
@@ -26,20 +26,23 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
   for (std::size_t j = 0; j < 4; ++j) {
     drives[j] = assembly.simulated_drive(j);
     if (!drives[j] || assembly.joint_bus(j) != bus.name)
-      throw ConfigError(file + ": catheter.simulation: the simulated plant needs all four drives simulated on bus '" +
-                        bus.name + "'");
+      throw ConfigError(
+          file + ": catheter.simulation: the simulated plant needs all four drives simulated on bus '" +
+          bus.name + "'");
   }
 
   sim::AnalogInputNodeParameters sensor;
   sensor.node_id = s.deflection.node_id;
   simulation->sensor_endpoint = bus.attach("sim:spring-deflection-adc");
-  simulation->sensor_node = std::make_unique<sim::SimulatedAnalogInputNode>(*simulation->sensor_endpoint, sensor);
+  simulation->sensor_node =
+      std::make_unique<sim::SimulatedAnalogInputNode>(*simulation->sensor_endpoint, sensor);
 
   sim::SrmcPlantParameters p;
   p.spring_stiffness = s.simulation.spring_stiffness_n_per_mm;
   p.tube_stiffness = s.simulation.tube_stiffness_n_per_mm;
   p.potentiometer_noise = s.simulation.potentiometer_noise_mm;
-  p.coupling_mm_per_rad = s.rates.coupling_enabled ? s.rates.proximal_outer_radius * std::cos(s.rates.plane_offset) : 0.0;
+  p.coupling_mm_per_rad =
+      s.rates.coupling_enabled ? s.rates.proximal_outer_radius * std::cos(s.rates.plane_offset) : 0.0;
   p.potentiometer_volts_per_mm = s.deflection.volts_per_mm;
   p.carriage_damping = s.simulation.carriage_damping_n_s_per_mm;
   p.shape = assembled_shape(s);
@@ -61,7 +64,8 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
     sim::AnalogJoystickNodeParameters j;
     j.node_id = s.analog_joystick->node_id;
     simulation->joystick_endpoint = bus.attach("sim:joystick-adc");
-    simulation->joystick_node = std::make_unique<sim::SimulatedAnalogJoystick>(*simulation->joystick_endpoint, j);
+    simulation->joystick_node =
+        std::make_unique<sim::SimulatedAnalogJoystick>(*simulation->joystick_endpoint, j);
     bus.add_plant(simulation->joystick_node.get());
   }
   simulation_ = std::move(simulation);

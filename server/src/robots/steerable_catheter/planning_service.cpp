@@ -12,9 +12,9 @@
 #include <sstream>
 #include <variant>
 
+#include "steerable_catheter/calibration_job.hpp"
 #include "steerable_catheter/catheter_settings.hpp"
 #include "tendril/drivers/sim/simulated_side_view_camera.hpp"
-#include "steerable_catheter/calibration_job.hpp"
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/job_queue.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
@@ -303,7 +303,8 @@ struct PlanningService::Impl {
     for (auto& rc : configs) {
       RobotModel m;
       const auto kinematics = rc.settings.value("kinematics", json::object());
-      if (rc.kind == "steerable_catheter" && kinematics.value("model", std::string{}) == "constant_curvature_catheter" &&
+      if (rc.kind == "steerable_catheter" &&
+          kinematics.value("model", std::string{}) == "constant_curvature_catheter" &&
           rc.joints.size() == 4) {
         try {
           m.design = configured_design(kinematics);
@@ -311,8 +312,9 @@ struct PlanningService::Impl {
           m.why_not = std::string("its kinematics could not be read: ") + e.what();
         }
       } else {
-        m.why_not = "the planner models the steerable catheter (kind steerable_catheter, kinematics "
-                    "constant_curvature_catheter) only";
+        m.why_not =
+            "the planner models the steerable catheter (kind steerable_catheter, kinematics "
+            "constant_curvature_catheter) only";
       }
       m.config = std::move(rc);
       robots.push_back(std::move(m));
@@ -471,7 +473,8 @@ struct PlanningService::Impl {
               vessel_id](const teleop::JobControl& control) {
         const auto start = std::chrono::steady_clock::now();
         const double length = polyline_length(branch);
-        const bool cut = length > rc.joints.at(0).limit.upper - rc.joints.at(0).limit.soft_margin;  // said in the result
+        const bool cut =
+            length > rc.joints.at(0).limit.upper - rc.joints.at(0).limit.soft_margin;  // said in the result
         const auto aligned = reachable_path(branch, rc, p.ds);
         auto options = planner_options(rc, p.dq1, p.flexure);
         teleop::PathPlan plan;

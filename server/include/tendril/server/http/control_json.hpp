@@ -44,7 +44,8 @@ class JsonControlApi final : public ControlApi {
   ApiResult servo_cp(const std::string& robot, const nlohmann::json& body) override;
   ApiResult servo_cv(const std::string& robot, const nlohmann::json& body) override;
   std::vector<RobotCommandInfo> robot_commands(const std::string& robot) const override;
-  ApiResult robot_command(const std::string& robot, const std::string& name, const nlohmann::json& body) override;
+  ApiResult robot_command(const std::string& robot, const std::string& name,
+                          const nlohmann::json& body) override;
   ApiResult estop() override;
   ApiResult estop_from(const std::string& actor) override;
   ApiResult estop_reset() override;
@@ -55,7 +56,8 @@ class JsonControlApi final : public ControlApi {
   std::optional<nlohmann::json> topic_message(const std::string& topic, std::uint64_t since_version,
                                               std::uint64_t& version) const override;
   void operator_lost() override;
-  ApiResult load_path(const std::string& robot, const nlohmann::json& plan, const std::string& plan_id) override;
+  ApiResult load_path(const std::string& robot, const nlohmann::json& plan,
+                      const std::string& plan_id) override;
   ApiResult path_step(const std::string& robot, const nlohmann::json& body) override;
   ApiResult path_following(const std::string& robot) const override;
   nlohmann::json parameters() const override;
