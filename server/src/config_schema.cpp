@@ -265,19 +265,37 @@ class Validator {
   const json& root_;
 };
 
+// "where/a/b": the place of a sub-schema in messages.
+std::string schema_path(const std::string& where, const std::string& a, const std::string& b = {}) {
+  std::string out = where;
+  out += '/';
+  out += a;
+  if (!b.empty()) {
+    out += '/';
+    out += b;
+  }
+  return out;
+}
+
 void check_keywords(const json& schema, const std::string& where) {
   if (schema.is_boolean()) return;
-  if (!schema.is_object()) throw std::invalid_argument("schema at " + where + ": not an object or a boolean");
+  auto bad = [&where](const std::string& what) {
+    std::string message = "schema at ";
+    message += where;
+    message += ": ";
+    message += what;
+    return std::invalid_argument(message);
+  };
+  if (!schema.is_object()) throw bad("not an object or a boolean");
   for (const auto& [key, value] : schema.items()) {
-    if (!known_keywords().count(key))
-      throw std::invalid_argument("schema at " + where + ": keyword \"" + key + "\" is not supported");
+    if (!known_keywords().count(key)) throw bad("keyword \"" + key + "\" is not supported");
     if (key == "properties" || key == "patternProperties" || key == "$defs") {
-      for (const auto& [name, sub] : value.items()) check_keywords(sub, where + "/" + key + "/" + name);
+      for (const auto& [name, sub] : value.items()) check_keywords(sub, schema_path(where, key, name));
     } else if (key == "items" || key == "additionalProperties") {
-      check_keywords(value, where + "/" + key);
+      check_keywords(value, schema_path(where, key));
     } else if (key == "anyOf" || key == "oneOf") {
       for (std::size_t i = 0; i < value.size(); ++i)
-        check_keywords(value[i], where + "/" + key + "/" + std::to_string(i));
+        check_keywords(value[i], schema_path(where, key, std::to_string(i)));
     } else if (key == "pattern") {
       (void)std::regex(value.get<std::string>());  // throws on a bad pattern
     }

@@ -151,9 +151,16 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
     const std::string file = rc.file.string();
     const RobotType* type = types.find(rc.kind);
     if (!type) {
-      std::string known;
-      for (const auto& k : types.kinds()) known += (known.empty() ? "" : ", ") + k;
-      throw ConfigError(file + ": kind: expected one of " + known + ", got \"" + rc.kind + "\"");
+      std::string message = file + ": kind: expected one of ";
+      const auto kinds = types.kinds();
+      for (std::size_t i = 0; i < kinds.size(); ++i) {
+        if (i > 0) message += ", ";
+        message += kinds[i];
+      }
+      message += ", got \"";
+      message += rc.kind;
+      message += '"';
+      throw ConfigError(message);
     }
     if (!rc.document.is_null()) {
       if (auto why = schema_violation(robot_schema(type->settings_schema(), rc.kind), rc.document))
@@ -342,9 +349,9 @@ std::unique_ptr<can::Bus> RobotRuntime::tap_bus(const std::string& bus) {
 sim::SimulatedCia402Drive* RobotRuntime::simulated_drive(const std::string& robot, const std::string& joint) {
   auto* r = impl_->find(robot);
   if (!r) return nullptr;
+  const std::string who = robot + "/" + joint;
   for (const auto& j : r->config.joints) {
     if (j.name() != joint || !j.drive) continue;
-    const std::string who = robot + "/" + joint;
     for (auto& b : impl_->buses) {
       if (b->config.name != j.drive->bus || !b->virtual_bus) continue;
       for (std::size_t k = 0; k < b->drive_setups.size(); ++k)
