@@ -7,12 +7,15 @@
 #include <set>
 #include <sstream>
 
-#include "config_reader.hpp"
+#include "tendril/server/config_reader.hpp"
+#include "tendril/server/config_schema.hpp"
 
 namespace tendril::server {
 namespace {
 
 using detail::Reader;
+
+}  // namespace
 
 nlohmann::json read_json_file(const std::filesystem::path& file) {
   std::ifstream in(file);
@@ -26,6 +29,8 @@ nlohmann::json read_json_file(const std::filesystem::path& file) {
   }
 }
 
+namespace {
+
 bool is_identifier(const std::string& s) {
   if (s.empty() || s.size() > 64) return false;
   for (char c : s)
@@ -36,14 +41,23 @@ bool is_identifier(const std::string& s) {
 }  // namespace
 
 RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::path& file) {
+  // The core keys against the core schema; the robot type's own top-level sections are checked by the
+  // runtime against the merged schema (config_schema.hpp).
+  {
+    nlohmann::json schema = core_robot_schema();
+    schema.erase("additionalProperties");
+    if (auto why = schema_violation(schema, j)) throw ConfigError(file.string() + ": " + *why);
+  }
   Reader r(j, file.string(), "");
   RobotConfig rc;
   rc.file = file;
+  rc.document = j;
   rc.name = r.string("name");
   if (!is_identifier(rc.name))
     r.fail("name", "letters, digits, '_' or '-' (it appears in URLs)", r.raw("name"));
   rc.kind = r.string("kind");
   rc.description = r.string_or("description", "");
+  if (r.has("control_rate_hz")) rc.control_rate_hz = r.positive("control_rate_hz");
   rc.command_timeout_ms = static_cast<int>(r.integer_in_or("command_timeout_ms", 10, 10'000, 150));
   if (r.has("max_consecutive_overruns"))
     throw ConfigError(file.string() +
@@ -53,92 +67,112 @@ RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::p
   rc.max_lost_control_ms = static_cast<int>(r.integer_in_or("max_lost_control_ms", 1, 10'000, 0));
   rc.enable_timeout_ms = static_cast<int>(r.integer_in_or("enable_timeout_ms", 10, 60'000, 1000));
 
-  const auto& buses = r.array("buses", true);
   std::set<std::string> bus_names;
-  for (std::size_t i = 0; i < buses.size(); ++i) {
-    Reader b = r.element("buses", i);
-    BusConfig bc;
-    bc.name = b.string("name");
-    if (!bus_names.insert(bc.name).second) b.fail("name", "a bus name not used before", b.raw("name"));
-    bc.interface = b.string("interface");
-    bc.bitrate = static_cast<std::uint32_t>(b.integer_in_or("bitrate", 10'000, 1'000'000, 1'000'000));
-    bc.sync_period_us = static_cast<int>(b.integer_in_or("sync_period_us", 250, 100'000, 1000));
-    bc.max_load = b.number_or("max_load", 0.7);
-    if (!(bc.max_load > 0 && bc.max_load <= 1)) b.fail("max_load", "a fraction in (0, 1]", b.raw("max_load"));
-    bc.heartbeat_period_ms = static_cast<int>(b.integer_in_or("heartbeat_period_ms", 1, 10'000, 20));
-    bc.drive_heartbeat_period_ms =
-        static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
-    bc.drive_heartbeat_timeout_ms = static_cast<int>(
-        b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5L * bc.drive_heartbeat_period_ms));
-    bc.master_heartbeat_timeout_ms = static_cast<int>(
-        b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5L * bc.heartbeat_period_ms));
-    if (bc.drive_heartbeat_timeout_ms <= bc.drive_heartbeat_period_ms)
-      b.fail("drive_heartbeat_timeout_ms",
-             "more than drive_heartbeat_period_ms (" + std::to_string(bc.drive_heartbeat_period_ms) + ")",
-             bc.drive_heartbeat_timeout_ms);
-    if (bc.master_heartbeat_timeout_ms <= bc.heartbeat_period_ms)
-      b.fail("master_heartbeat_timeout_ms",
-             "more than heartbeat_period_ms (" + std::to_string(bc.heartbeat_period_ms) + ")",
-             bc.master_heartbeat_timeout_ms);
-    rc.buses.push_back(bc);
+  if (r.has("buses")) {
+    const auto& buses = r.array("buses", false);
+    for (std::size_t i = 0; i < buses.size(); ++i) {
+      Reader b = r.element("buses", i);
+      BusConfig bc;
+      bc.name = b.string("name");
+      if (!bus_names.insert(bc.name).second) b.fail("name", "a bus name not used before", b.raw("name"));
+      bc.interface = b.string("interface");
+      bc.bitrate = static_cast<std::uint32_t>(b.integer_in_or("bitrate", 10'000, 1'000'000, 1'000'000));
+      bc.sync_period_us = static_cast<int>(b.integer_in_or("sync_period_us", 250, 100'000, 1000));
+      bc.max_load = b.number_or("max_load", 0.7);
+      if (!(bc.max_load > 0 && bc.max_load <= 1))
+        b.fail("max_load", "a fraction in (0, 1]", b.raw("max_load"));
+      bc.heartbeat_period_ms = static_cast<int>(b.integer_in_or("heartbeat_period_ms", 1, 10'000, 20));
+      bc.drive_heartbeat_period_ms =
+          static_cast<int>(b.integer_in_or("drive_heartbeat_period_ms", 1, 10'000, 20));
+      bc.drive_heartbeat_timeout_ms = static_cast<int>(
+          b.integer_in_or("drive_heartbeat_timeout_ms", 2, 60'000, 5L * bc.drive_heartbeat_period_ms));
+      bc.master_heartbeat_timeout_ms = static_cast<int>(
+          b.integer_in_or("master_heartbeat_timeout_ms", 2, 60'000, 5L * bc.heartbeat_period_ms));
+      if (bc.drive_heartbeat_timeout_ms <= bc.drive_heartbeat_period_ms)
+        b.fail("drive_heartbeat_timeout_ms",
+               "more than drive_heartbeat_period_ms (" + std::to_string(bc.drive_heartbeat_period_ms) + ")",
+               bc.drive_heartbeat_timeout_ms);
+      if (bc.master_heartbeat_timeout_ms <= bc.heartbeat_period_ms)
+        b.fail("master_heartbeat_timeout_ms",
+               "more than heartbeat_period_ms (" + std::to_string(bc.heartbeat_period_ms) + ")",
+               bc.master_heartbeat_timeout_ms);
+      rc.buses.push_back(bc);
+    }
   }
 
   const auto& joints = r.array("joints", true);
-  if (joints.size() > 16) r.fail("joints", "at most 16 joints", joints.size());
   std::set<std::string> joint_names;
   std::set<std::pair<std::string, int>> node_ids;
+  std::vector<safety::JointLimit> limits;
   for (std::size_t i = 0; i < joints.size(); ++i) {
     Reader jr = r.element("joints", i);
     JointConfig jc;
-    jc.name = jr.string("name");
-    if (!is_identifier(jc.name)) jr.fail("name", "letters, digits, '_' or '-'", jr.raw("name"));
-    if (!joint_names.insert(jc.name).second) jr.fail("name", "a joint name not used before", jr.raw("name"));
-    jc.unit = jr.string("unit");
-    static const std::set<std::string> units{"mm", "m", "rad", "deg"};
-    if (!units.count(jc.unit)) jr.fail("unit", "one of mm, m, rad, deg", jr.raw("unit"));
-    jc.lower = jr.number("lower");
-    jc.upper = jr.number("upper");
-    if (!(jc.upper > jc.lower))
-      jr.fail("upper", "a number greater than lower (" + nlohmann::json(jc.lower).dump() + ")",
+    auto& limit = jc.limit;
+    limit.name = jr.string("name");
+    if (!joint_names.insert(limit.name).second)
+      jr.fail("name", "a joint name not used before", jr.raw("name"));
+    limit.unit = jr.string("unit");
+    limit.lower = jr.number("lower");
+    limit.upper = jr.number("upper");
+    if (!(limit.upper > limit.lower))
+      jr.fail("upper", "a number greater than lower (" + nlohmann::json(limit.lower).dump() + ")",
               jr.raw("upper"));
-    jc.soft_margin = jr.non_negative_or("soft_margin", 0.0);
-    if (2 * jc.soft_margin >= jc.upper - jc.lower)
+    limit.soft_margin = jr.non_negative_or("soft_margin", 0.0);
+    if (2 * limit.soft_margin >= limit.upper - limit.lower)
       jr.fail("soft_margin", "less than half the range upper - lower", jr.raw("soft_margin"));
-    jc.max_velocity = jr.positive("max_velocity");
-    jc.max_acceleration = jr.positive("max_acceleration");
-    jc.max_tracking_error = jr.positive_or("max_tracking_error", (jc.upper - jc.lower) / 10.0);
-    jc.initial_position = jr.number_or("initial_position", std::clamp(0.0, jc.lower, jc.upper));
-    if (jc.initial_position < jc.lower || jc.initial_position > jc.upper)
+    limit.max_velocity = jr.positive("max_velocity");
+    limit.max_acceleration = jr.positive("max_acceleration");
+    limit.max_tracking_error = jr.positive_or("max_tracking_error", (limit.upper - limit.lower) / 10.0);
+    jc.initial_position = jr.number_or("initial_position", std::clamp(0.0, limit.lower, limit.upper));
+    if (jc.initial_position < limit.lower || jc.initial_position > limit.upper)
       jr.fail("initial_position", "a position within [lower, upper]", jr.raw("initial_position"));
-    if (jr.has("simulation")) {
-      Reader sim = jr.child("simulation");
-      jc.simulation_preset = sim.string("preset");
-      static const std::set<std::string> presets{"generic", "srmc_insertion", "srmc_roll", "srmc_bend"};
-      if (!presets.count(jc.simulation_preset))
-        sim.fail("preset", "one of generic, srmc_insertion, srmc_roll, srmc_bend", sim.raw("preset"));
+    if (jr.has("simulation")) jc.simulation_preset = jr.child("simulation").string("preset");
+    if (jr.has("drive")) {
+      Reader d = jr.child("drive");
+      DriveConfig drive;
+      drive.bus = d.string("bus");
+      if (!bus_names.count(drive.bus))
+        d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
+      drive.node_id = static_cast<int>(d.integer_in("node_id", 1, 126));
+      if (!node_ids.insert({drive.bus, drive.node_id}).second)
+        d.fail("node_id", "a node id not used by another joint on bus " + drive.bus, d.raw("node_id"));
+      drive.counts_per_unit = d.positive("counts_per_unit");
+      drive.offset_counts =
+          static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
+      // Positions must fit the 32-bit CiA 402 target with room to spare.
+      const double max_counts =
+          std::max(std::abs(limit.lower), std::abs(limit.upper)) * drive.counts_per_unit;
+      if (max_counts > 2.0e9)
+        d.fail("counts_per_unit", "a resolution whose limits fit in 32-bit counts", d.raw("counts_per_unit"));
+      jc.drive = drive;
     }
-    Reader d = jr.child("drive");
-    jc.drive.bus = d.string("bus");
-    if (!bus_names.count(jc.drive.bus))
-      d.fail("bus", "the name of a bus listed under \"buses\"", d.raw("bus"));
-    jc.drive.node_id = static_cast<int>(d.integer_in("node_id", 1, 126));
-    if (!node_ids.insert({jc.drive.bus, jc.drive.node_id}).second)
-      d.fail("node_id", "a node id not used by another joint on bus " + jc.drive.bus, d.raw("node_id"));
-    jc.drive.counts_per_unit = d.positive("counts_per_unit");
-    jc.drive.offset_counts =
-        static_cast<std::int32_t>(d.integer_in_or("offset_counts", -(1L << 30), 1L << 30, 0));
-    // Positions must fit the 32-bit CiA 402 target with room to spare.
-    double max_counts = std::max(std::abs(jc.lower), std::abs(jc.upper)) * jc.drive.counts_per_unit;
-    if (max_counts > 2.0e9)
-      d.fail("counts_per_unit", "a resolution whose limits fit in 32-bit counts", d.raw("counts_per_unit"));
-    rc.joints.push_back(jc);
+    limits.push_back(limit);
+    rc.joints.push_back(std::move(jc));
   }
-  rc.kinematics = r.has("kinematics") ? r.raw("kinematics") : nlohmann::json::object();
-  if (!rc.kinematics.is_object()) r.fail("kinematics", "an object", rc.kinematics);
-  // Robot-specific control settings (steerable catheter: see catheter_settings.hpp); validated by the
-  // runtime that uses them.
-  rc.catheter = r.has("catheter") ? r.raw("catheter") : nlohmann::json();
-  if (!rc.catheter.is_null() && !rc.catheter.is_object()) r.fail("catheter", "an object", rc.catheter);
+  const bool some_drives =
+      std::any_of(rc.joints.begin(), rc.joints.end(), [](const auto& jc) { return jc.drive; });
+  const bool all_drives =
+      std::all_of(rc.joints.begin(), rc.joints.end(), [](const auto& jc) { return jc.drive; });
+  if (some_drives && !all_drives)
+    r.fail("joints", "a drive for every joint or for none (then the robot type provides the joints)",
+           nullptr);
+  // The one limit validator: the safety library's.
+  try {
+    safety::LimitSet check(limits);
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError(file.string() + ": joints: " + e.what());
+  }
+  static const std::set<std::string> core_keys = {"name",
+                                                  "kind",
+                                                  "description",
+                                                  "control_rate_hz",
+                                                  "command_timeout_ms",
+                                                  "max_lost_control_ms",
+                                                  "enable_timeout_ms",
+                                                  "joints",
+                                                  "buses"};
+  for (const auto& [key, value] : j.items())
+    if (!core_keys.count(key)) rc.settings[key] = value;
   return rc;
 }
 
@@ -148,6 +182,7 @@ RobotConfig load_robot_config(const std::filesystem::path& file) {
 
 ServerConfig load_server_config(const std::filesystem::path& file) {
   const auto j = read_json_file(file);
+  if (auto why = schema_violation(server_file_schema(), j)) throw ConfigError(file.string() + ": " + *why);
   Reader r(j, file.string(), "");
   ServerConfig sc;
   sc.file = file;

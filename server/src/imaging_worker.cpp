@@ -204,7 +204,9 @@ ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::fil
   }
   f.photons_per_pixel = r.number("photons_per_pixel", f.photons_per_pixel, 1.0, 1e7);
   f.blur_sigma_px = r.number("blur_sigma_px", f.blur_sigma_px, 0.0, 20.0);
-  f.catheter_diameter_mm = r.number("catheter_diameter_mm", f.catheter_diameter_mm, 0.05, 20.0);
+  // The simulator names its radio-opaque instrument after the catheter it was written for; any
+  // flexible instrument in the vessel is drawn the same way.
+  f.catheter_diameter_mm = r.number("instrument_diameter_mm", f.catheter_diameter_mm, 0.05, 20.0);
   f.contrast_attenuation_per_mm =
       r.number("contrast_attenuation_per_mm", f.contrast_attenuation_per_mm, 0, 10);
   f.anatomy = r.boolean("anatomy", true);
@@ -275,17 +277,17 @@ struct ImagingWorker::Plane {
   std::size_t jpeg_bytes = 0;
 };
 
-BackboneReader backbone_from(const ControlApi& api, std::string robot) {
+BackboneReader backbone_from(const RobotService& service, std::string robot) {
   if (robot.empty()) {
-    const auto robots = api.robots();
-    if (robots.is_array() && !robots.empty()) robot = robots[0].value("name", "");
+    const auto robots = service.robots();
+    if (!robots.empty()) robot = robots[0].name;
   }
-  if (!api.has_robot(robot)) throw ConfigError("imaging.robot: no robot named '" + robot + "' is configured");
-  return [&api, robot](std::vector<Eigen::Vector3d>& out) {
-    const ApiResult shape = api.shape(robot);
-    if (!shape.ok() || !shape.body.contains("points")) return false;
-    for (const auto& point : shape.body.at("points"))
-      out.emplace_back(point.at(0).get<double>(), point.at(1).get<double>(), point.at(2).get<double>());
+  if (!service.has_robot(robot))
+    throw ConfigError("imaging.robot: no robot named '" + robot + "' is configured");
+  return [&service, robot](std::vector<Eigen::Vector3d>& out) {
+    const auto shape = service.shape(robot);
+    if (!shape) return false;
+    out.insert(out.end(), shape->points.begin(), shape->points.end());
     return true;
   };
 }
@@ -391,7 +393,7 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   try {
     shape_ok = read_backbone_(p.backbone);
   } catch (const std::exception&) {
-    shape_ok = false;  // counted below; the frame shows no catheter rather than a stale one
+    shape_ok = false;  // counted below; the frame shows no instrument rather than a stale one
   }
   if (!shape_ok) p.backbone.clear();
   const auto t0 = SteadyClock::now();

@@ -9,16 +9,21 @@
 #include <fstream>
 #include <iomanip>
 #include <iostream>
+#include <map>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "tendril/drivers/canopen/master.hpp"
 #include "tendril/server/config.hpp"
+#include "tendril/server/config_schema.hpp"
+#include "tendril/server/http/control_json.hpp"
 #include "tendril/server/http/http_server.hpp"
 #include "tendril/server/imaging_worker.hpp"
-#include "tendril/server/planning_service.hpp"
+#include "tendril/server/planning_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
+#include "tendril/server/robot_types.hpp"
 #include "tendril/server/version.hpp"
 
 namespace {
@@ -136,8 +141,22 @@ int main(int argc, char** argv) {
     RuntimeOptions ro;
     ro.control_rate_hz = config.control_rate_hz;
     ro.realtime_priority = config.realtime_priority && !no_realtime;
-    RobotRuntime runtime(config.robots, ro);
+    const RobotTypes& types = builtin_robot_types();
+    RobotRuntime runtime(config.robots, ro, types);
     runtime.start();
+    // The JSON face of the robots for the front end, with each robot type's part of the API and the
+    // schema of each robot file.
+    std::map<std::string, nlohmann::json> schemas;
+    for (const auto& rc : config.robots)
+      if (const auto* type = types.find(rc.kind))
+        schemas[rc.name] = robot_schema(type->settings_schema(), rc.kind);
+    JsonControlApi api(
+        runtime, [&runtime](const std::string& robot) { return runtime.api_extension(robot); },
+        [&schemas](const std::string& robot) -> std::optional<nlohmann::json> {
+          const auto it = schemas.find(robot);
+          if (it == schemas.end()) return std::nullopt;
+          return it->second;
+        });
 
     HttpOptions ho;
     ho.host = config.host;
@@ -170,10 +189,16 @@ int main(int argc, char** argv) {
       ho.topic_sources.push_back(imaging);
       imaging->start();
     }
-    // Path plans and design optimisation run on their own worker thread(s), never on the RT thread.
-    PlanningService planning(config.robots, PlanningOptions{});
-    ho.planning = &planning;
-    HttpServer http(runtime, ho);
+    // Jobs of the robot types (path plans, design optimisation, calibrations) run on their own worker
+    // thread(s), never on the RT thread. The first type with a planning service provides it.
+    std::unique_ptr<PlanningApi> planning;
+    for (const auto& rc : config.robots) {
+      if (planning) break;
+      // Every robot is passed on, so that the service can say why it makes no plans for one.
+      if (const auto* type = types.find(rc.kind)) planning = type->planning_service(config.robots);
+    }
+    ho.planning = planning.get();
+    HttpServer http(api, ho);
     http.start();
 
     std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
@@ -186,7 +211,7 @@ int main(int argc, char** argv) {
     std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
               << " received: disabling the drives and stopping" << std::endl;
     http.stop();
-    planning.shutdown();
+    if (planning) planning->shutdown();
     if (imaging) imaging->stop();
     runtime.stop();
     std::vector<std::string> still_on;

@@ -10,9 +10,10 @@ import {ROBOT, call} from './helpers.mjs';
 const METHODS = ['get', 'post', 'put', 'delete', 'patch'];
 const VIEWER = {headers: {'X-Tendril-Role': 'viewer'}};
 let doc;
+let command;  // one of the robot type's own commands (GET /robots), for /robots/{robot}/{command}
 
 function concrete(path) {
-  return path.replace('{robot}', ROBOT).replace('{id}', 'no-such-id');
+  return path.replace('{robot}', ROBOT).replace('{id}', 'no-such-id').replace('{command}', command);
 }
 function url(path, entry) {
   const server = (entry.servers || doc.servers)[0].url.replace(/\/$/, '');
@@ -26,6 +27,9 @@ test('GET /api/v1/openapi.json is public and is OpenAPI 3.1', async () => {
   assert.match(doc.openapi, /^3\.1\./);
   assert.equal(doc.servers[0].url, '/api/v1');
   assert.ok(Object.keys(doc.paths).length >= 20);
+  const robots = await call('GET', '/robots');
+  command = robots.json.find((r) => r.name === ROBOT)?.commands?.[0];
+  assert.ok(command, `the robot lists its type's commands: ${robots.text.slice(0, 200)}`);
 });
 
 test('every documented path and method is served', async () => {

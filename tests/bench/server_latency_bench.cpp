@@ -47,9 +47,11 @@
 
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/server/config.hpp"
+#include "tendril/server/http/control_json.hpp"
 #include "tendril/server/http/foxglove_protocol.hpp"
 #include "tendril/server/http/http_server.hpp"
 #include "tendril/server/robot_runtime.hpp"
+#include "tendril/server/robot_types.hpp"
 
 #ifndef TENDRIL_SOURCE_DIR
 #define TENDRIL_SOURCE_DIR "."
@@ -531,35 +533,37 @@ int run(const Options& options) {
   Options o = options;
   RobotConfig robot = load_robot_config(o.robot_file);
   // Latency is measured in free space: the simulated vessel would hold the robot on wall contact.
-  if (robot.catheter.is_object() && robot.catheter.contains("simulation"))
-    robot.catheter["simulation"].erase("vessel");
+  if (auto catheter = robot.settings.find("catheter");
+      catheter != robot.settings.end() && catheter->is_object() && catheter->contains("simulation"))
+    (*catheter)["simulation"].erase("vessel");
   if (o.robot.empty()) o.robot = robot.name;
   if (o.robot != robot.name)
     throw std::runtime_error("--robot " + o.robot + ": the robot file defines '" + robot.name + "'");
   std::size_t joint = robot.joints.size();
   for (std::size_t i = 0; i < robot.joints.size(); ++i)
-    if (robot.joints[i].name == o.joint) joint = i;
+    if (robot.joints[i].name() == o.joint) joint = i;
   if (joint == robot.joints.size())
     throw std::runtime_error("--joint " + o.joint + ": no such joint in " + o.robot_file.string());
   const JointConfig& jc = robot.joints[joint];
-  if (o.bus.empty()) o.bus = jc.drive.bus;
-  if (o.velocity > jc.max_velocity)
+  if (!jc.drive) throw std::runtime_error("--joint " + o.joint + ": the joint has no CANopen drive to watch");
+  if (o.bus.empty()) o.bus = jc.drive->bus;
+  if (o.velocity > jc.limit.max_velocity)
     throw std::runtime_error("--velocity " + std::to_string(o.velocity) +
-                             " is above the joint's max_velocity " + std::to_string(jc.max_velocity));
+                             " is above the joint's max_velocity " + std::to_string(jc.limit.max_velocity));
   int sync_period_us = 0;
   for (const auto& b : robot.buses)
     if (b.name == o.bus) sync_period_us = b.sync_period_us;
   if (sync_period_us <= 0)
     throw std::runtime_error("robot '" + o.robot + "' has no bus named '" + o.bus + "'");
-  const std::uint32_t rpdo1 = 0x200u + static_cast<std::uint32_t>(jc.drive.node_id);
+  const std::uint32_t rpdo1 = 0x200u + static_cast<std::uint32_t>(jc.drive->node_id);
   const std::size_t joints = robot.joints.size();
 
   RuntimeOptions ro;
   ro.control_rate_hz = o.rate_hz;
   ro.realtime_priority = o.realtime;
   ro.stepped = false;
-  RobotRuntime runtime({robot}, ro);
-  auto tap = runtime.tap_bus(o.robot, o.bus);
+  RobotRuntime runtime({robot}, ro, builtin_robot_types());
+  auto tap = runtime.tap_bus(o.bus);
   if (!tap)
     throw std::runtime_error("bus '" + o.bus + "' of robot '" + o.robot + "' is not virtual; cannot tap it");
   RpdoWatcher watcher(std::move(tap), rpdo1);
@@ -569,7 +573,8 @@ int run(const Options& options) {
   ho.host = "127.0.0.1";
   ho.port = 0;
   ho.token = "bench-token";
-  HttpServer server(runtime, ho);
+  JsonControlApi api(runtime, [&runtime](const std::string& name) { return runtime.api_extension(name); });
+  HttpServer server(api, ho);
   server.start();
   const unsigned short port = server.port();
 

@@ -5,7 +5,7 @@
 #include <cstdlib>
 #include <string_view>
 
-#include "tendril/server/calibration_request.hpp"
+#include "steerable_catheter/calibration_request.hpp"
 
 using namespace tendril::server;
 

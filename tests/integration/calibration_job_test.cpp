@@ -9,9 +9,10 @@
 #include <numbers>
 #include <random>
 
+#include "json_api.hpp"
+#include "steerable_catheter/calibration_job.hpp"
+#include "steerable_catheter/calibration_request.hpp"
 #include "tendril/drivers/sim/simulated_side_view_camera.hpp"
-#include "tendril/server/calibration_job.hpp"
-#include "tendril/server/calibration_request.hpp"
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
@@ -116,7 +117,7 @@ TEST_F(CalibrationJobTest, RefusesMalformedRequestsAndNamesTheKey) {
                {{"arc_length_mm", {0.0, 1.0}}, {"actuation_mm", {0.0}}, {"tangent_angle_rad", {{1.5}}}}}}),
         400, "2 rows");
   RobotConfig arm = robot;
-  arm.catheter = nullptr;
+  arm.settings.erase("catheter");
   auto job = make_calibration_job(arm, {{"segment", "proximal"}, {"samples", samples}});
   ASSERT_TRUE(std::holds_alternative<ApiResult>(job));
   EXPECT_EQ(std::get<ApiResult>(job).code, "not_a_catheter");
@@ -149,16 +150,17 @@ TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
   ASSERT_EQ(result["written"]["file"], file.string());
   EXPECT_EQ(result["written"]["key"], "catheter.model.proximal_shape_matrix");
   // The old file is untouched; the new one carries the matrix and loads into a runtime.
-  EXPECT_FALSE(load_robot_config(dir / "srmc.json").catheter["model"].contains("proximal_shape_matrix"));
+  EXPECT_FALSE(
+      load_robot_config(dir / "srmc.json").settings["catheter"]["model"].contains("proximal_shape_matrix"));
   const auto calibrated = load_robot_config(file);
-  EXPECT_EQ(calibrated.catheter["model"]["proximal_shape_matrix"], result["shape_matrix"]);
+  EXPECT_EQ(calibrated.settings["catheter"]["model"]["proximal_shape_matrix"], result["shape_matrix"]);
   RuntimeOptions o;
   o.stepped = true;
-  RobotRuntime runtime({calibrated}, o);
+  RobotRuntime runtime({calibrated}, o, builtin_robot_types());
   // The proximal bend range follows the calibrated tip through the loss line (4.13) at q3 = 10 mm.
   const double tip_bend_at_10 = std::numbers::pi / 2 - angle(fitted, 22.0, 10.0);
-  EXPECT_NEAR(runtime.robots()[0]["configuration"]["upper"][2].get<double>(), 0.063 * tip_bend_at_10 - 0.049,
-              1e-3);
+  EXPECT_NEAR(json_api(runtime)->robots()[0]["configuration"]["upper"][2].get<double>(),
+              0.063 * tip_bend_at_10 - 0.049, 1e-3);
   // The same name again is refused before any work, and nothing is replaced.
   const auto again =
       refusal({{"segment", "proximal"}, {"samples", samples}, {"save_as", "srmc-calibrated.json"}});

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <numbers>
 
+#include "json_api.hpp"
 #include "tendril/drivers/sim/simulated_analog_joystick.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
@@ -28,7 +29,7 @@ constexpr Channel kChannel{55.0, 20.0, 120.0, 1.5875, 40.0, 9.5, 5.0};
 
 RobotConfig free_space_srmc() {
   auto c = load_robot_config(kSrmc);
-  c.catheter["simulation"].erase("vessel");
+  c.settings["catheter"]["simulation"].erase("vessel");
   return c;
 }
 
@@ -38,7 +39,9 @@ class CatheterTest : public ::testing::Test {
     RuntimeOptions o;
     o.stepped = true;
     o.control_rate_hz = 1000;
-    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o);
+    runtime =
+        std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o, builtin_robot_types());
+    api = json_api(*runtime);
     runtime->start();
     steps(50);  // first PDOs from the drives and the ADC nodes
   }
@@ -64,39 +67,40 @@ class CatheterTest : public ::testing::Test {
     return pred();
   }
   std::vector<double> setpoint() {
-    return runtime->setpoint_js("srmc").body["position"].get<std::vector<double>>();
+    return api->setpoint_js("srmc").body["position"].get<std::vector<double>>();
   }
   std::vector<double> measured() {
-    return runtime->measured_js("srmc").body["position"].get<std::vector<double>>();
+    return api->measured_js("srmc").body["position"].get<std::vector<double>>();
   }
-  nlohmann::json op() { return runtime->operating_state("srmc").body; }
+  nlohmann::json op() { return api->operating_state("srmc").body; }
   void enable() {
-    ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+    ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
     ASSERT_TRUE(
         step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
         << op().dump();
   }
   void mode(const std::string& m) {
-    const auto r = runtime->mode("srmc", {{"mode", m}});
+    const auto r = api->mode("srmc", {{"mode", m}});
     ASSERT_EQ(r.status, 200) << r.message;
     ASSERT_TRUE(step_until([&] { return op()["mode"] == m; }, 10)) << op().dump();
   }
   // Streams the console joystick for `ms` milliseconds, 50 Hz like the console.
   void joystick(std::array<double, 4> axes, bool deadman, int ms) {
     for (int t = 0; t < ms; t += 20) {
-      const auto r = runtime->joystick("srmc", {{"axes", axes}, {"deadman", deadman}});
+      const auto r = api->robot_command("srmc", "joystick", {{"axes", axes}, {"deadman", deadman}});
       ASSERT_EQ(r.status, 200) << r.message;
       steps(20);
     }
   }
 
   std::unique_ptr<RobotRuntime> runtime;
+  std::unique_ptr<JsonControlApi> api;
   std::array<double, 4> max_step{};
 };
 
 TEST_F(CatheterTest, ListsTheModesAndTheConfigurationSpace) {
   start(free_space_srmc());
-  const auto robot = runtime->robots()[0];
+  const auto robot = api->robots()[0];
   EXPECT_EQ(robot["modes"], nlohmann::json({"joint", "configuration", "active_compliance", "telemanipulation",
                                             "path_following"}));
   EXPECT_EQ(robot["configuration"]["names"],
@@ -117,10 +121,10 @@ TEST_F(CatheterTest, ListsTheModesAndTheConfigurationSpace) {
 TEST_F(CatheterTest, ModeSwitchesOnlyWhileHoldingAndSaysWhyNot) {
   start(free_space_srmc());
   enable();
-  EXPECT_EQ(runtime->mode("srmc", {{"mode", "cartesian"}}).status, 422);
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {30.0, 0.0, 0.0, 0.0}}}).status, 202);
+  EXPECT_EQ(api->mode("srmc", {{"mode", "cartesian"}}).status, 422);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {30.0, 0.0, 0.0, 0.0}}}).status, 202);
   steps(5);
-  const auto refused = runtime->mode("srmc", {{"mode", "configuration"}});
+  const auto refused = api->mode("srmc", {{"mode", "configuration"}});
   EXPECT_EQ(refused.status, 409);
   EXPECT_EQ(refused.code, "not_holding");
   EXPECT_EQ(op()["mode_refusal"]["mode"], "configuration");
@@ -140,18 +144,21 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   start(free_space_srmc());
   enable();
   // Start bent and rolled: the coupling term then rides on a quintic at its speed bound.
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {20.0, 0.3, 2.0, -1.0}}}).status, 202);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {20.0, 0.3, 2.0, -1.0}}}).status, 202);
   steps(5);
   ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
   // Joint commands are for joint mode; configuration goals for configuration mode.
-  EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 0.2}}}}).status, 409);
+  EXPECT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 0.2}}}}).status,
+            409);
   mode("configuration");
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {10.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
-  EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 170 * kDeg}}}}).status, 422);
-  EXPECT_EQ(runtime->move_configuration("srmc", {{"goal", {{"yaw", 0.1}}}}).status, 400);
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {10.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
+  EXPECT_EQ(
+      api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 170 * kDeg}}}}).status,
+      422);
+  EXPECT_EQ(api->robot_command("srmc", "move_configuration", {{"goal", {{"yaw", 0.1}}}}).status, 400);
   max_step = {};
-  const auto r = runtime->move_configuration(
-      "srmc",
+  const auto r = api->robot_command(
+      "srmc", "move_configuration",
       {{"goal",
         {{"theta_proximal", 30 * kDeg}, {"theta_distal", -40 * kDeg}, {"insertion", 20.0}, {"roll", 0.0}}}});
   ASSERT_EQ(r.status, 202) << r.message;
@@ -170,7 +177,9 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
   for (std::size_t j = 0; j < 4; ++j) EXPECT_LE(max_step[j], vmax[j] * 0.001 * 1.05) << "joint " << j;
   // Coupling compensation (4.15/4.21) moves the distal drive when only the proximal bend changes.
   const double q4_before = setpoint()[3];
-  ASSERT_EQ(runtime->move_configuration("srmc", {{"goal", {{"theta_proximal", 10 * kDeg}}}}).status, 202);
+  ASSERT_EQ(
+      api->robot_command("srmc", "move_configuration", {{"goal", {{"theta_proximal", 10 * kDeg}}}}).status,
+      202);
   steps(5);
   ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 20000));
   EXPECT_GT(std::abs(setpoint()[3] - q4_before), 0.01);
@@ -180,7 +189,8 @@ TEST_F(CatheterTest, ConfigurationModeReachesBendAnglesThroughEq421) {
 TEST_F(CatheterTest, TelemanipulationMovesOnlyWhileTheDeadmanIsHeld) {
   start(free_space_srmc());
   enable();
-  EXPECT_EQ(runtime->joystick("srmc", {{"axes", {0, 0, 0.5, 0}}, {"deadman", true}}).code, "wrong_mode");
+  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0.5, 0}}, {"deadman", true}}).code,
+            "wrong_mode");
   mode("telemanipulation");
   const auto q0 = setpoint();
   joystick({0, 0, 0.5, 0}, false, 500);
@@ -193,15 +203,16 @@ TEST_F(CatheterTest, TelemanipulationMovesOnlyWhileTheDeadmanIsHeld) {
   const double after = setpoint()[2];
   steps(400);
   EXPECT_LT(setpoint()[2] - after, 0.5 * 1.0 * 0.16);
-  EXPECT_EQ(runtime->joystick("srmc", {{"axes", {0, 0, 1.5, 0}}, {"deadman", true}}).status, 422);
-  EXPECT_EQ(runtime->joystick("srmc", {{"axes", {0, 0, 0}}, {"deadman", true}}).status, 422);
+  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 1.5, 0}}, {"deadman", true}}).status,
+            422);
+  EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0}}, {"deadman", true}}).status, 422);
 }
 
 TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
   start(free_space_srmc());
   enable();
   mode("telemanipulation");
-  auto* stick = runtime->simulated_analog_joystick("srmc");
+  auto* stick = catheter(*runtime).simulated_analog_joystick();
   ASSERT_NE(stick, nullptr);
   const auto q0 = setpoint();
   stick->set_deflection({0.0, 0.0, 1.0});  // distal bend full forward, pedal up
@@ -226,13 +237,13 @@ TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
 // to 9.5 mm (the passive catheter ends near 6 mm; the seed's passive run had no such bound).
 RobotConfig channel_srmc(double deflection_limit_mm) {
   auto c = load_robot_config(kSrmc);
-  c.catheter["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in},
-                                        {"bend_radius_mm", kChannel.bend_radius},
-                                        {"turn_deg", kChannel.turn_deg},
-                                        {"lumen_radius_mm", kChannel.lumen}};
-  c.catheter["spring_deflection"]["limit_mm"] = deflection_limit_mm;
+  c.settings["catheter"]["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in},
+                                                    {"bend_radius_mm", kChannel.bend_radius},
+                                                    {"turn_deg", kChannel.turn_deg},
+                                                    {"lumen_radius_mm", kChannel.lumen}};
+  c.settings["catheter"]["spring_deflection"]["limit_mm"] = deflection_limit_mm;
   // A potentiometer range that can read the passive run's deflection (±10 mm over 0–5 V).
-  c.catheter["spring_deflection"]["volts_per_mm"] = 0.24;
+  c.settings["catheter"]["spring_deflection"]["volts_per_mm"] = 0.24;
   return c;
 }
 
@@ -250,7 +261,7 @@ class ChannelTest : public CatheterTest {
     mode(mode_name);
     const int ms = static_cast<int>(distance / 2.0 * 1000.0);
     for (int t = 0; t < ms; t += 20) {
-      const auto r = runtime->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}});
+      const auto r = api->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}});
       if (r.status != 200) break;  // held: the run ends where the safety stopped it
       steps(20);
     }
@@ -291,14 +302,14 @@ TEST_F(ChannelTest, SpringDeflectionOverItsBoundHoldsAndAllowsOnlyRetraction) {
                                      std::abs(s["spring_deflection_mm"][1].get<double>()));
   EXPECT_GT(deflection, 1.4);
   // Forward is refused with the reason; so is a mode switch.
-  const auto forward = runtime->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}});
+  const auto forward = api->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}});
   EXPECT_EQ(forward.status, 409);
   EXPECT_EQ(forward.code, "retraction_only");
-  EXPECT_EQ(runtime->mode("srmc", {{"mode", "active_compliance"}}).code, "held_after_limit");
+  EXPECT_EQ(api->mode("srmc", {{"mode", "active_compliance"}}).code, "held_after_limit");
   // Withdrawal moves the catheter back out.
   const double q1 = setpoint()[0];
   for (int t = 0; t < 1000; t += 20) {
-    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
     steps(20);
   }
   EXPECT_NEAR(setpoint()[0], q1 - 2.0, 0.1);
@@ -323,33 +334,33 @@ TEST_F(ChannelTest, ADeflectionHoldIsLeftByRelaxingTheSpringsThenResuming) {
   EXPECT_GT(worst_before, 1.5);
 
   // Resume now: refused with the cause and the way out, and the robot stays held without a new hold.
-  const auto refused = runtime->state_command("srmc", {{"command", "resume"}});
+  const auto refused = api->state_command("srmc", {{"command", "resume"}});
   EXPECT_EQ(refused.status, 409);
   EXPECT_EQ(refused.code, "hold_not_cleared");
   EXPECT_NE(refused.message.find("spring is deflected"), std::string::npos) << refused.message;
   EXPECT_NE(refused.message.find("relax"), std::string::npos) << refused.message;
-  const auto events_before = runtime->faults(1000).size();
+  const auto events_before = api->faults(1000).size();
   steps(100);
   EXPECT_EQ(op()["state"], "PAUSED");
-  EXPECT_EQ(runtime->faults(1000).size(), events_before) << "nothing happened, not even a new hold";
+  EXPECT_EQ(api->faults(1000).size(), events_before) << "nothing happened, not even a new hold";
 
   // Disable and enable, or e-stop and reset: held again at once (the cause is still there), and
   // still with a way out.
-  ASSERT_EQ(runtime->estop().status, 200);
+  ASSERT_EQ(api->estop().status, 200);
   steps(5);
-  ASSERT_EQ(runtime->estop_reset().status, 200);
+  ASSERT_EQ(api->estop_reset().status, 200);
   steps(5);
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
   ASSERT_TRUE(step_until([&] { return op()["state"] == "PAUSED"; }, 3000)) << op().dump();
   EXPECT_EQ(op()["hold"]["cause"], "spring_deflection");
 
   // Withdraw by a distance: the insertion goes back by exactly that, nothing else moves.
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 0.0}}).status, 422);
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 11.0}}).status, 422);
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}}).status, 400);
+  EXPECT_EQ(api->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 0.0}}).status, 422);
+  EXPECT_EQ(api->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 11.0}}).status, 422);
+  EXPECT_EQ(api->state_command("srmc", {{"command", "withdraw"}}).status, 400);
   const auto q_held = setpoint();
   max_step = {};
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 1.5}}).status, 202);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 1.5}}).status, 202);
   steps(5);
   EXPECT_TRUE(op()["hold"]["withdraw"]["running"].get<bool>());
   ASSERT_TRUE(step_until([&] { return !op()["hold"]["withdraw"]["running"].get<bool>(); }, 3000));
@@ -366,12 +377,12 @@ TEST_F(ChannelTest, ADeflectionHoldIsLeftByRelaxingTheSpringsThenResuming) {
   max_step = {};
   const auto q_before = setpoint();
   const double relax_start = runtime->time();
-  const auto relax = runtime->state_command("srmc", {{"command", "relax"}});
+  const auto relax = api->state_command("srmc", {{"command", "relax"}});
   ASSERT_EQ(relax.status, 202) << relax.message;
   steps(5);
   EXPECT_TRUE(op()["hold"]["relax"]["running"].get<bool>());
   EXPECT_TRUE(op()["is_busy"].get<bool>());
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).code, "hold_not_cleared");
+  EXPECT_EQ(api->state_command("srmc", {{"command", "resume"}}).code, "hold_not_cleared");
   ASSERT_TRUE(step_until([&] { return !op()["hold"]["relax"]["running"].get<bool>(); }, 12000))
       << op().dump();
   s = op();
@@ -391,7 +402,7 @@ TEST_F(ChannelTest, ADeflectionHoldIsLeftByRelaxingTheSpringsThenResuming) {
   EXPECT_LE(s["simulation"]["peak_contact_force_n"].get<double>(), 1.0);
 
   // Resume is accepted now, and the robot stays ENABLED.
-  const auto resumed = runtime->state_command("srmc", {{"command", "resume"}});
+  const auto resumed = api->state_command("srmc", {{"command", "resume"}});
   ASSERT_EQ(resumed.status, 200) << resumed.message;
   steps(500);
   s = op();
@@ -400,7 +411,7 @@ TEST_F(ChannelTest, ADeflectionHoldIsLeftByRelaxingTheSpringsThenResuming) {
   EXPECT_TRUE(s["hold"].is_null());
   // The event log tells the story: hold, refused resume, relax started and ended.
   std::string log;
-  for (const auto& e : runtime->faults(1000))
+  for (const auto& e : api->faults(1000))
     log += e["kind"].get<std::string>() + ": " + e["message"].get<std::string>() + "\n";
   EXPECT_NE(log.find("recovery: springs relaxed"), std::string::npos) << log;
   EXPECT_NE(log.find("recovery: relax: bend drives follow their springs"), std::string::npos) << log;
@@ -409,14 +420,14 @@ TEST_F(ChannelTest, ADeflectionHoldIsLeftByRelaxingTheSpringsThenResuming) {
 TEST_F(ChannelTest, RelaxIsOnlyForAHeldRobotAndPauseStopsIt) {
   start(channel_srmc(1.5));
   enable();
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "relax"}}).code, "invalid_state");
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 1.0}}).code,
+  EXPECT_EQ(api->state_command("srmc", {{"command", "relax"}}).code, "invalid_state");
+  EXPECT_EQ(api->state_command("srmc", {{"command", "withdraw"}, {"distance_mm", 1.0}}).code,
             "invalid_state");
   ASSERT_EQ(insert("joint", kChannel.insertion).state, "PAUSED") << op().dump();
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "relax"}}).status, 202);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "relax"}}).status, 202);
   steps(50);
   ASSERT_TRUE(op()["hold"]["relax"]["running"].get<bool>());
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "pause"}}).status, 200);
   steps(5);
   const auto q = setpoint();
   steps(200);
@@ -429,21 +440,21 @@ TEST_F(ChannelTest, RelaxIsOnlyForAHeldRobotAndPauseStopsIt) {
 TEST_F(CatheterTest, ResumeAfterAnOperatorPauseIsRefusedWhileTheSensorIsSilent) {
   start(free_space_srmc());
   enable();
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "pause"}}).status, 200);
   steps(5);
-  auto* sensor = runtime->simulated_spring_sensor("srmc");
+  auto* sensor = catheter(*runtime).simulated_spring_sensor();
   sensor->set_silent(true);
   steps(200);
   auto s = op();
   EXPECT_EQ(s["hold"]["cause"], "operator_pause");
   EXPECT_FALSE(s["hold"]["cleared"].get<bool>());
   EXPECT_EQ(s["hold"]["allowed"], nlohmann::json::array());
-  const auto refused = runtime->state_command("srmc", {{"command", "resume"}});
+  const auto refused = api->state_command("srmc", {{"command", "resume"}});
   EXPECT_EQ(refused.code, "hold_not_cleared");
   EXPECT_NE(refused.message.find("paused by the operator"), std::string::npos) << refused.message;
   sensor->set_silent(false);
   steps(50);
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "resume"}}).status, 200);
   steps(300);
   EXPECT_EQ(op()["state"], "ENABLED");
 }
@@ -451,26 +462,26 @@ TEST_F(CatheterTest, ResumeAfterAnOperatorPauseIsRefusedWhileTheSensorIsSilent) 
 TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobotUntilItReadsAgain) {
   start(free_space_srmc());
   enable();
-  auto* sensor = runtime->simulated_spring_sensor("srmc");
+  auto* sensor = catheter(*runtime).simulated_spring_sensor();
   ASSERT_NE(sensor, nullptr);
   sensor->set_silent(true);
   ASSERT_TRUE(step_until([&] { return op()["state"] == "PAUSED"; }, 300)) << op().dump();
   EXPECT_EQ(op()["hold_reason"], "sensor stream stale");
   EXPECT_TRUE(op()["spring_deflection_mm"].is_null());
-  EXPECT_EQ(runtime->mode("srmc", {{"mode", "active_compliance"}}).status, 409);
+  EXPECT_EQ(api->mode("srmc", {{"mode", "active_compliance"}}).status, 409);
   auto s = op();
   EXPECT_EQ(s["hold"]["cause"], "sensor_stale");
   EXPECT_FALSE(s["hold"]["cleared"].get<bool>());
   EXPECT_NE(s["hold"]["next"].get<std::string>().find("0x31"), std::string::npos) << s["hold"].dump();
   // Resume is refused while the sensor is silent (it would hold again at once); withdrawal works.
-  const auto refused = runtime->state_command("srmc", {{"command", "resume"}});
+  const auto refused = api->state_command("srmc", {{"command", "resume"}});
   EXPECT_EQ(refused.status, 409);
   EXPECT_EQ(refused.code, "hold_not_cleared");
   EXPECT_NE(refused.message.find("no valid spring-deflection reading"), std::string::npos) << refused.message;
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "relax"}}).code, "sensor_stale");
+  EXPECT_EQ(api->state_command("srmc", {{"command", "relax"}}).code, "sensor_stale");
   const double q1 = setpoint()[0];
   for (int t = 0; t < 500; t += 20) {
-    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
     steps(20);
   }
   EXPECT_LT(setpoint()[0], q1 - 0.5);
@@ -480,7 +491,7 @@ TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobotUntilItReadsAgain) {
   s = op();
   EXPECT_TRUE(s["hold"]["cleared"].get<bool>()) << s["hold"].dump();
   EXPECT_EQ(s["hold"]["allowed"], nlohmann::json({"resume", "withdraw"}));
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "resume"}}).status, 200);
   steps(300);
   EXPECT_EQ(op()["state"], "ENABLED");
 }
@@ -491,14 +502,14 @@ TEST_F(CatheterTest, ASilentDeflectionSensorHoldsTheRobotUntilItReadsAgain) {
 TEST_F(CatheterTest, EveryOtherHoldHasAWayOut) {
   start(free_space_srmc());
   enable();
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "pause"}}).status, 200);
   steps(5);
   auto s = op();
   EXPECT_EQ(s["state"], "PAUSED");
   EXPECT_EQ(s["hold"]["cause"], "operator_pause");
   EXPECT_EQ(s["hold"]["allowed"], nlohmann::json({"resume"}));
-  EXPECT_EQ(runtime->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}}).status, 409);
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "resume"}}).status, 200);
+  EXPECT_EQ(api->servo_jv("srmc", {{"velocity", {1.0, 0.0, 0.0, 0.0}}}).status, 409);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "resume"}}).status, 200);
   steps(5);
   EXPECT_EQ(op()["state"], "ENABLED");
   EXPECT_TRUE(op()["hold"].is_null());
@@ -506,7 +517,7 @@ TEST_F(CatheterTest, EveryOtherHoldHasAWayOut) {
   // Servo command timeout: a hold of the stream, not of the robot.
   const double q0 = setpoint()[0];
   for (int t = 0; t < 200; t += 20) {
-    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}}).status, 200);
     steps(20);
   }
   steps(400);  // the stream stopped: the setpoint holds after the 150 ms timeout
@@ -516,22 +527,22 @@ TEST_F(CatheterTest, EveryOtherHoldHasAWayOut) {
   EXPECT_NEAR(setpoint()[0], held, 1e-9);
   EXPECT_EQ(op()["state"], "ENABLED");
   bool timeout_logged = false;
-  for (const auto& e : runtime->faults(50))
+  for (const auto& e : api->faults(50))
     timeout_logged = timeout_logged || (e["kind"] == "hold" && e["code"] == "servo command timeout");
   EXPECT_TRUE(timeout_logged);
   for (int t = 0; t < 200; t += 20) {  // the way out: stream again
-    ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}}).status, 200);
+    ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {2.0, 0.0, 0.0, 0.0}}}).status, 200);
     steps(20);
   }
   EXPECT_GT(setpoint()[0], held + 0.3);
 
   // The operator's connection goes: the stream stops at once; commands work again afterwards.
-  runtime->operator_lost();
+  api->operator_lost();
   steps(5);
   const double lost = setpoint()[0];
   steps(100);
   EXPECT_NEAR(setpoint()[0], lost, 1e-9);
-  ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
+  ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {-2.0, 0.0, 0.0, 0.0}}}).status, 200);
   steps(50);
   EXPECT_LT(setpoint()[0], lost - 0.05);
 }

@@ -6,6 +6,7 @@
 
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
+#include "tendril/server/robot_types.hpp"
 
 namespace tendril::server {
 namespace {
@@ -21,7 +22,7 @@ std::string error_of(const nlohmann::json& j) {
   try {
     RuntimeOptions o;
     o.stepped = true;
-    RobotRuntime rt({parse_robot_config(j, "robots/test.json")}, o);
+    RobotRuntime rt({parse_robot_config(j, "robots/test.json")}, o, builtin_robot_types());
   } catch (const ConfigError& e) {
     return e.what();
   }

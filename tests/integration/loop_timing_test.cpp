@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <string>
 
+#include "json_api.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
@@ -26,11 +27,13 @@ class LoopTimingTest : public ::testing::Test {
  protected:
   void SetUp() override {
     auto config = load_robot_config(kSrmc);
-    config.catheter["simulation"].erase("vessel");  // free space: no wall contact in these moves
+    config.settings["catheter"]["simulation"].erase("vessel");  // free space: no wall contact in these moves
     RuntimeOptions o;
     o.stepped = true;
     o.control_rate_hz = 1000;
-    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o);
+    runtime =
+        std::make_unique<RobotRuntime>(std::vector<RobotConfig>{std::move(config)}, o, builtin_robot_types());
+    api = json_api(*runtime);
     runtime->start();
     steps(50);
   }
@@ -47,10 +50,10 @@ class LoopTimingTest : public ::testing::Test {
     }
     return pred();
   }
-  nlohmann::json op() { return runtime->operating_state("srmc").body; }
-  double setpoint(std::size_t j) { return runtime->setpoint_js("srmc").body["position"][j].get<double>(); }
+  nlohmann::json op() { return api->operating_state("srmc").body; }
+  double setpoint(std::size_t j) { return api->setpoint_js("srmc").body["position"][j].get<double>(); }
   void enable() {
-    ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+    ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
     ASSERT_TRUE(
         step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
         << op().dump();
@@ -58,20 +61,21 @@ class LoopTimingTest : public ::testing::Test {
   // Faults and holds logged since start (the log is newest first).
   std::vector<std::string> faults_and_holds() {
     std::vector<std::string> out;
-    for (const auto& e : runtime->faults())
+    for (const auto& e : api->faults())
       if (e["kind"] == "fault" || e["kind"] == "hold") out.push_back(e["message"].get<std::string>());
     return out;
   }
   // Starts a 10 -> 60 mm insertion (one quintic peaking at the 10 mm/s limit: 1.875 * 50 / 10 =
   // 9.4 s) and lets it run for 2 s.
   void start_moving() {
-    ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {60.0, 0.0, 0.0, 0.0}}}).status, 202);
+    ASSERT_EQ(api->move_jp("srmc", {{"goal", {60.0, 0.0, 0.0, 0.0}}}).status, 202);
     steps(2000);
     ASSERT_TRUE(op()["is_busy"].get<bool>());
     ASSERT_GT(setpoint(0), 12.0);
   }
 
   std::unique_ptr<RobotRuntime> runtime;
+  std::unique_ptr<JsonControlApi> api;
 };
 
 TEST_F(LoopTimingTest, TheBoundIsHalfTheCommandTimeout) {
@@ -114,7 +118,7 @@ TEST_F(LoopTimingTest, StallsWhileEnabledAndHoldingNeitherFaultNorHold) {
   EXPECT_EQ(s["loop_timing"]["stalls_over_bound_at_rest"], 2);
   EXPECT_DOUBLE_EQ(setpoint(0), held);
   // And it still moves when asked.
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {held + 1.0, 0.0, 0.0, 0.0}}}).status, 202);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {held + 1.0, 0.0, 0.0, 0.0}}}).status, 202);
   steps(1);  // the command reaches the control cycle; until then the robot is not busy yet
   ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 2000));
   EXPECT_NEAR(setpoint(0), held + 1.0, 1e-6);
@@ -165,7 +169,7 @@ TEST_F(LoopTimingTest, AStallPastTheBoundWhileMovingStopsTheRobotWithItsCause) {
     steps(500);
     EXPECT_NEAR(insertion->truth().velocity, 0.0, 1e-3);
     // Acknowledge for the next round.
-    ASSERT_EQ(runtime->state_command("srmc", {{"command", "disable"}}).status, 200);
+    ASSERT_EQ(api->state_command("srmc", {{"command", "disable"}}).status, 200);
     steps(200);
     ASSERT_EQ(op()["state"], "DISABLED");
   }

@@ -11,8 +11,9 @@
 #include <sstream>
 #include <thread>
 
+#include "json_api.hpp"
+#include "steerable_catheter/planning_service.hpp"
 #include "tendril/server/config.hpp"
-#include "tendril/server/planning_service.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
@@ -44,8 +45,10 @@ class PathFollowingTest : public ::testing::Test {
     o.stepped = true;
     o.control_rate_hz = 1000;
     config = load_robot_config(kSrmc);
-    config.catheter["simulation"].erase("vessel");  // free space: these bends would touch the wall
-    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o);
+    config.settings["catheter"]["simulation"].erase(
+        "vessel");  // free space: these bends would touch the wall
+    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o, builtin_robot_types());
+    api = json_api(*runtime);
     runtime->start();
     steps(10);
   }
@@ -70,12 +73,12 @@ class PathFollowingTest : public ::testing::Test {
     return pred();
   }
   std::vector<double> setpoint() {
-    return runtime->setpoint_js("srmc").body["position"].get<std::vector<double>>();
+    return api->setpoint_js("srmc").body["position"].get<std::vector<double>>();
   }
-  nlohmann::json status() { return runtime->path_following("srmc").body; }
-  nlohmann::json op() { return runtime->operating_state("srmc").body; }
+  nlohmann::json status() { return api->path_following("srmc").body; }
+  nlohmann::json op() { return api->operating_state("srmc").body; }
   void enable() {
-    ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+    ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
     ASSERT_TRUE(
         step_until([&] { return op()["drives_ready"].get<bool>() && !op()["is_busy"].get<bool>(); }, 3000))
         << op().dump();
@@ -87,17 +90,18 @@ class PathFollowingTest : public ::testing::Test {
 
   RobotConfig config;
   std::unique_ptr<RobotRuntime> runtime;
+  std::unique_ptr<JsonControlApi> api;
   std::array<double, 4> max_step{};
 };
 
 TEST_F(PathFollowingTest, ModeSwitchNeedsALoadedPlan) {
   EXPECT_EQ(op()["mode"], "joint");
-  const auto refused = runtime->mode("srmc", {{"mode", "path_following"}});
+  const auto refused = api->mode("srmc", {{"mode", "path_following"}});
   EXPECT_EQ(refused.status, 409);
   EXPECT_EQ(refused.code, "no_plan");
   EXPECT_NE(refused.message.find("load one first"), std::string::npos) << refused.message;
-  EXPECT_EQ(runtime->mode("srmc", {{"mode", "cartesian"}}).status, 422);
-  const auto robots = runtime->robots();
+  EXPECT_EQ(api->mode("srmc", {{"mode", "cartesian"}}).status, 422);
+  const auto robots = api->robots();
   EXPECT_EQ(robots[0]["modes"], nlohmann::json({"joint", "configuration", "active_compliance",
                                                 "telemanipulation", "path_following"}));
 }
@@ -105,28 +109,28 @@ TEST_F(PathFollowingTest, ModeSwitchNeedsALoadedPlan) {
 TEST_F(PathFollowingTest, LoadRejectsAStepOutsideTheJointLimitsNamingIt) {
   auto plan = inline_plan();
   plan["steps"][3]["q"][2] = 12.0;  // proximal_bend upper limit is 10 mm
-  const auto r = runtime->load_path("srmc", plan, "");
+  const auto r = api->load_path("srmc", plan, "");
   EXPECT_EQ(r.status, 422);
   EXPECT_EQ(r.code, "out_of_limits");
   EXPECT_EQ(r.message.rfind("step 3: ", 0), 0u) << r.message;
   EXPECT_FALSE(status()["loaded"].get<bool>());
   plan["steps"][1]["q"] = {1, 2, 3};
-  EXPECT_EQ(runtime->load_path("srmc", plan, "").status, 422);  // wrong size
-  EXPECT_EQ(runtime->load_path("srmc", {{"steps", nlohmann::json::array()}}, "").status, 400);
+  EXPECT_EQ(api->load_path("srmc", plan, "").status, 422);  // wrong size
+  EXPECT_EQ(api->load_path("srmc", {{"steps", nlohmann::json::array()}}, "").status, 400);
 }
 
 TEST_F(PathFollowingTest, SwitchesOnlyWhileHoldingAndStepsThroughThePlanWithoutASetpointJump) {
   enable();
-  ASSERT_EQ(runtime->load_path("srmc", inline_plan(), "j1").status, 200);
+  ASSERT_EQ(api->load_path("srmc", inline_plan(), "j1").status, 200);
   EXPECT_EQ(status()["loaded"], true);
   EXPECT_EQ(status()["steps"], 5);
   EXPECT_EQ(status()["step"], -1);
   EXPECT_EQ(status()["plan"], "j1");
 
   // Moving: refused, with the reason.
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).status, 202);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).status, 202);
   steps(5);
-  const auto moving = runtime->mode("srmc", {{"mode", "path_following"}});
+  const auto moving = api->mode("srmc", {{"mode", "path_following"}});
   EXPECT_EQ(moving.status, 409);
   EXPECT_EQ(moving.code, "not_holding");
   EXPECT_NE(moving.message.find("moving"), std::string::npos);
@@ -134,26 +138,26 @@ TEST_F(PathFollowingTest, SwitchesOnlyWhileHoldingAndStepsThroughThePlanWithoutA
 
   // Holding: the switch leaves the setpoint where it is.
   const auto before = setpoint();
-  ASSERT_EQ(runtime->mode("srmc", {{"mode", "path_following"}}).status, 200);
+  ASSERT_EQ(api->mode("srmc", {{"mode", "path_following"}}).status, 200);
   steps(2);
   EXPECT_EQ(op()["mode"], "path_following");
   EXPECT_EQ(setpoint(), before);
 
   // Joint commands are refused in path following.
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
-  EXPECT_EQ(runtime->servo_jv("srmc", {{"velocity", {0.1, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
+  EXPECT_EQ(api->servo_jv("srmc", {{"velocity", {0.1, 0.0, 0.0, 0.0}}}).code, "wrong_mode");
 
   max_step = {};
   const auto plan = inline_plan();
   for (int k = 0; k < 5; ++k) {
-    const auto r = runtime->path_step("srmc", {{"advance", 1}});
+    const auto r = api->path_step("srmc", {{"advance", 1}});
     ASSERT_EQ(r.status, 202) << r.message;
     EXPECT_EQ(r.body["step"], k);
     EXPECT_GT(r.body["duration_s"].get<double>(), 0.0);
     steps(3);
     if (k > 0) {
       // Still moving: a second step is refused until it holds.
-      const auto busy = runtime->path_step("srmc", {{"advance", 1}});
+      const auto busy = api->path_step("srmc", {{"advance", 1}});
       EXPECT_EQ(busy.status, 409);
       EXPECT_EQ(busy.code, "not_holding");
     }
@@ -164,49 +168,49 @@ TEST_F(PathFollowingTest, SwitchesOnlyWhileHoldingAndStepsThroughThePlanWithoutA
   }
   // Per tick the setpoint moves at most max_velocity · dt (no jump anywhere on the way).
   for (std::size_t j = 0; j < 4; ++j)
-    EXPECT_LE(max_step[j], config.joints[j].max_velocity * 0.001 * 1.01) << config.joints[j].name;
+    EXPECT_LE(max_step[j], config.joints[j].limit.max_velocity * 0.001 * 1.01) << config.joints[j].name();
 
-  const auto end = runtime->path_step("srmc", {{"advance", 1}});
+  const auto end = api->path_step("srmc", {{"advance", 1}});
   EXPECT_EQ(end.status, 409);
   EXPECT_EQ(end.code, "end_of_plan");
-  EXPECT_EQ(runtime->path_step("srmc", {{"step", 7}}).status, 422);
-  EXPECT_EQ(runtime->path_step("srmc", {{"step", 1}}).status, 202);  // back, by index
+  EXPECT_EQ(api->path_step("srmc", {{"step", 7}}).status, 422);
+  EXPECT_EQ(api->path_step("srmc", {{"step", 1}}).status, 202);  // back, by index
   steps(2);  // the command reaches the control thread on its next tick
   ASSERT_TRUE(settle());
   EXPECT_EQ(status()["step"], 1);
 
   // Back to joint mode while holding.
-  ASSERT_EQ(runtime->mode("srmc", {{"mode", "joint"}}).status, 200);
+  ASSERT_EQ(api->mode("srmc", {{"mode", "joint"}}).status, 200);
   steps(2);
   EXPECT_EQ(op()["mode"], "joint");
-  EXPECT_EQ(runtime->path_step("srmc", {{"advance", 1}}).code, "wrong_mode");
+  EXPECT_EQ(api->path_step("srmc", {{"advance", 1}}).code, "wrong_mode");
 }
 
 TEST_F(PathFollowingTest, StepsNeedAnEnabledRobotAndSwitchesAreRefusedUnderEstop) {
-  ASSERT_EQ(runtime->load_path("srmc", inline_plan(), "").status, 200);
-  ASSERT_EQ(runtime->mode("srmc", {{"mode", "path_following"}}).status, 200);  // disabled, holding
+  ASSERT_EQ(api->load_path("srmc", inline_plan(), "").status, 200);
+  ASSERT_EQ(api->mode("srmc", {{"mode", "path_following"}}).status, 200);  // disabled, holding
   steps(2);
-  const auto disabled = runtime->path_step("srmc", {{"step", 0}});
+  const auto disabled = api->path_step("srmc", {{"step", 0}});
   EXPECT_EQ(disabled.status, 409);
   EXPECT_EQ(disabled.code, "not_enabled");
-  runtime->estop();
+  api->estop();
   steps(3);
-  const auto estop = runtime->mode("srmc", {{"mode", "joint"}});
+  const auto estop = api->mode("srmc", {{"mode", "joint"}});
   EXPECT_EQ(estop.status, 409);
   EXPECT_EQ(estop.code, "estop_latched");
 }
 
 TEST_F(PathFollowingTest, APauseMidStepLeavesTheLastReachedStep) {
   enable();
-  ASSERT_EQ(runtime->load_path("srmc", inline_plan(), "").status, 200);
-  ASSERT_EQ(runtime->mode("srmc", {{"mode", "path_following"}}).status, 200);
+  ASSERT_EQ(api->load_path("srmc", inline_plan(), "").status, 200);
+  ASSERT_EQ(api->mode("srmc", {{"mode", "path_following"}}).status, 200);
   steps(2);
-  ASSERT_EQ(runtime->path_step("srmc", {{"step", 0}}).status, 202);
+  ASSERT_EQ(api->path_step("srmc", {{"step", 0}}).status, 202);
   steps(2);
   ASSERT_TRUE(settle());
-  ASSERT_EQ(runtime->path_step("srmc", {{"step", 4}}).status, 202);
+  ASSERT_EQ(api->path_step("srmc", {{"step", 4}}).status, 202);
   steps(100);
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "pause"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "pause"}}).status, 200);
   steps(5);
   EXPECT_EQ(status()["step"], 0);
   EXPECT_EQ(status()["target"], 0);
@@ -254,9 +258,9 @@ TEST(PlanningServiceOnTheSampleVessel, PlansWithinTheJointLimitsAndTheRuntimeLoa
 
   RuntimeOptions o;
   o.stepped = true;
-  RobotRuntime runtime({config}, o);
+  RobotRuntime runtime({config}, o, builtin_robot_types());
   runtime.start();
-  const auto loaded = runtime.load_path("srmc", result, id);
+  const auto loaded = json_api(runtime)->load_path("srmc", result, id);
   if (result["within_joint_limits"].get<bool>()) {
     EXPECT_EQ(loaded.status, 200) << loaded.message;
   } else {

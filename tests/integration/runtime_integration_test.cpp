@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "json_api.hpp"
 #include "tendril/drivers/canopen/protocol.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
 #include "tendril/server/config.hpp"
@@ -22,9 +23,11 @@ class RuntimeTest : public ::testing::Test {
     o.stepped = true;
     o.control_rate_hz = 1000;
     auto config = load_robot_config(kSrmc);
-    config.catheter["simulation"].erase("vessel");  // free space: these bends would touch the wall
-    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o);
-    tap = runtime->tap_bus("srmc", "can0");
+    config.settings["catheter"]["simulation"].erase(
+        "vessel");  // free space: these bends would touch the wall
+    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{config}, o, builtin_robot_types());
+    api = json_api(*runtime);
+    tap = runtime->tap_bus("can0");
     ASSERT_NE(tap, nullptr);
     runtime->start();
     steps(10);  // first SYNC cycles: feedback from every drive
@@ -48,15 +51,15 @@ class RuntimeTest : public ::testing::Test {
     while (tap->receive(std::chrono::nanoseconds(0))) {
     }
   }
-  std::string state() { return runtime->operating_state("srmc").body["state"].get<std::string>(); }
+  std::string state() { return api->operating_state("srmc").body["state"].get<std::string>(); }
   std::vector<double> measured() {
-    return runtime->measured_js("srmc").body["position"].get<std::vector<double>>();
+    return api->measured_js("srmc").body["position"].get<std::vector<double>>();
   }
   void enable() {
-    ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+    ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
     ASSERT_TRUE(
-        step_until([&] { return runtime->operating_state("srmc").body["drives_ready"].get<bool>(); }, 2000))
-        << runtime->operating_state("srmc").body.dump();
+        step_until([&] { return api->operating_state("srmc").body["drives_ready"].get<bool>(); }, 2000))
+        << api->operating_state("srmc").body.dump();
   }
   bool at(const std::vector<double>& goal, double tol) {
     auto q = measured();
@@ -66,6 +69,7 @@ class RuntimeTest : public ::testing::Test {
   }
 
   std::unique_ptr<RobotRuntime> runtime;
+  std::unique_ptr<JsonControlApi> api;
   std::unique_ptr<can::Bus> tap;
 };
 
@@ -75,39 +79,39 @@ TEST_F(RuntimeTest, MovesToAGoalAndBackOverTheVirtualBus) {
   enable();
   EXPECT_EQ(state(), "ENABLED");
   const std::vector<double> goal{25.0, 0.6, 3.0, -2.0};
-  auto r = runtime->move_jp("srmc", {{"goal", goal}});
+  auto r = api->move_jp("srmc", {{"goal", goal}});
   ASSERT_EQ(r.status, 202) << r.message;
   const double duration = r.body["duration_s"].get<double>();
   EXPECT_GT(duration, 0.5);  // 15 mm at 10 mm/s cannot be faster than 1.5 s
   EXPECT_TRUE(step_until([&] { return at(goal, 0.01); }, static_cast<int>(duration * 1000) + 1000))
-      << runtime->measured_js("srmc").body.dump();
+      << api->measured_js("srmc").body.dump();
   // The simulated loads really moved (ground truth, not the master's view).
   EXPECT_NEAR(runtime->simulated_drive("srmc", "proximal_bend")->truth().position, 3.0, 0.01);
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", start}}).status, 202);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", start}}).status, 202);
   EXPECT_TRUE(step_until([&] { return at(start, 0.01); }, 5000));
   EXPECT_EQ(state(), "ENABLED");
 }
 
 TEST_F(RuntimeTest, AGoalSentWhileTheDrivesAreEnablingStartsWhenTheyAre) {
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
   steps(1);
-  ASSERT_FALSE(runtime->operating_state("srmc").body["drives_ready"].get<bool>());
+  ASSERT_FALSE(api->operating_state("srmc").body["drives_ready"].get<bool>());
   const std::vector<double> goal{15.0, 0.0, 1.0, 0.0};
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", goal}}).status, 202);
-  EXPECT_TRUE(step_until([&] { return at(goal, 0.01); }, 5000)) << runtime->measured_js("srmc").body.dump();
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", goal}}).status, 202);
+  EXPECT_TRUE(step_until([&] { return at(goal, 0.01); }, 5000)) << api->measured_js("srmc").body.dump();
   EXPECT_EQ(state(), "ENABLED");
 }
 
 TEST_F(RuntimeTest, SetpointNeverJumpsWhenANewGoalArrivesMidMotion) {
   enable();
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {30.0, 0.0, 0.0, 0.0}}}).status, 202);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {30.0, 0.0, 0.0, 0.0}}}).status, 202);
   steps(400);
-  double previous = runtime->setpoint_js("srmc").body["position"][0].get<double>();
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).status, 202);
+  double previous = api->setpoint_js("srmc").body["position"][0].get<double>();
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {12.0, 0.0, 0.0, 0.0}}}).status, 202);
   double max_step = 0;
   for (int i = 0; i < 3000; ++i) {
     runtime->step();
-    const double now = runtime->setpoint_js("srmc").body["position"][0].get<double>();
+    const double now = api->setpoint_js("srmc").body["position"][0].get<double>();
     max_step = std::max(max_step, std::abs(now - previous));
     previous = now;
   }
@@ -118,11 +122,11 @@ TEST_F(RuntimeTest, SetpointNeverJumpsWhenANewGoalArrivesMidMotion) {
 
 TEST_F(RuntimeTest, EstopCommandsQuickStopOnEveryDriveWithinTwoTicks) {
   enable();
-  ASSERT_EQ(runtime->move_jp("srmc", {{"goal", {40.0, 1.0, 4.0, 2.0}}}).status, 202);
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", {40.0, 1.0, 4.0, 2.0}}}).status, 202);
   steps(300);
   drain_tap();
   const auto tick_before = runtime->control_ticks();
-  ASSERT_EQ(runtime->estop().status, 200);
+  ASSERT_EQ(api->estop().status, 200);
   std::set<int> quick_stopped;
   std::uint64_t ticks_needed = 0;
   for (int i = 0; i < 2 && quick_stopped.size() < 4; ++i) {
@@ -148,43 +152,43 @@ TEST_F(RuntimeTest, EstopCommandsQuickStopOnEveryDriveWithinTwoTicks) {
   steps(500);
   const auto frozen = measured();
   // Nothing moves until reset and enable.
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {20.0, 0.0, 0.0, 0.0}}}).status, 409);
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "enable"}}).status, 409);
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {20.0, 0.0, 0.0, 0.0}}}).status, 409);
+  EXPECT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 409);
   steps(500);
   EXPECT_TRUE(at(frozen, 1e-3));
-  EXPECT_EQ(runtime->operating_state("srmc").body["estop"], true);
-  ASSERT_EQ(runtime->estop_reset().status, 200);
+  EXPECT_EQ(api->operating_state("srmc").body["estop"], true);
+  ASSERT_EQ(api->estop_reset().status, 200);
   steps(5);
   EXPECT_EQ(state(), "DISABLED");
   enable();
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {20.0, 0.0, 0.0, 0.0}}}).status, 202);
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {20.0, 0.0, 0.0, 0.0}}}).status, 202);
 }
 
 TEST_F(RuntimeTest, ServoVelocityStopsWhenNotRefreshedWithinTheCommandTimeout) {
   enable();
   const std::vector<double> v{2.0, 0.0, 0.0, 0.0};
-  ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", v}}).status, 200);
+  ASSERT_EQ(api->servo_jv("srmc", {{"velocity", v}}).status, 200);
   steps(100);
-  const double moving = runtime->setpoint_js("srmc").body["position"][0].get<double>();
+  const double moving = api->setpoint_js("srmc").body["position"][0].get<double>();
   EXPECT_GT(moving, 10.1);
   // No refresh: the stream times out at 150 ms and the setpoint holds.
   steps(200);
-  const double held = runtime->setpoint_js("srmc").body["position"][0].get<double>();
+  const double held = api->setpoint_js("srmc").body["position"][0].get<double>();
   steps(500);
-  EXPECT_DOUBLE_EQ(runtime->setpoint_js("srmc").body["position"][0].get<double>(), held);
+  EXPECT_DOUBLE_EQ(api->setpoint_js("srmc").body["position"][0].get<double>(), held);
   EXPECT_LT(held, 10.0 + 2.0 * 0.160);
   EXPECT_EQ(state(), "ENABLED");
 }
 
 TEST_F(RuntimeTest, OperatorLostStopsServoAtOnceAndDoesNotResume) {
   enable();
-  ASSERT_EQ(runtime->servo_jv("srmc", {{"velocity", {0.0, 0.0, 1.0, 0.0}}}).status, 200);
+  ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {0.0, 0.0, 1.0, 0.0}}}).status, 200);
   steps(50);
-  runtime->operator_lost();
+  api->operator_lost();
   steps(2);
-  const double held = runtime->setpoint_js("srmc").body["position"][2].get<double>();
+  const double held = api->setpoint_js("srmc").body["position"][2].get<double>();
   steps(1000);
-  EXPECT_DOUBLE_EQ(runtime->setpoint_js("srmc").body["position"][2].get<double>(), held);
+  EXPECT_DOUBLE_EQ(api->setpoint_js("srmc").body["position"][2].get<double>(), held);
   EXPECT_LT(held, 1.0 * 0.060);
 }
 
@@ -195,7 +199,7 @@ TEST_F(RuntimeTest, DriveHeartbeatLossFaultsTheRobotWithTheCause) {
   steps(200);
   EXPECT_EQ(state(), "ENABLED");
   EXPECT_TRUE(step_until([&] { return state() == "FAULT"; }, 200));
-  const auto faults = runtime->faults();
+  const auto faults = api->faults();
   ASSERT_FALSE(faults.empty());
   EXPECT_EQ(faults[0]["code"], "drive heartbeat lost") << faults.dump();
   EXPECT_EQ(faults[0]["joint"], "roll");
@@ -213,12 +217,12 @@ TEST_F(RuntimeTest, DriveEmergencyFaultsTheRobot) {
   enable();
   runtime->simulated_drive("srmc", "distal_bend")->inject_fault(canopen::emcy_code::over_temperature);
   EXPECT_TRUE(step_until([&] { return state() == "FAULT"; }, 50));
-  const auto faults = runtime->faults();
+  const auto faults = api->faults();
   ASSERT_FALSE(faults.empty());
   EXPECT_EQ(faults[0]["joint"], "distal_bend");
   EXPECT_NE(faults[0]["message"].get<std::string>().find("0x4210"), std::string::npos) << faults.dump();
   // Acknowledge with disable: the drive fault is reset, then the robot can be enabled again.
-  ASSERT_EQ(runtime->state_command("srmc", {{"command", "disable"}}).status, 200);
+  ASSERT_EQ(api->state_command("srmc", {{"command", "disable"}}).status, 200);
   steps(50);
   EXPECT_EQ(state(), "DISABLED");
   enable();
@@ -229,7 +233,7 @@ TEST_F(RuntimeTest, ADriveThatResetsFaultsTheRobot) {
   enable();
   runtime->simulated_drive("srmc", "insertion")->power_cycle();
   EXPECT_TRUE(step_until([&] { return state() == "FAULT"; }, 50));
-  const auto faults = runtime->faults();
+  const auto faults = api->faults();
   ASSERT_FALSE(faults.empty());
   EXPECT_EQ(faults[0]["joint"], "insertion") << faults.dump();
   EXPECT_NE(faults[0]["message"].get<std::string>().find("left NMT operational"), std::string::npos)
@@ -238,18 +242,18 @@ TEST_F(RuntimeTest, ADriveThatResetsFaultsTheRobot) {
 
 TEST_F(RuntimeTest, BadRequestsChangeNothing) {
   enable();
-  const auto before = runtime->setpoint_js("srmc").body["position"];
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {1.0, 2.0}}}).status, 422);
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {200.0, 0.0, 0.0, 0.0}}}).status, 422);
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", {10.0, 0.0, -7.0, 0.0}}}).status, 422);  // q3 >= -6 mm
-  EXPECT_EQ(runtime->move_jp("srmc", {{"goal", "x"}}).status, 400);
-  EXPECT_EQ(runtime->move_jp("srmc", nlohmann::json::object()).status, 400);
-  EXPECT_EQ(runtime->servo_jv("srmc", {{"velocity", {50.0, 0.0, 0.0, 0.0}}}).status, 422);
-  EXPECT_EQ(runtime->move_jp("nope", {{"goal", {1.0}}}).status, 404);
-  EXPECT_EQ(runtime->state_command("srmc", {{"command", "dance"}}).status, 400);
-  EXPECT_EQ(runtime->mode("srmc", {{"mode", "warp"}}).status, 422);
+  const auto before = api->setpoint_js("srmc").body["position"];
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {1.0, 2.0}}}).status, 422);
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {200.0, 0.0, 0.0, 0.0}}}).status, 422);
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", {10.0, 0.0, -7.0, 0.0}}}).status, 422);  // q3 >= -6 mm
+  EXPECT_EQ(api->move_jp("srmc", {{"goal", "x"}}).status, 400);
+  EXPECT_EQ(api->move_jp("srmc", nlohmann::json::object()).status, 400);
+  EXPECT_EQ(api->servo_jv("srmc", {{"velocity", {50.0, 0.0, 0.0, 0.0}}}).status, 422);
+  EXPECT_EQ(api->move_jp("nope", {{"goal", {1.0}}}).status, 404);
+  EXPECT_EQ(api->state_command("srmc", {{"command", "dance"}}).status, 400);
+  EXPECT_EQ(api->mode("srmc", {{"mode", "warp"}}).status, 422);
   steps(100);
-  EXPECT_EQ(runtime->setpoint_js("srmc").body["position"], before);
+  EXPECT_EQ(api->setpoint_js("srmc").body["position"], before);
   EXPECT_EQ(state(), "ENABLED");
 }
 
@@ -269,14 +273,14 @@ TEST_F(RuntimeTest, StopDisablesTheDrives) {
 
 TEST_F(RuntimeTest, StreamsTopicsOnlyWhenTheyChange) {
   std::uint64_t version = 0;
-  auto msg = runtime->topic_message("/srmc/operating_state", 0, version);
+  auto msg = api->topic_message("/srmc/operating_state", 0, version);
   ASSERT_TRUE(msg.has_value());
   std::uint64_t again = 0;
-  EXPECT_FALSE(runtime->topic_message("/srmc/operating_state", version, again).has_value());
-  auto scene = runtime->topic_message("/srmc/scene", 0, again);
+  EXPECT_FALSE(api->topic_message("/srmc/operating_state", version, again).has_value());
+  auto scene = api->topic_message("/srmc/scene", 0, again);
   ASSERT_TRUE(scene.has_value());
   EXPECT_GE((*scene)["entities"][0]["lines"][0]["points"].size(), 10u);
-  EXPECT_FALSE(runtime->topic_message("/nope/scene", 0, again).has_value());
+  EXPECT_FALSE(api->topic_message("/nope/scene", 0, again).has_value());
 }
 
 }  // namespace

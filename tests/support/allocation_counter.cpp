@@ -6,6 +6,8 @@
 
 namespace tendril::testing {
 std::atomic<long> allocation_count{0};
+
+void allocate_probe() { ::operator delete(::operator new(sizeof(double))); }
 }  // namespace tendril::testing
 
 // Defined out of line so callers cannot inline them (keeps GCC's new/delete pairing check quiet).

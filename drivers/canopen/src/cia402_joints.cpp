@@ -22,8 +22,8 @@ hardware::PowerState power_state(Cia402State state) noexcept {
   return PowerState::off;
 }
 
-Cia402Joints::Cia402Joints(CanopenMaster& master, std::vector<std::size_t> drives)
-    : master_(master), drives_(std::move(drives)) {}
+Cia402Joints::Cia402Joints(std::vector<std::pair<CanopenMaster*, std::size_t>> drives)
+    : drives_(std::move(drives)) {}
 
 // The master maps RPDO1 to controlword + target position (cyclic synchronous position), so every
 // drive it runs is a position joint.
@@ -36,7 +36,8 @@ const char* Cia402Joints::device_state_text(std::uint8_t state) const noexcept {
 }
 
 void Cia402Joints::read(std::size_t joint, hardware::JointFeedback& out) const noexcept {
-  const DriveFeedback fb = master_.feedback(drives_[joint]).load();
+  const auto& [master, drive] = drives_[joint];
+  const DriveFeedback fb = master->feedback(drive).load();
   out.position = fb.position;
   out.velocity = fb.velocity;
   out.effort = fb.effort;
@@ -50,8 +51,8 @@ void Cia402Joints::read(std::size_t joint, hardware::JointFeedback& out) const n
 }
 
 void Cia402Joints::write(std::size_t joint, const hardware::JointCommand& command) noexcept {
-  auto& slot = master_.command(drives_[joint]);
-  DriveCommand dc = slot.load();
+  const auto& [master, drive] = drives_[joint];
+  DriveCommand dc = master->command(drive).load();
   switch (command.request) {
     case hardware::PowerRequest::on:
       dc.request = DriveRequest::enable;
@@ -68,7 +69,7 @@ void Cia402Joints::write(std::size_t joint, const hardware::JointCommand& comman
   }
   dc.target_position = command.position;
   ++dc.sequence;
-  slot.store(dc);
+  master->set_command(drive, dc);  // wakes the bus thread for a quick stop or disable
 }
 
 }  // namespace tendril::canopen

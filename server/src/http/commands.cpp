@@ -7,9 +7,9 @@ namespace tendril::server {
 using nlohmann::json;
 using namespace tendril::server::http;
 
-ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, const json& body,
+ApiResult HttpServer::Impl::execute(const CommandRef& command, const std::string& robot, const json& body,
                                     const Identity& who) {
-  if (command == Command::kEstop) {
+  if (command.kind == Command::kEstop) {
     try {
       return api.estop_from(who.label + (who.role == Role::kViewer ? " (viewer)" : " (operator)"));
     } catch (const std::exception& e) {
@@ -20,34 +20,46 @@ ApiResult HttpServer::Impl::execute(Command command, const std::string& robot, c
     return ApiResult::error(403, "forbidden_role",
                             "this session is a viewer (read-only); only operators command");
   }
-  const bool needs_robot = command != Command::kEstopReset;
-  if (needs_robot && !api.has_robot(robot)) return unknown_robot(robot);
+  const bool needs_robot = command.kind != Command::kEstopReset;
+  if (needs_robot && !api.has_robot(robot)) return unknown_robot_result(robot);
   const auto now = SteadyClock::now();
   const auto generation = lease.use(who.lease_key, now);
   if (!generation) return lease_refusal(who, now, "commands need the lease");
   try {
-    switch (command) {
+    switch (command.kind) {
       case Command::kStateCommand:
         return api.state_command(robot, body);
       case Command::kMode:
         return api.mode(robot, body);
       case Command::kMoveJp:
         return api.move_jp(robot, body);
+      case Command::kMoveCp:
+        return api.move_cp(robot, body);
+      case Command::kServoCp:
+      case Command::kServoCv:
       case Command::kServoJv: {
-        ApiResult result = api.servo_jv(robot, body);
+        ApiResult result = command.kind == Command::kServoJv   ? api.servo_jv(robot, body)
+                           : command.kind == Command::kServoCv ? api.servo_cv(robot, body)
+                                                               : api.servo_cp(robot, body);
         if (result.ok()) note_servo(*generation, SteadyClock::now());
+        return result;
+      }
+      case Command::kRobotCommand: {
+        ApiResult result = api.robot_command(robot, command.name, body);
+        // A stream that moves the robot (e.g. a joystick with its deadman held) counts as streaming
+        // commands: a takeover must not cut it off silently.
+        if (result.ok()) {
+          for (const auto& info : api.robot_commands(robot)) {
+            if (info.name != command.name || info.motion_flag.empty()) continue;
+            const auto flag = body.find(info.motion_flag);
+            if (flag != body.end() && flag->is_boolean() && flag->get<bool>())
+              note_servo(*generation, SteadyClock::now());
+          }
+        }
         return result;
       }
       case Command::kEstopReset:
         return api.estop_reset();
-      case Command::kMoveConfiguration:
-        return api.move_configuration(robot, body);
-      case Command::kJoystick: {
-        ApiResult result = api.joystick(robot, body);
-        // A held deadman counts as streaming commands (a takeover must not cut it off silently).
-        if (result.ok() && body.value("deadman", false)) note_servo(*generation, SteadyClock::now());
-        return result;
-      }
       case Command::kAuthorizeOnly:
         return ApiResult::success(json::object());
       case Command::kEstop:

@@ -375,11 +375,6 @@ Channel channel_for_topic(std::uint32_t id, const std::string& topic) {
   } else if (topic == "/tf") {
     channel.schema_name = "foxglove.FrameTransforms";
     schema = frame_transforms_schema();
-  } else if (ends_with(topic, "/catheter")) {
-    // A steerable catheter's operating state with its measured values at 10 Hz (robot_api.cpp).
-    channel.schema_name = "tendril.CatheterState";
-    schema = operating_state_schema();
-    schema["title"] = "tendril.CatheterState";
   } else if (ends_with(topic, "/diagnostics")) {
     // Control-loop health at 10 Hz (robot_api.cpp diagnostics()).
     const json numbers = {{"type", "array"}, {"items", {{"type", "number"}}}};

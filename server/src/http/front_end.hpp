@@ -68,33 +68,45 @@ struct Identity {
 
 // Robot commands as the front end dispatches them. kAuthorizeOnly: the role and lease checks of a
 // robot command, for routes dispatched elsewhere (planning_routes.cpp); answers 200 {} when they pass.
+// kRobotCommand: one of a robot type's own commands, named in CommandRef::name.
 enum class Command {
   kStateCommand,
   kMode,
   kMoveJp,
   kServoJv,
-  kMoveConfiguration,
-  kJoystick,
+  kMoveCp,
+  kServoCp,
+  kServoCv,
+  kRobotCommand,
   kEstop,
   kEstopReset,
   kAuthorizeOnly
 };
+struct CommandRef {
+  Command kind = Command::kAuthorizeOnly;
+  std::string name;                   // the robot type's command (kRobotCommand)
+  CommandRef(Command k) : kind(k) {}  // NOLINT(google-explicit-constructor)
+  CommandRef(Command k, std::string n) : kind(k), name(std::move(n)) {}
+};
+// The CRTK commands every robot is addressed with (REST POST /robots/{robot}/<name>).
+const std::map<std::string, Command>& core_robot_commands();
 
-// Services mirror the REST commands (services.cpp). Request: {"robot":..., ...REST body}; response:
-// {"status":..,"body"|"error"}.
+// Services mirror the REST commands (services.cpp): the core ones, then one per robot-type command
+// name. Request: {"robot":..., ...REST body}; response: {"status":..,"body"|"error"}.
 struct ServiceDef {
   std::uint32_t id;
-  const char* name;
-  std::optional<Command> command;  // nullopt = lease
+  std::string name;
+  std::optional<CommandRef> command;  // nullopt = lease
   bool needs_robot;
+  nlohmann::json request_schema;
 };
-const std::vector<ServiceDef>& service_definitions();
-std::vector<fg::Service> service_list();
+std::vector<ServiceDef> service_definitions(const ControlApi& api);
+std::vector<fg::Service> service_list(const std::vector<ServiceDef>& definitions);
 
 std::string random_hex(std::size_t bytes);
 std::string dump(const nlohmann::json& value);
 std::uint64_t wall_time_ns();
-ApiResult unknown_robot(const std::string& robot);
+ApiResult unknown_robot_result(const std::string& robot);
 
 // What a WebSocket connection offers the rest of the front end (ws_connection.hpp implements it).
 class WsConnectionBase {
@@ -120,6 +132,7 @@ class HttpServer::Impl {
   ControlApi& api;
   HttpOptions opts;
   http::LeaseManager lease;
+  const std::vector<ServiceDef> service_defs;
   const std::vector<fg::Service> services;
   const std::string server_session_id = random_hex(8);
   const SteadyClock::time_point started_at = SteadyClock::now();
@@ -202,7 +215,7 @@ class HttpServer::Impl {
   AuthOutcome authenticate(const Request& req, const http::RequestTarget& target, std::uint64_t connection_id,
                            bool accept_query_token, bool create_cookie_session, bool websocket);
 
-  ApiResult execute(Command command, const std::string& robot, const nlohmann::json& body,
+  ApiResult execute(const CommandRef& command, const std::string& robot, const nlohmann::json& body,
                     const Identity& who);
   // action: "acquire" (with an optional takeover token), "release" or "status".
   ApiResult lease_action(const std::string& action, const Identity& who,

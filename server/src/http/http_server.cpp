@@ -40,13 +40,17 @@ std::uint64_t wall_time_ns() {
                                         .count());
 }
 
-ApiResult unknown_robot(const std::string& robot) {
+ApiResult unknown_robot_result(const std::string& robot) {
   return ApiResult::error(404, "unknown_robot",
                           "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
 }
 
 HttpServer::Impl::Impl(ControlApi& api_in, HttpOptions options_in)
-    : api(api_in), opts(std::move(options_in)), lease(opts.lease_timeout), services(service_list()) {
+    : api(api_in),
+      opts(std::move(options_in)),
+      lease(opts.lease_timeout),
+      service_defs(service_definitions(api_in)),
+      services(service_list(service_defs)) {
   for (const auto& source : opts.topic_sources) {
     if (!source) continue;
     for (auto& info : source->topics()) {

@@ -95,7 +95,18 @@ void HttpServer::Impl::report_new_safety_events() {
   }
 }
 
+namespace {
+std::optional<TopicInfo> schema_of(const ControlApi& api, const std::string& topic) {
+  try {
+    return api.topic_schema(topic);
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+}  // namespace
+
 void HttpServer::Impl::refresh_channels() {
+  const auto api_topic_schema = [this](const std::string& topic) { return schema_of(api, topic); };
   std::vector<std::string> topics;
   try {
     topics = api.topics();
@@ -120,6 +131,13 @@ void HttpServer::Impl::refresh_channels() {
         channel.schema_name = source->second.second.schema_name;
         channel.schema = source->second.second.schema;
         channels[id].source = source->second.first;
+      } else if (auto info = api_topic_schema(topic)) {
+        // A robot type's own topic: it brings its schema.
+        auto& channel = channels[id].channel;
+        channel.id = id;
+        channel.topic = topic;
+        channel.schema_name = info->schema_name;
+        channel.schema = info->schema;
       } else {
         channels[id].channel = fg::channel_for_topic(id, topic);
       }

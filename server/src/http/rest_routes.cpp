@@ -53,24 +53,16 @@ StringResponse origin_refusal(const Request& req) {
                                                   "\" is not in the allowlist"));
 }
 
-// REST getters and commands under /api/v1/robots/{robot}/...
+// REST getters under /api/v1/robots/{robot}/... (the commands: core_robot_commands() and the robot
+// types' own, ControlApi::robot_commands()).
 using Getter = ApiResult (ControlApi::*)(const std::string&) const;
 const std::map<std::string, Getter>& robot_getters() {
-  static const std::map<std::string, Getter> getters = {{"measured_js", &ControlApi::measured_js},
-                                                        {"setpoint_js", &ControlApi::setpoint_js},
-                                                        {"measured_cp", &ControlApi::measured_cp},
-                                                        {"shape", &ControlApi::shape},
-                                                        {"operating_state", &ControlApi::operating_state}};
+  static const std::map<std::string, Getter> getters = {
+      {"measured_js", &ControlApi::measured_js},         {"setpoint_js", &ControlApi::setpoint_js},
+      {"measured_cp", &ControlApi::measured_cp},         {"measured_cv", &ControlApi::measured_cv},
+      {"measured_cf", &ControlApi::measured_cf},         {"shape", &ControlApi::shape},
+      {"operating_state", &ControlApi::operating_state}, {"schema", &ControlApi::robot_schema}};
   return getters;
-}
-const std::map<std::string, Command>& robot_commands() {
-  static const std::map<std::string, Command> commands = {{"state_command", Command::kStateCommand},
-                                                          {"mode", Command::kMode},
-                                                          {"move_jp", Command::kMoveJp},
-                                                          {"servo_jv", Command::kServoJv},
-                                                          {"move_configuration", Command::kMoveConfiguration},
-                                                          {"joystick", Command::kJoystick}};
-  return commands;
 }
 
 RouteResult handle_metrics(HttpServer::Impl& server, const Request& req, const RequestTarget& target,
@@ -181,18 +173,25 @@ RouteResult handle_api(HttpServer::Impl& server, const Request& req, const Reque
     const std::string& robot = route[1];
     const std::string& verb = route[2];
     const auto& getters = robot_getters();
-    const auto& commands = robot_commands();
+    const auto& commands = core_robot_commands();
     if (const auto getter = getters.find(verb); getter != getters.end()) {
       if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
-      if (!api.has_robot(robot)) return error_response(req, unknown_robot(robot));
+      if (!api.has_robot(robot)) return error_response(req, unknown_robot_result(robot));
       return result_response(req, (api.*(getter->second))(robot));
     }
-    if (const auto command = commands.find(verb); command != commands.end()) {
+    std::optional<CommandRef> command;
+    if (const auto core = commands.find(verb); core != commands.end()) {
+      command = CommandRef(core->second);
+    } else if (api.has_robot(robot)) {
+      for (const auto& info : api.robot_commands(robot))
+        if (info.name == verb) command = CommandRef(Command::kRobotCommand, verb);
+    }
+    if (command) {
       if (method != bhttp::verb::post) return method_not_allowed(req, "POST");
-      if (!api.has_robot(robot)) return error_response(req, unknown_robot(robot));
+      if (!api.has_robot(robot)) return error_response(req, unknown_robot_result(robot));
       const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
       if (!body.ok()) return error_response(req, body);
-      return result_response(req, server.execute(command->second, robot, body.body, who));
+      return result_response(req, server.execute(*command, robot, body.body, who));
     }
   }
   const PlanningCall planning_call{req.method_string(),
@@ -349,8 +348,9 @@ std::vector<HttpServer::Route> HttpServer::api_routes() {
   };
   for (const auto& [verb, getter] : robot_getters())
     routes.push_back({"GET", "/api/v1/robots/{robot}/" + verb});
-  for (const auto& [verb, command] : robot_commands())
+  for (const auto& [verb, command] : core_robot_commands())
     routes.push_back({"POST", "/api/v1/robots/{robot}/" + verb});
+  routes.push_back({"POST", "/api/v1/robots/{robot}/{command}"});  // the robot types' own commands
   for (const auto& [verb, path] : planning_route_list()) routes.push_back({verb, path});
   return routes;
 }

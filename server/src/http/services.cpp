@@ -1,4 +1,7 @@
-// The Foxglove services that mirror the REST commands, with their JSON schemas.
+// The Foxglove services that mirror the REST commands, with their JSON schemas: the core ones, then one
+// per command the robot types add (a command several robots share is one service; "robot" picks).
+#include <set>
+
 #include "front_end.hpp"
 
 namespace tendril::server {
@@ -13,24 +16,70 @@ json service_schema(const json& properties, const std::vector<std::string>& requ
 
 }  // namespace
 
-const std::vector<ServiceDef>& service_definitions() {
-  static const std::vector<ServiceDef> services = {
-      {1, "state_command", Command::kStateCommand, true},
-      {2, "mode", Command::kMode, true},
-      {3, "move_jp", Command::kMoveJp, true},
-      {4, "servo_jv", Command::kServoJv, true},
-      {5, "estop", Command::kEstop, false},
-      {6, "estop_reset", Command::kEstopReset, false},
-      {7, "lease", std::nullopt, false},
-      {8, "move_configuration", Command::kMoveConfiguration, true},
-      {9, "joystick", Command::kJoystick, true},
-  };
-  return services;
+const std::map<std::string, Command>& core_robot_commands() {
+  static const std::map<std::string, Command> commands = {{"state_command", Command::kStateCommand},
+                                                          {"mode", Command::kMode},
+                                                          {"move_jp", Command::kMoveJp},
+                                                          {"servo_jv", Command::kServoJv},
+                                                          {"move_cp", Command::kMoveCp},
+                                                          {"servo_cp", Command::kServoCp},
+                                                          {"servo_cv", Command::kServoCv}};
+  return commands;
 }
 
-std::vector<fg::Service> service_list() {
+std::vector<ServiceDef> service_definitions(const ControlApi& api) {
   const json robot = {{"type", "string"}};
   const json numbers = {{"type", "array"}, {"items", {{"type", "number"}}}};
+  const json point = {{"type", "array"}, {"items", {{"type", "number"}}}, {"minItems", 3}, {"maxItems", 3}};
+  const json quaternion = {
+      {"type", "array"}, {"items", {{"type", "number"}}}, {"minItems", 4}, {"maxItems", 4}};
+  std::vector<ServiceDef> defs = {
+      {1, "state_command", CommandRef(Command::kStateCommand), true,
+       service_schema({{"robot", robot}, {"command", {{"type", "string"}}}}, {"robot", "command"})},
+      {2, "mode", CommandRef(Command::kMode), true,
+       service_schema({{"robot", robot}, {"mode", {{"type", "string"}}}}, {"robot", "mode"})},
+      {3, "move_jp", CommandRef(Command::kMoveJp), true,
+       service_schema({{"robot", robot}, {"goal", numbers}}, {"robot", "goal"})},
+      {4, "servo_jv", CommandRef(Command::kServoJv), true,
+       service_schema({{"robot", robot}, {"velocity", numbers}}, {"robot", "velocity"})},
+      {5, "estop", CommandRef(Command::kEstop), false, service_schema(json::object(), {})},
+      {6, "estop_reset", CommandRef(Command::kEstopReset), false, service_schema(json::object(), {})},
+      {7, "lease", std::nullopt, false,
+       service_schema({{"action", {{"type", "string"}, {"enum", {"acquire", "release", "status"}}}}}, {})},
+      {8, "move_cp", CommandRef(Command::kMoveCp), true,
+       service_schema({{"robot", robot}, {"position", point}, {"orientation", quaternion}},
+                      {"robot", "position", "orientation"})},
+      {9, "servo_cp", CommandRef(Command::kServoCp), true,
+       service_schema({{"robot", robot}, {"position", point}, {"orientation", quaternion}},
+                      {"robot", "position", "orientation"})},
+      {10, "servo_cv", CommandRef(Command::kServoCv), true,
+       service_schema({{"robot", robot}, {"linear", point}, {"angular", point}},
+                      {"robot", "linear", "angular"})},
+  };
+  // The robot types' own commands, once per name.
+  std::set<std::string> seen;
+  for (const auto& d : defs) seen.insert(d.name);
+  std::uint32_t next_id = 100;
+  try {
+    for (const auto& r : api.robots()) {
+      const std::string name = r.value("name", std::string());
+      for (const auto& c : api.robot_commands(name)) {
+        if (!seen.insert(c.name).second) continue;
+        json schema = c.body_schema.is_object() ? c.body_schema : service_schema(json::object(), {});
+        schema["properties"]["robot"] = robot;
+        auto required = schema.value("required", json::array());
+        required.push_back("robot");
+        schema["required"] = required;
+        defs.push_back({next_id++, c.name, CommandRef(Command::kRobotCommand, c.name), true, schema});
+      }
+    }
+  } catch (const std::exception&) {
+    // The robots could not be listed now: the core services remain; GET /robots shows the failure.
+  }
+  return defs;
+}
+
+std::vector<fg::Service> service_list(const std::vector<ServiceDef>& definitions) {
   const json response = {
       {"type", "object"},
       {"properties",
@@ -40,38 +89,8 @@ std::vector<fg::Service> service_list() {
          {{"type", "object"},
           {"properties", {{"code", {{"type", "string"}}}, {"message", {{"type", "string"}}}}}}}}}};
   std::vector<fg::Service> services;
-  for (const auto& def : service_definitions()) {
-    json request;
-    const std::string name = def.name;
-    if (name == "state_command") {
-      request = service_schema({{"robot", robot}, {"command", {{"type", "string"}}}}, {"robot", "command"});
-    } else if (name == "mode") {
-      request = service_schema({{"robot", robot}, {"mode", {{"type", "string"}}}}, {"robot", "mode"});
-    } else if (name == "move_jp") {
-      request = service_schema({{"robot", robot}, {"goal", numbers}}, {"robot", "goal"});
-    } else if (name == "servo_jv") {
-      request = service_schema({{"robot", robot}, {"velocity", numbers}}, {"robot", "velocity"});
-    } else if (name == "move_configuration") {
-      request = service_schema({{"robot", robot},
-                                {"goal",
-                                 {{"type", "object"},
-                                  {"properties",
-                                   {{"insertion", {{"type", "number"}}},
-                                    {"roll", {{"type", "number"}}},
-                                    {"theta_proximal", {{"type", "number"}}},
-                                    {"theta_distal", {{"type", "number"}}}}}}}},
-                               {"robot", "goal"});
-    } else if (name == "joystick") {
-      request = service_schema({{"robot", robot}, {"axes", numbers}, {"deadman", {{"type", "boolean"}}}},
-                               {"robot", "axes", "deadman"});
-    } else if (name == "lease") {
-      request =
-          service_schema({{"action", {{"type", "string"}, {"enum", {"acquire", "release", "status"}}}}}, {});
-    } else {
-      request = service_schema(json::object(), {});
-    }
-    services.push_back({def.id, name, "tendril/" + name, dump(request), dump(response)});
-  }
+  for (const auto& def : definitions)
+    services.push_back({def.id, def.name, "tendril/" + def.name, dump(def.request_schema), dump(response)});
   return services;
 }
 

@@ -413,23 +413,30 @@ void WsConnection::handle_client_advertise(const fg::ClientAdvertiseOp& advertis
     return;
   }
   for (const auto& channel : advertise.channels) {
-    // Operator streams: "/{robot}/servo_jv" with JSON {"velocity":[...]}, and "/{robot}/joystick"
-    // with JSON {"axes":[...], "deadman": bool} (console joystick, telemanipulation).
+    // Operator streams: "/{robot}/servo_jv" ({"velocity":[...]}), "/{robot}/servo_cv" ({"linear",
+    // "angular"}) and the robot type's streamable commands (e.g. a console joystick).
     const auto segments = split_path(channel.topic);
-    if (segments.size() != 2 || (segments[1] != "servo_jv" && segments[1] != "joystick") ||
-        !server_.api.has_robot(segments[0]) || channel.encoding != "json") {
-      send_text(fg::status(fg::StatusLevel::kError,
-                           "advertise: tendril accepts client channels \"/{robot}/servo_jv\" and "
-                           "\"/{robot}/joystick\" with encoding \"json\" only; refused \"" +
-                               channel.topic + "\""));
+    std::optional<CommandRef> command;
+    if (segments.size() == 2 && channel.encoding == "json" && server_.api.has_robot(segments[0])) {
+      if (segments[1] == "servo_jv") command = CommandRef(Command::kServoJv);
+      if (segments[1] == "servo_cv") command = CommandRef(Command::kServoCv);
+      for (const auto& info : server_.api.robot_commands(segments[0]))
+        if (info.streamable && info.name == segments[1])
+          command = CommandRef(Command::kRobotCommand, info.name);
+    }
+    if (!command) {
+      send_text(fg::status(
+          fg::StatusLevel::kError,
+          "advertise: tendril accepts client channels \"/{robot}/servo_jv\", \"/{robot}/servo_cv\" "
+          "and a robot type's streamable commands, with encoding \"json\" only; refused \"" +
+              channel.topic + "\""));
       continue;
     }
     if (client_channels_.size() >= 64) {
       send_text(fg::status(fg::StatusLevel::kError, "advertise: at most 64 client channels"));
       return;
     }
-    client_channels_[channel.id] = {segments[0],
-                                    segments[1] == "joystick" ? Command::kJoystick : Command::kServoJv};
+    client_channels_.insert_or_assign(channel.id, std::pair{segments[0], *command});
   }
 }
 
@@ -448,9 +455,11 @@ void WsConnection::handle_binary(const std::string& data) {
     const auto& [robot, command] = it->second;
     const ApiResult result = body.ok() ? server_.execute(command, robot, body.body, identity_) : body;
     if (!result.ok()) {
+      const std::string leaf = command.kind == Command::kRobotCommand ? command.name
+                               : command.kind == Command::kServoCv    ? "servo_cv"
+                                                                      : "servo_jv";
       send_text(fg::status(fg::StatusLevel::kWarning,
-                           "/" + robot + (command == Command::kJoystick ? "/joystick: " : "/servo_jv: ") +
-                               result.code + ": " + result.message));
+                           "/" + robot + "/" + leaf + ": " + result.code + ": " + result.message));
     }
   } else if (auto* call = std::get_if<fg::ServiceCallRequest>(&parsed)) {
     handle_service_call(*call);
@@ -459,7 +468,7 @@ void WsConnection::handle_binary(const std::string& data) {
 
 void WsConnection::handle_service_call(const fg::ServiceCallRequest& call) {
   const ServiceDef* def = nullptr;
-  for (const auto& candidate : service_definitions()) {
+  for (const auto& candidate : server_.service_defs) {
     if (candidate.id == call.service_id) def = &candidate;
   }
   if (!def) {

@@ -95,7 +95,7 @@ class WsConnection : public WsConnectionBase, public std::enable_shared_from_thi
   bool closing_ = false;
   bool gone_ = false;
   int close_code_ = kCloseNormal;
-  std::map<std::uint32_t, std::pair<std::string, Command>> client_channels_;  // id -> robot, stream
+  std::map<std::uint32_t, std::pair<std::string, CommandRef>> client_channels_;  // id -> robot, stream
   std::string current_text_;
   PendingData current_data_;
 

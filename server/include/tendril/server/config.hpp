@@ -11,6 +11,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tendril/safety/limit_set.hpp"
+
 namespace tendril::server {
 
 class ConfigError : public std::runtime_error {
@@ -18,6 +20,7 @@ class ConfigError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A CiA 402 drive on a CANopen bus.
 struct DriveConfig {
   std::string bus;
   int node_id = 0;
@@ -26,19 +29,17 @@ struct DriveConfig {
 };
 
 struct JointConfig {
-  std::string name;
-  std::string unit;
-  double lower = 0.0;
-  double upper = 0.0;
-  double soft_margin = 0.0;
-  double max_velocity = 0.0;
-  double max_acceleration = 0.0;
-  double max_tracking_error = 0.0;
+  // Name, unit and every limit: the one joint-limit type, owned by safety (LimitSet checks it).
+  safety::JointLimit limit;
   double initial_position = 0.0;  // where the simulated load starts
-  // Simulated drive model used when the joint's bus is virtual: a preset of
-  // sim::DriveParameters (srmc_insertion, srmc_roll, srmc_bend) or "generic".
+  // The simulated drive used when the joint's bus is virtual: a preset of the robot type (e.g. the
+  // catheter's lead screws) or "generic".
   std::string simulation_preset = "generic";
-  DriveConfig drive;
+  // The drive; absent when the robot type provides the joint itself (an arm controller, a simulator
+  // at the joint interface).
+  std::optional<DriveConfig> drive;
+  const std::string& name() const noexcept { return limit.name; }
+  const std::string& unit() const noexcept { return limit.unit; }
 };
 
 struct BusConfig {
@@ -51,6 +52,7 @@ struct BusConfig {
   int drive_heartbeat_timeout_ms = 100;
   int drive_heartbeat_period_ms = 20;
   int master_heartbeat_timeout_ms = 100;
+  bool operator==(const BusConfig&) const = default;
 };
 
 struct RobotConfig {
@@ -58,6 +60,7 @@ struct RobotConfig {
   std::string name;
   std::string kind;
   std::string description;
+  std::optional<double> control_rate_hz;  // must equal the server's when given
   int command_timeout_ms = 150;
   // Lost control time tolerated while the robot moves (ms); 0 = derived, see
   // safety::lost_control_bound (half the shorter of command_timeout_ms and the drives' heartbeat
@@ -66,8 +69,10 @@ struct RobotConfig {
   int enable_timeout_ms = 1000;
   std::vector<JointConfig> joints;
   std::vector<BusConfig> buses;
-  nlohmann::json kinematics;  // model-specific; validated by the model that reads it
-  nlohmann::json catheter;    // steerable-catheter control settings (null when absent)
+  // The robot type's own sections (every top-level key the core does not read), checked against the
+  // type's schema and read by the type.
+  nlohmann::json settings = nlohmann::json::object();
+  nlohmann::json document;  // the whole file, for the check against the type's merged schema
   std::filesystem::path directory() const { return file.parent_path(); }
 };
 
@@ -90,10 +95,12 @@ struct ServerConfig {
   nlohmann::json imaging;  // the "imaging" object (null if absent); read by parse_imaging_config
 };
 
-// Parses a robot file. Throws ConfigError("config/robots/srmc.json: joints[2].upper: expected a
-// number greater than lower (-6), got -8").
+// Parses a robot file's core keys (the robot type's sections are kept in RobotConfig::settings and
+// checked by the runtime against the type's schema). Throws ConfigError("config/robots/srmc.json:
+// joints[2].upper: expected a number greater than lower (-6), got -8").
 RobotConfig load_robot_config(const std::filesystem::path& file);
 RobotConfig parse_robot_config(const nlohmann::json& j, const std::filesystem::path& file);
+nlohmann::json read_json_file(const std::filesystem::path& file);
 
 // Parses the server file and every robot file it names (relative to the server file's folder).
 ServerConfig load_server_config(const std::filesystem::path& file);

@@ -1,6 +1,6 @@
-// ControlApi: what the HTTP/WebSocket front end may ask of the robots. Thread-safe; called from
-// the network threads. Implemented by RobotRuntime, which validates every command against the
-// immutable robot model and hands it to the real-time thread through a lock-free mailbox.
+// ControlApi: the JSON face of the robots that the HTTP/WebSocket front end talks to. Thread-safe;
+// called from the network threads. Implemented by JsonControlApi (http/control_json.hpp) over the
+// typed RobotService and the robot types' API extensions; tests of the front end use a double.
 #pragma once
 
 #include <cstdint>
@@ -9,6 +9,8 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+
+#include "tendril/server/topic_source.hpp"
 
 namespace tendril::server {
 
@@ -40,6 +42,17 @@ struct ApiResult {
   }
 };
 
+// A robot type's own command, as the front end offers it.
+struct RobotCommandInfo {
+  std::string name;            // POST /api/v1/robots/{robot}/<name>; Foxglove service "<name>"
+  nlohmann::json body_schema;  // JSON Schema of the body (the service's request, with "robot" added)
+  bool streamable = false;     // also a client channel "/{robot}/<name>" (clientPublish)
+  // The body field that says a stream moves the robot (e.g. a held "deadman"); a live stream with it
+  // true cannot be taken over. Empty: the command does not stream motion.
+  std::string motion_flag;
+  std::string description;
+};
+
 class ControlApi {
  public:
   virtual ~ControlApi() = default;
@@ -51,6 +64,15 @@ class ControlApi {
   virtual ApiResult measured_js(const std::string& robot) const = 0;
   virtual ApiResult setpoint_js(const std::string& robot) const = 0;
   virtual ApiResult measured_cp(const std::string& robot) const = 0;
+  // Cartesian velocity and force (CRTK measured_cv, measured_cf) for robot types that measure them.
+  virtual ApiResult measured_cv(const std::string& robot) const {
+    return not_supported(robot, "measured_cv");
+  }
+  virtual ApiResult measured_cf(const std::string& robot) const {
+    return not_supported(robot, "measured_cf");
+  }
+  // The robot file's JSON Schema (core keys and the robot type's own sections).
+  virtual ApiResult robot_schema(const std::string& robot) const { return not_supported(robot, "schema"); }
   virtual ApiResult shape(const std::string& robot) const = 0;
   virtual ApiResult operating_state(const std::string& robot) const = 0;
 
@@ -61,6 +83,30 @@ class ControlApi {
   virtual ApiResult mode(const std::string& robot, const nlohmann::json& body) = 0;
   virtual ApiResult move_jp(const std::string& robot, const nlohmann::json& body) = 0;
   virtual ApiResult servo_jv(const std::string& robot, const nlohmann::json& body) = 0;
+  // Cartesian commands (CRTK move_cp, servo_cp, servo_cv) for robot types that take them.
+  virtual ApiResult move_cp(const std::string& robot, const nlohmann::json& body) {
+    (void)body;
+    return not_supported(robot, "move_cp");
+  }
+  virtual ApiResult servo_cp(const std::string& robot, const nlohmann::json& body) {
+    (void)body;
+    return not_supported(robot, "servo_cp");
+  }
+  virtual ApiResult servo_cv(const std::string& robot, const nlohmann::json& body) {
+    (void)body;
+    return not_supported(robot, "servo_cv");
+  }
+  // The robot type's own commands (REST POST /robots/{robot}/<name>, Foxglove service <name>, client
+  // channel /{robot}/<name> when streamable).
+  virtual std::vector<RobotCommandInfo> robot_commands(const std::string& robot) const {
+    (void)robot;
+    return {};
+  }
+  virtual ApiResult robot_command(const std::string& robot, const std::string& name,
+                                  const nlohmann::json& body) {
+    (void)body;
+    return ApiResult::error(404, "not_found", "robot '" + robot + "' has no command '" + name + "'");
+  }
   virtual ApiResult estop() = 0;
   // The e-stop pressed by `actor` (the session or client and its role, e.g. "session:3 (operator)"):
   // the safety event names them. Implementations without an event log just stop.
@@ -78,6 +124,11 @@ class ControlApi {
   // Streams for the WebSocket: one JSON message per topic, built from the latest state snapshot.
   // Topics: "/{robot}/joint_states", "/{robot}/operating_state", "/safety/events", "/{robot}/scene".
   virtual std::vector<std::string> topics() const = 0;
+  // The schema of a topic when it is not one of the front end's known ones (a robot type's own).
+  virtual std::optional<TopicInfo> topic_schema(const std::string& topic) const {
+    (void)topic;
+    return std::nullopt;
+  }
   // The message for `topic` if it changed since `since_version`; sets `version`.
   virtual std::optional<nlohmann::json> topic_message(const std::string& topic, std::uint64_t since_version,
                                                       std::uint64_t& version) const = 0;
@@ -106,21 +157,6 @@ class ControlApi {
     return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no path following");
   }
 
-  // Steerable catheter, configuration mode: {"goal": {"insertion": mm, "roll": rad, "theta_proximal":
-  // rad, "theta_distal": rad}} (any subset; the rest keep their current value). 202 {"duration_s",
-  // "joints"}: the joint values the goal needs; 422 when they are outside the limits; 409 wrong mode.
-  virtual ApiResult move_configuration(const std::string& robot, const nlohmann::json& body) {
-    (void)body;
-    return ApiResult::error(422, "not_supported", "robot '" + robot + "' has no configuration space");
-  }
-  // Console joystick for telemanipulation (and insertion/roll in active compliance):
-  // {"axes": [4 values in -1..1, joint order], "deadman": bool}. Motion only while deadman is true and
-  // the stream is refreshed within the command timeout.
-  virtual ApiResult joystick(const std::string& robot, const nlohmann::json& body) {
-    (void)body;
-    return ApiResult::error(422, "not_supported", "robot '" + robot + "' takes no joystick input");
-  }
-
   // Run-time parameters (Foxglove "parameters" capability), e.g. "/srmc/insertion/upper",
   // "/srmc/insertion/max_velocity", "/srmc/servo_timeout_s": [{"name","value","type"}], every one
   // readable. Writable ones may only be set within the configured (safe) range: tightening, or going
@@ -133,6 +169,11 @@ class ControlApi {
   virtual ApiResult set_parameters(const nlohmann::json& parameters) {
     (void)parameters;
     return ApiResult::error(501, "not_implemented", "this server has no writable parameters");
+  }
+
+ protected:
+  static ApiResult not_supported(const std::string& robot, const std::string& what) {
+    return ApiResult::error(422, "not_supported", "robot '" + robot + "' does not support " + what);
   }
 };
 

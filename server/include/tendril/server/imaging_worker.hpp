@@ -29,6 +29,7 @@
 
 #include "tendril/drivers/sim/simulated_fluoroscope.hpp"
 #include "tendril/server/control_api.hpp"
+#include "tendril/server/robot_service.hpp"
 #include "tendril/server/topic_source.hpp"
 
 namespace tendril::server {
@@ -56,7 +57,7 @@ using BackboneReader = std::function<bool(std::vector<Eigen::Vector3d>& out)>;
 
 // The backbone of `robot` (empty: the first robot) through ControlApi::shape, i.e. the runtime's
 // latest snapshot. Throws ConfigError for an unknown robot.
-BackboneReader backbone_from(const ControlApi& api, std::string robot);
+BackboneReader backbone_from(const RobotService& service, std::string robot);
 
 class ImagingWorker final : public TopicSource {
  public:

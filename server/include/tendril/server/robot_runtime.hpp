@@ -1,7 +1,8 @@
-// RobotRuntime: assembles every configured robot (model, safety supervisor, controllers, CANopen
-// drives on their buses, simulated drives on virtual buses) and runs the real-time control loop.
-// It implements ControlApi for the network front end: commands are validated here, then handed to
-// the real-time thread through a lock-free mailbox; state comes back through seqlock snapshots.
+// RobotRuntime: assembles every configured robot from its file through its robot type (kinematics,
+// modes, controllers, simulated devices), the buses they share (one CANopen master per bus, for all
+// robots' drives on it) and the safety supervisors, and runs the real-time control loop. It implements
+// RobotService: commands are checked here, then handed to the real-time thread through a lock-free
+// mailbox; state comes back through seqlock snapshots.
 #pragma once
 
 #include <chrono>
@@ -12,41 +13,42 @@
 
 #include "tendril/drivers/can/bus.hpp"
 #include "tendril/server/config.hpp"
-#include "tendril/server/control_api.hpp"
 #include "tendril/server/periodic_thread.hpp"
+#include "tendril/server/robot_service.hpp"
+#include "tendril/server/robot_types.hpp"
 
 namespace tendril::sim {
 class SimulatedCia402Drive;
-class SimulatedAnalogJoystick;
-class SimulatedAnalogInputNode;
 }  // namespace tendril::sim
 
 namespace tendril::server {
 
+class RobotApiExtension;
+class RobotPlugin;
+
 struct RuntimeOptions {
   double control_rate_hz = 1000.0;
   bool realtime_priority = false;  // SCHED_FIFO + mlockall for the control thread
-  // Stepped: no threads; the owner calls step() to advance simulated drives, buses and the control
+  // Stepped: no threads; the owner calls step() to advance simulated devices, buses and the control
   // loop by one control period in simulated time. Used by tests to make timing deterministic.
   bool stepped = false;
 };
 
-class RobotRuntime final : public ControlApi {
+class RobotRuntime final : public RobotService {
  public:
-  // Validates the whole configuration (kinematics, bus load, simulation presets) and builds every
-  // object; throws ConfigError with the file, key and reason. Opens no thread yet.
-  RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options);
+  // Checks every robot file against its type's schema, builds every robot and bus (bus load, node
+  // ids, simulation presets) and throws ConfigError with the file, key and reason. Opens no thread.
+  RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options, const RobotTypes& types);
   ~RobotRuntime() override;
   RobotRuntime(const RobotRuntime&) = delete;
   RobotRuntime& operator=(const RobotRuntime&) = delete;
 
-  // Boots the drives (CANopen start-up over SDO), then starts bus, simulation and control threads
-  // (realtime mode). Throws canopen::CanopenError when a drive does not come up.
+  // Configures the hardware (CANopen start-up over SDO), then starts bus, simulation and control
+  // threads. Throws hardware::HardwareError (or canopen::CanopenError) when a device does not come up.
   void start();
   // Disables every drive cleanly, then stops all threads. Idempotent.
   void stop();
-  // After stop(): whether every drive reported its power stage off (not operation enabled, not
-  // quick stop active). Names the drives that did not in `not_disabled`.
+  // After stop(): whether every joint reported its power stage off. Names those that did not.
   bool drives_disabled(std::vector<std::string>* not_disabled = nullptr) const;
   // Stepped mode only: advance simulation, buses and control by one control period.
   void step();
@@ -62,52 +64,55 @@ class RobotRuntime final : public ControlApi {
 
   // Test and diagnostics access.
   std::size_t robot_count() const noexcept;
-  // An extra endpoint on a virtual bus that sees every frame (for tests and benchmarks); nullptr
-  // when the bus is not virtual. Call before start().
-  std::unique_ptr<can::Bus> tap_bus(const std::string& robot, const std::string& bus);
+  // An extra endpoint on a virtual bus that sees every frame (for tests and benchmarks); nullptr when
+  // the bus is not virtual. Call before start().
+  std::unique_ptr<can::Bus> tap_bus(const std::string& bus);
   // The simulated drive behind a joint, or nullptr when the joint's drive is real hardware.
   sim::SimulatedCia402Drive* simulated_drive(const std::string& robot, const std::string& joint);
-  // A steerable catheter's simulated ADC nodes (joystick with pedal; spring-deflection
-  // potentiometers), or nullptr when the robot has none or they are real hardware.
-  sim::SimulatedAnalogJoystick* simulated_analog_joystick(const std::string& robot);
-  sim::SimulatedAnalogInputNode* simulated_spring_sensor(const std::string& robot);
+  // A robot's plug-in (its type's object), for the type's own tests; nullptr for an unknown robot.
+  RobotPlugin* plugin(const std::string& robot);
+  // The robot type's part of the network API for `robot` (made once, owned here); nullptr when unknown.
+  RobotApiExtension* api_extension(const std::string& robot);
   std::uint64_t control_ticks() const noexcept;
   LoopStatistics loop_statistics() const noexcept;
 
-  // ControlApi
-  nlohmann::json robots() const override;
+  // RobotService
+  std::vector<RobotDescription> robots() const override;
   bool has_robot(const std::string& robot) const override;
-  ApiResult measured_js(const std::string& robot) const override;
-  ApiResult setpoint_js(const std::string& robot) const override;
-  ApiResult measured_cp(const std::string& robot) const override;
-  ApiResult shape(const std::string& robot) const override;
-  ApiResult operating_state(const std::string& robot) const override;
-  ApiResult state_command(const std::string& robot, const nlohmann::json& body) override;
-  ApiResult mode(const std::string& robot, const nlohmann::json& body) override;
-  ApiResult move_jp(const std::string& robot, const nlohmann::json& body) override;
-  ApiResult servo_jv(const std::string& robot, const nlohmann::json& body) override;
-  ApiResult estop() override;
-  ApiResult estop_from(const std::string& actor) override;
-  ApiResult estop_reset() override;
-  nlohmann::json faults(std::size_t max_events = 200) const override;
-  std::string metrics() const override;
-  std::vector<std::string> topics() const override;
-  std::optional<nlohmann::json> topic_message(const std::string& topic, std::uint64_t since_version,
-                                              std::uint64_t& version) const override;
+  Result<JointStateView> measured_js(const std::string& robot) const override;
+  Result<JointStateView> setpoint_js(const std::string& robot) const override;
+  Result<PoseView> measured_cp(const std::string& robot) const override;
+  Result<TwistView> measured_cv(const std::string& robot) const override;
+  Result<WrenchView> measured_cf(const std::string& robot) const override;
+  Result<ShapeView> shape(const std::string& robot) const override;
+  Result<OperatingStateView> operating_state(const std::string& robot) const override;
+  Result<DiagnosticsView> diagnostics(const std::string& robot) const override;
+  Result<OperatingStateView> state_command(const std::string& robot, StateRequest request) override;
+  Status mode(const std::string& robot, const std::string& mode) override;
+  Result<double> move_jp(const std::string& robot, std::span<const double> goal) override;
+  Status servo_jv(const std::string& robot, std::span<const double> velocity) override;
+  Result<double> move_cp(const std::string& robot, const CartesianPose& goal) override;
+  Status servo_cp(const std::string& robot, const CartesianPose& goal) override;
+  Status servo_cv(const std::string& robot, const CartesianTwist& twist) override;
+  Status estop(const std::string& actor) override;
+  Status estop_reset(const std::string& actor) override;
   void operator_lost() override;
-  ApiResult load_path(const std::string& robot, const nlohmann::json& plan,
-                      const std::string& plan_id) override;
-  ApiResult path_step(const std::string& robot, const nlohmann::json& body) override;
-  ApiResult path_following(const std::string& robot) const override;
-  ApiResult move_configuration(const std::string& robot, const nlohmann::json& body) override;
-  ApiResult joystick(const std::string& robot, const nlohmann::json& body) override;
-  nlohmann::json parameters() const override;
-  ApiResult set_parameters(const nlohmann::json& parameters) override;
+  std::vector<SafetyEventView> faults(std::size_t max_events) const override;
+  std::vector<SafetyEventView> events_since(std::uint64_t since, std::uint64_t& total) const override;
+  std::string metrics() const override;
+  Status load_path(const std::string& robot, PathPlan plan) override;
+  Result<std::pair<std::int32_t, double>> path_step(const std::string& robot,
+                                                    std::optional<std::int32_t> step,
+                                                    std::int32_t advance) override;
+  Result<PathView> path_following(const std::string& robot) const override;
+  std::vector<Parameter> parameters() const override;
+  Result<std::vector<Parameter>> set_parameters(const std::vector<ParameterChange>& changes) override;
 
   struct Impl;
 
  private:
   std::unique_ptr<Impl> impl_;
+  std::vector<std::unique_ptr<RobotApiExtension>> extensions_;
 };
 
 }  // namespace tendril::server

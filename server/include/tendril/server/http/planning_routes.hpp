@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "tendril/server/control_api.hpp"
-#include "tendril/server/planning_service.hpp"
+#include "tendril/server/planning_api.hpp"
 
 namespace tendril::server::http {
 

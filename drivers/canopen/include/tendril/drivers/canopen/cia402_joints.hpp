@@ -1,10 +1,11 @@
-// Cia402Joints: the joints of one robot that are CiA 402 drives on one CANopen bus, behind the
-// hardware seam. The bus's CanopenMaster (which may serve several robots' drives) owns the protocol;
-// this class only maps the control cycle's JointCommand/JointFeedback onto the master's per-drive
-// LatestValue slots, so read() and write() never lock or block.
+// Cia402Joints: the joints of one robot that are CiA 402 drives on CANopen buses, behind the hardware
+// seam. Each bus's CanopenMaster (which may serve several robots' drives) owns the protocol; this class
+// only maps the control cycle's JointCommand/JointFeedback onto the masters' per-drive LatestValue
+// slots, so read() and write() never lock or block.
 #pragma once
 
 #include <cstddef>
+#include <utility>
 #include <vector>
 
 #include "tendril/drivers/canopen/master.hpp"
@@ -16,8 +17,8 @@ hardware::PowerState power_state(Cia402State state) noexcept;
 
 class Cia402Joints final : public hardware::JointInterface {
  public:
-  // `drives[i]` is the master's index of the drive behind joint i.
-  Cia402Joints(CanopenMaster& master, std::vector<std::size_t> drives);
+  // `drives[i]` is the master and its index of the drive behind joint i.
+  explicit Cia402Joints(std::vector<std::pair<CanopenMaster*, std::size_t>> drives);
 
   std::size_t size() const noexcept override { return drives_.size(); }
   hardware::CommandMode command_mode(std::size_t joint) const noexcept override;
@@ -27,8 +28,7 @@ class Cia402Joints final : public hardware::JointInterface {
   void write(std::size_t joint, const hardware::JointCommand& command) noexcept override;
 
  private:
-  CanopenMaster& master_;
-  std::vector<std::size_t> drives_;
+  std::vector<std::pair<CanopenMaster*, std::size_t>> drives_;
 };
 
 }  // namespace tendril::canopen

@@ -1,36 +1,49 @@
 // The control cycle: runs on the real-time thread (or from step()). No allocation, no locks, no
-// blocking: state arrives through LatestValue slots and the command mailbox, and leaves the same way.
+// blocking: state arrives through the hardware interfaces' LatestValue slots and the command mailbox,
+// and leaves the same way. Robot-type behaviour comes in through RobotController, never by name.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 
-#include "catheter_unit.hpp"
-#include "robot_runtime_impl.hpp"
+#include "runtime_impl.hpp"
 
 namespace tendril::server {
 
 namespace {
+using hardware::PowerState;
 using safety::OperatingState;
-using Cia = canopen::Cia402State;
-
-// True when every value lies within the operating (possibly tightened) position limits.
-bool within_operating_limits(const OperatingLimits& limits, std::span<const double> q) noexcept {
-  for (std::size_t i = 0; i < q.size(); ++i)
-    if (!(q[i] >= limits.lower[i] && q[i] <= limits.upper[i])) return false;
-  return true;
-}
-
-bool within_operating_velocity(const OperatingLimits& limits, std::span<const double> v) noexcept {
-  for (std::size_t i = 0; i < v.size(); ++i)
-    if (!(std::abs(v[i]) <= limits.max_velocity[i])) return false;
-  return true;
-}
 
 template <std::size_t N>
-void text(char (&buf)[N], const char* fmt, const char* a, double b = 0, double c = 0) noexcept {
-  std::snprintf(buf, N, fmt, a, b, c);
+void text(char (&buf)[N], const char* fmt, const char* a) noexcept {
+  std::snprintf(buf, N, fmt, a);
 }
 }  // namespace
+
+// ---- UnitContext: what a robot type's controller may do ----------------------------------------
+
+bool UnitContext::servo_live() const noexcept {
+  const auto& s = unit_.rt;
+  // While ENABLED the supervisor's servo timeout applies as well (it holds the robot when it expires).
+  return s.servo_active && t - s.last_servo_time <= s.limits.servo_timeout_s &&
+         (state != safety::OperatingState::kEnabled || unit_.supervisor->servo_live());
+}
+std::span<const double> UnitContext::servo_velocity() const noexcept {
+  return {unit_.rt.servo_velocity.data(), n};
+}
+void UnitContext::stop_servo() noexcept { unit_.rt.servo_active = false; }
+bool UnitContext::hold(safety::FaultCode code, int joint, const char* detail) noexcept {
+  if (!unit_.supervisor->hold(t, code, joint, detail)) return false;
+  auto& s = unit_.rt;
+  s.hold_code = code;
+  s.servo_active = false;
+  unit_.interpolator->reset({s.q_des.data(), n}, t);
+  unit_.controller->reset(*this);
+  return true;
+}
+safety::FaultCode UnitContext::hold_cause() const noexcept { return unit_.rt.hold_code; }
+void UnitContext::setpoint_moved() noexcept { unit_.interpolator->reset({unit_.rt.q_des.data(), n}, t); }
+
+// ---- the cycle ------------------------------------------------------------------------------------
 
 void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now, double lost) noexcept {
   const double t = std::chrono::duration<double>(now - start_time).count();
@@ -39,23 +52,30 @@ void RobotRuntime::Impl::control_cycle(std::chrono::steady_clock::time_point now
   for (auto& r : robots) control_robot(*r, t, lost);
 }
 
+void RobotRuntime::Impl::end_hold(RobotUnit& r) noexcept {
+  if (r.rt.hold_code == safety::FaultCode::kNone) return;
+  r.rt.hold_code = safety::FaultCode::kNone;
+  r.controller->hold_ended(*r.context);
+}
+
 void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, double t) noexcept {
   auto& s = r.rt;
   auto& sup = *r.supervisor;
+  auto& ctx = *r.context;
   const std::span<const double> values(c.values.data(), c.count);
   switch (c.kind) {
-    case CommandKind::state:
+    case CommandKind::state: {
+      // Resume ends a hold only when the robot type says its cause has cleared (the network thread
+      // refused it already; the state may have changed since).
       // A hold's way out: resume only once its cause has cleared (re-checked here, where the sensors
       // are read; the network thread checked the snapshot), never into an immediate new hold.
-      if (c.state == safety::StateCommand::kResume && r.catheter && sup.state() == OperatingState::kPaused &&
-          !catheter_may_resume(r, t))
-        break;
-      if (c.state == safety::StateCommand::kPause) s.withdrawing = false;
-      if (c.state == safety::StateCommand::kPause && s.relaxing) {
-        s.relaxing = false;  // pause while relaxing: the operator stops the relax
-        s.relax_outcome = RelaxOutcome::stopped;
-        sup.record(t, safety::EventKind::kRecovery, safety::FaultCode::kSpringDeflection, -1,
-                   "relax stopped by the operator");
+      if (c.state == safety::StateCommand::kResume && sup.state() == OperatingState::kPaused) {
+        char why[96] = {};
+        if (!r.controller->hold_cleared(ctx, why, sizeof why)) {
+          sup.record(t, safety::EventKind::kRefused, s.hold_code, -1,
+                     why[0] ? why : "resume refused: the hold's cause persists");
+          break;
+        }
       }
       if (sup.request(t, c.state) == safety::CommandResult::kAccepted &&
           c.state == safety::StateCommand::kEnable) {
@@ -67,20 +87,18 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
         // Pause and resume both start from rest at the current setpoint.
         s.servo_active = false;
         r.interpolator->reset({s.q_des.data(), r.n}, t);
-        if (r.catheter)
-          r.catheter->configuration->reset(t,
-                                           Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+        r.controller->reset(ctx);
       }
       // Resuming or disabling is the operator's acknowledgement of a hold.
-      if (c.state != safety::StateCommand::kPause && sup.state() != OperatingState::kPaused) {
-        s.retraction_only = false;
-        s.hold_code = safety::FaultCode::kNone;
-      }
+      if (c.state != safety::StateCommand::kPause && sup.state() != OperatingState::kPaused) end_hold(r);
+      ctx.state = sup.state();
+      r.controller->state_command(ctx, c.state);
       break;
+    }
     case CommandKind::move_jp:
-      // Re-checked here: the state may have changed since the network thread validated it.
-      if (s.mode != ControlMode::joint || sup.state() != OperatingState::kEnabled || sup.check_goal(values) ||
-          !within_operating_limits(s.limits, values))
+      // Re-checked here: the state may have changed since the network thread checked it.
+      if (s.mode != kJointMode || sup.state() != OperatingState::kEnabled || sup.check_goal(values) ||
+          !s.limits.within_position(values))
         break;
       if (!s.drives_ready) {
         // Enabling: the goal starts as soon as every drive reports operation enabled.
@@ -93,16 +111,9 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
                                {r.max_acceleration.data(), r.n});
       break;
     case CommandKind::servo_jv: {
-      // Joint mode: every joint. Active compliance: insertion and roll (the bends comply). Held with
-      // retraction allowed: insertion backwards only.
-      const bool bends_still = c.count == 4 && values[2] == 0.0 && values[3] == 0.0;
-      const bool allowed = (s.mode == ControlMode::joint && sup.state() == OperatingState::kEnabled) ||
-                           (s.mode == ControlMode::active_compliance &&
-                            sup.state() == OperatingState::kEnabled && bends_still) ||
-                           (s.retraction_only && sup.state() == OperatingState::kPaused && bends_still &&
-                            values[1] == 0.0 && values[0] <= 0.0);
-      if (!allowed || !s.drives_ready || sup.check_velocity(values) ||
-          !within_operating_velocity(s.limits, values))
+      const bool allowed = (s.mode == kJointMode && sup.state() == OperatingState::kEnabled) ||
+                           r.controller->servo_allowed(ctx, values);
+      if (!allowed || !s.drives_ready || sup.check_velocity(values) || !s.limits.within_velocity(values))
         break;
       for (std::size_t i = 0; i < r.n; ++i) s.servo_velocity[i] = values[i];
       s.servo_active = true;
@@ -117,55 +128,23 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       break;
     case CommandKind::estop_reset:
       sup.reset_estop(t);
+      end_hold(r);
       break;
     case CommandKind::hold:
-      s.console_deadman = false;  // the operator is gone: the console joystick lets go
+      r.controller->operator_lost(ctx);
       if (s.servo_active) {
         s.servo_active = false;
         r.interpolator->reset({s.q_des.data(), r.n}, t);
       }
       break;
-    case CommandKind::mode: {
+    case CommandKind::mode:
       // Only while holding (nothing moving, nothing pending); the setpoint is not touched, so the
       // switch never makes it jump.
-      const auto to = static_cast<ControlMode>(c.index);
-      const bool catheter_mode = to == ControlMode::configuration || to == ControlMode::active_compliance ||
-                                 to == ControlMode::telemanipulation;
-      if (holding(r, t) && (!catheter_mode || r.catheter)) {
-        s.mode = to;
+      if (holding(r, t) && c.index >= 0 && static_cast<std::size_t>(c.index) < r.modes.size()) {
+        s.mode = static_cast<ModeId>(c.index);
         s.path_target = s.path_step;
-        if (r.catheter) {
-          r.catheter->configuration->reset(t,
-                                           Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
-          s.console_deadman = false;  // a stream for the old mode must not carry over
-          s.joystick_deadman = false;
-          s.joystick_source = 0;
-          s.joystick_axes = {};
-        }
-      }
-      break;
-    }
-    case CommandKind::move_configuration:
-      if (!r.catheter || s.mode != ControlMode::configuration || sup.state() != OperatingState::kEnabled ||
-          !s.drives_ready)
-        break;
-      r.catheter->configuration->retarget(
-          t, Eigen::Vector4d(c.values[0], c.values[1], c.values[2], c.values[3]));
-      break;
-    case CommandKind::joystick:
-      for (std::size_t i = 0; i < 4; ++i) s.console_axes[i] = c.values[i];
-      s.console_deadman = c.index != 0;
-      s.console_time = t;
-      break;
-    case CommandKind::relax:
-      if (r.catheter) catheter_start_relax(r, t);
-      break;
-    case CommandKind::withdraw:
-      // Re-checked here: held with retraction allowed, and only ever backwards.
-      if (r.catheter && s.retraction_only && sup.state() == OperatingState::kPaused && s.drives_ready &&
-          std::isfinite(c.values[0]) && c.values[0] < s.q_des[0]) {
-        s.withdrawing = true;
-        s.withdraw_to = c.values[0];
+        ctx.mode = s.mode;
+        r.controller->reset(ctx);
       }
       break;
     case CommandKind::path_loaded:
@@ -173,69 +152,80 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       s.path_target = -1;
       break;
     case CommandKind::path_step:
-      if (s.mode != ControlMode::path_following || sup.state() != OperatingState::kEnabled ||
-          !s.drives_ready || s.servo_active || sup.check_goal(values) ||
-          !within_operating_limits(s.limits, values))
+      if (s.mode != kPathFollowingMode || sup.state() != OperatingState::kEnabled || !s.drives_ready ||
+          s.servo_active || sup.check_goal(values) || !s.limits.within_position(values))
         break;
       s.path_target = c.index;
       s.path_goal = c.values;
       r.interpolator->retarget(t, values, {s.limits.max_velocity.data(), r.n},
                                {r.max_acceleration.data(), r.n});
       break;
+    case CommandKind::plugin:
+      r.controller->apply(ctx, c.plugin);
+      break;
   }
   ++s.commands_applied;
+}
+
+bool RobotRuntime::Impl::holding(RobotUnit& r, double t) noexcept {
+  const auto& s = r.rt;
+  if (s.enable_pending || s.goal_pending || s.servo_active || !r.interpolator->done(t)) return false;
+  return !r.controller->moving(*r.context);
 }
 
 void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noexcept {
   auto& s = r.rt;
   auto& sup = *r.supervisor;
+  auto& ctx = *r.context;
+  auto& joints = *r.joints;
   const std::size_t n = r.n;
+  ctx.t = t;
+  ctx.now_ns = now_ns;
 
-  // 1. Read the drives.
-  std::array<canopen::DriveFeedback, kMaxJoints> fb;
-  bool all_enabled = true;
+  // 1. Read the joints.
+  std::array<hardware::JointFeedback, kMaxJoints> fb;
+  bool all_on = true;
   for (std::size_t i = 0; i < n; ++i) {
-    const auto& b = r.bindings[i];
-    fb[i] = b.bus->master->feedback(b.drive).load();
+    joints.read(i, fb[i]);
     s.q[i] = fb[i].position;
     s.qd[i] = fb[i].velocity;
     s.effort[i] = fb[i].effort;
-    all_enabled = all_enabled && fb[i].state == Cia::operation_enabled;
+    all_on = all_on && fb[i].power == PowerState::on;
   }
   if (!s.initialised) {
     for (std::size_t i = 0; i < n; ++i) {
       s.q_des[i] = s.q[i];
-      s.heartbeat_was_alive[i] = fb[i].heartbeat_alive;
-      s.nmt_was_operational[i] = fb[i].nmt == canopen::NmtState::operational;
-      s.emcy_seen[i] = fb[i].emcy_count;
+      s.link_was_alive[i] = fb[i].link_alive;
+      s.link_was_operational[i] = fb[i].link_operational;
+      s.errors_seen[i] = fb[i].error_count;
     }
     r.interpolator->reset({s.q_des.data(), n}, t);
     s.initialised = true;
   }
 
-  // 2. Drive watchdogs: heartbeat loss and EMCY fault the robot (edge-triggered, logged once).
+  // 2. Link watchdogs: a device that goes silent, leaves operation or reports an error faults the
+  // robot (edge-triggered, logged once).
   for (std::size_t i = 0; i < n; ++i) {
-    const char* joint = r.config.joints[i].name.c_str();
-    if (s.heartbeat_was_alive[i] && !fb[i].heartbeat_alive) {
+    const char* joint = r.config.joints[i].name().c_str();
+    if (s.link_was_alive[i] && !fb[i].link_alive) {
       char detail[96];
       text(detail, "drive '%s' stopped sending heartbeats", joint);
       sup.fault(t, safety::FaultCode::kDriveHeartbeatLost, static_cast<int>(i), detail);
     }
-    s.heartbeat_was_alive[i] = fb[i].heartbeat_alive;
-    // A drive that leaves NMT operational (it reset, or someone stopped it) has lost its PDO set-up.
-    const bool operational = fb[i].nmt == canopen::NmtState::operational;
-    if (s.nmt_was_operational[i] && !operational) {
+    s.link_was_alive[i] = fb[i].link_alive;
+    // A device that leaves operation (it reset, or someone stopped it) has lost its cyclic set-up.
+    if (s.link_was_operational[i] && !fb[i].link_operational) {
       char detail[96];
       text(detail, "drive '%s' left NMT operational (reset or stopped)", joint);
       sup.fault(t, safety::FaultCode::kExternal, static_cast<int>(i), detail);
     }
-    s.nmt_was_operational[i] = operational;
-    if (fb[i].emcy_count != s.emcy_seen[i]) {
-      s.emcy_seen[i] = fb[i].emcy_count;
-      if (fb[i].last_emcy_code != canopen::emcy_code::no_error) {
+    s.link_was_operational[i] = fb[i].link_operational;
+    if (fb[i].error_count != s.errors_seen[i]) {
+      s.errors_seen[i] = fb[i].error_count;
+      if (fb[i].error_code != 0) {
         char detail[96];
-        std::snprintf(detail, sizeof detail, "drive '%s' EMCY 0x%04X, error register 0x%02X", joint,
-                      fb[i].last_emcy_code, fb[i].last_emcy_register);
+        std::snprintf(detail, sizeof detail, "drive '%s' %s 0x%04X, error register 0x%02X", joint,
+                      joints.error_source(), fb[i].error_code, fb[i].error_detail);
         sup.fault(t, safety::FaultCode::kDriveEmergency, static_cast<int>(i), detail);
       }
     }
@@ -248,7 +238,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     sup.report_cycle(t, lost, s.moving);
     if (s.moving) {
       r.interpolator->delay(lost);
-      if (r.catheter) r.catheter->configuration->delay(lost);
+      r.controller->delay(ctx, lost);
     }
   }
 
@@ -257,14 +247,23 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     s.limits = r.operating_limits.load();
     s.limits_version = version;
   }
+  ctx.limits = &s.limits;
+  ctx.q = {s.q.data(), n};
+  ctx.qd = {s.qd.data(), n};
+  ctx.effort = {s.effort.data(), n};
+  ctx.q_des = {s.q_des.data(), n};
+  ctx.qd_des = {s.qd_des.data(), n};
+  ctx.state = sup.state();
+  ctx.drives_ready = s.drives_ready;
+  ctx.mode = s.mode;
   RobotCommand command;
   while (r.mailbox.pop(command)) apply_command(r, command, t);
 
-  // 4. Enabling: wait for every drive to reach operation enabled, then start from where they are.
+  // 4. Enabling: wait for every joint to reach "on", then start from where they are.
   OperatingState state = sup.state();
   if (state == OperatingState::kEnabled || state == OperatingState::kPaused) {
     if (!s.drives_ready) {
-      if (all_enabled) {
+      if (all_on) {
         s.drives_ready = true;
         s.enable_pending = false;
         for (std::size_t i = 0; i < n; ++i) s.q_des[i] = s.q[i];
@@ -275,21 +274,21 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
         s.goal_pending = false;
       } else if (t - s.enable_started > r.config.enable_timeout_ms / 1000.0) {
         for (std::size_t i = 0; i < n; ++i) {
-          if (fb[i].state == Cia::operation_enabled) continue;
+          if (fb[i].power == PowerState::on) continue;
           char detail[96];
           std::snprintf(detail, sizeof detail, "drive '%s' did not enable within %d ms (it reports %s)",
-                        r.config.joints[i].name.c_str(), r.config.enable_timeout_ms,
-                        canopen::to_string(fb[i].state));
+                        r.config.joints[i].name().c_str(), r.config.enable_timeout_ms,
+                        joints.device_state_text(fb[i].device_state));
           sup.fault(t, safety::FaultCode::kExternal, static_cast<int>(i), detail);
           break;
         }
       }
-    } else if (!all_enabled) {
+    } else if (!all_on) {
       for (std::size_t i = 0; i < n; ++i) {
-        if (fb[i].state == Cia::operation_enabled) continue;
+        if (fb[i].power == PowerState::on) continue;
         char detail[96];
         std::snprintf(detail, sizeof detail, "drive '%s' left operation enabled (it reports %s)",
-                      r.config.joints[i].name.c_str(), canopen::to_string(fb[i].state));
+                      r.config.joints[i].name().c_str(), joints.device_state_text(fb[i].device_state));
         sup.fault(t, safety::FaultCode::kDriveEmergency, static_cast<int>(i), detail);
         break;
       }
@@ -299,20 +298,20 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     s.enable_pending = false;
     s.goal_pending = false;
   }
-  state = sup.state();
+  ctx.state = sup.state();
+  ctx.drives_ready = s.drives_ready;
+  ctx.mode = s.mode;
 
-  // 5. Mid-level control: joint interpolation or integrated servo velocity.
+  // 5. The robot type's sensors (they may hold the robot), then the mid-level controller.
+  r.controller->sense(ctx);
+  state = sup.state();
+  ctx.state = state;
   const JointArray setpoint_before = s.q_des;
+  bool held_motion = false;  // PAUSED, and the robot type moves the setpoint out of the hold
   const std::span<double> q_des(s.q_des.data(), n), qd_des(s.qd_des.data(), n), qdd_des(s.qdd_des.data(), n);
-  if (r.catheter) {
-    catheter_sensors(r, t, state);
-    state = sup.state();
-  }
-  const bool catheter_mode =
-      r.catheter && (s.mode == ControlMode::configuration || s.mode == ControlMode::active_compliance ||
-                     s.mode == ControlMode::telemanipulation);
-  if (state == OperatingState::kEnabled && s.drives_ready && catheter_mode) {
-    catheter_mid_level(r, t);
+  if (state == OperatingState::kEnabled && s.drives_ready && s.mode >= kFirstPluginMode) {
+    r.controller->control(ctx);
+    r.interpolator->reset(q_des, t);  // joint mode takes over from wherever the type's mode left it
   } else if (state == OperatingState::kEnabled && s.drives_ready) {
     // The operating servo timeout may be shorter than the supervisor's configured one.
     if (s.servo_active && sup.servo_live() && t - s.last_servo_time <= s.limits.servo_timeout_s) {
@@ -330,8 +329,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     }
   } else if (state == OperatingState::kPaused && s.drives_ready) {
     for (std::size_t i = 0; i < n; ++i) s.qd_des[i] = 0.0;  // hold the setpoint
-    if (r.catheter && s.retraction_only) catheter_retraction(r, t);
-    if (r.catheter) catheter_relax(r, t);
+    held_motion = r.controller->while_held(ctx);
   } else {
     // Not commanding: the setpoint follows the measurement so that enabling never jumps.
     for (std::size_t i = 0; i < n; ++i) {
@@ -340,12 +338,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     }
     s.servo_active = false;
     r.interpolator->reset(q_des, t);
-    if (r.catheter)
-      r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+    r.controller->reset(ctx);
   }
-  if ((state == OperatingState::kEnabled ||
-       (state == OperatingState::kPaused && (s.retraction_only || s.relaxing))) &&
-      s.drives_ready) {
+  if ((state == OperatingState::kEnabled || held_motion) && s.drives_ready) {
     const JointArray unclamped = s.q_des;
     auto clamp = sup.clamp_setpoint(q_des, qd_des);
     // Tightened operating limits: the setpoint stops at the boundary. A setpoint already outside (the
@@ -362,12 +357,10 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
       }
     }
     if (clamp.clamped_joints > 0 && !s.servo_active) {
-      // The interpolator must not keep pulling against a clamped setpoint.
+      // The interpolator must not keep pulling against a clamped setpoint. Only a clamped position
+      // stops the type's own trajectory; a clamped velocity leaves the setpoint where it was put.
       r.interpolator->reset(q_des, t);
-      // Only a clamped position stops a configuration move; a clamped velocity (the coupling term of
-      // eq. 4.21 on top of a quintic at its bound) leaves the setpoint where the controller put it.
-      if (r.catheter && s.mode == ControlMode::configuration && unclamped != s.q_des)
-        r.catheter->configuration->reset(t, Eigen::Vector4d(s.q_des[0], s.q_des[1], s.q_des[2], s.q_des[3]));
+      if (s.mode >= kFirstPluginMode && unclamped != s.q_des) r.controller->reset(ctx);
     }
   }
 
@@ -377,23 +370,29 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
            tracking ? std::span<const double>(s.q_des.data(), n) : std::span<const double>(s.q.data(), n));
   state = sup.state();
 
-  // 7. Write the drives.
+  // 7. Write the joints. Velocity joints get the setpoint velocity plus a proportional correction of
+  // the position error, so that they track the same setpoint position joints are given.
   const bool estop = sup.estop_latched();
   for (std::size_t i = 0; i < n; ++i) {
-    const auto& b = r.bindings[i];
-    canopen::DriveCommand dc = b.bus->master->command(b.drive).load();
+    hardware::JointCommand jc;
     if (estop || state == OperatingState::kFault) {
-      dc.request = canopen::DriveRequest::quick_stop;
+      jc.request = hardware::PowerRequest::quick_stop;
     } else if (state == OperatingState::kEnabled || state == OperatingState::kPaused) {
-      dc.request = canopen::DriveRequest::enable;
-    } else if (fb[i].state == Cia::fault) {
-      dc.request = canopen::DriveRequest::fault_reset;  // acknowledged by disable: clear the drive fault
+      jc.request = hardware::PowerRequest::on;
+    } else if (fb[i].power == PowerState::fault) {
+      jc.request = hardware::PowerRequest::fault_reset;  // acknowledged by disable: clear the drive fault
     } else {
-      dc.request = canopen::DriveRequest::disable;
+      jc.request = hardware::PowerRequest::off;
     }
-    dc.target_position = s.q_des[i];
-    ++dc.sequence;
-    b.bus->master->set_command(b.drive, dc);  // wakes the bus thread for a quick stop or disable
+    jc.position = s.q_des[i];
+    jc.velocity = s.qd_des[i];
+    if (joints.command_mode(i) == hardware::CommandMode::velocity) {
+      const double v = s.qd_des[i] + r.velocity_gain * (s.q_des[i] - s.q[i]);
+      const double limit = s.limits.max_velocity[i];
+      jc.velocity =
+          s.drives_ready && jc.request == hardware::PowerRequest::on ? std::clamp(v, -limit, limit) : 0.0;
+    }
+    joints.write(i, jc);
   }
 
   // 7b. Path following: a step is reached when its move ends at the step's joint values. A move cut
@@ -412,6 +411,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
              (setpoint_moving || !holding(r, t));
 
   // 8. Publish.
+  ctx.state = state;
+  ctx.drives_ready = s.drives_ready;
+  ctx.mode = s.mode;
   RobotSnapshot snap;
   snap.tick = ticks.load(std::memory_order_relaxed);
   snap.time = t;
@@ -422,8 +424,9 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     snap.effort[i] = s.effort[i];
     snap.setpoint[i] = s.q_des[i];
     snap.setpoint_velocity[i] = s.qd_des[i];
-    snap.drive_state[i] = fb[i].state;
-    snap.heartbeat_alive[i] = fb[i].heartbeat_alive;
+    snap.power[i] = fb[i].power;
+    snap.device_state[i] = fb[i].device_state;
+    snap.link_alive[i] = fb[i].link_alive;
   }
   snap.state = state;
   snap.estop = estop;
@@ -431,29 +434,16 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
   snap.busy = s.drives_ready ? !holding(r, t) : (s.enable_pending || s.goal_pending);
   snap.fault = sup.fault_cause();
   snap.lost_control = sup.lost_control();
+  snap.hold_code = s.hold_code;
+  snap.hold_can_resume = state != OperatingState::kPaused || r.controller->hold_cleared(ctx, nullptr, 0);
   snap.estop_tick = s.estop_tick;
   snap.commands_applied = s.commands_applied;
   snap.mailbox_full = r.mailbox_full.load(std::memory_order_relaxed);
   snap.mode = s.mode;
   snap.path_step = s.path_step;
   snap.path_target = s.path_target;
-  if (r.catheter) {
-    snap.spring_deflection = s.spring_deflection;
-    snap.deflection_fresh = s.deflection_fresh;
-    snap.retraction_only = s.retraction_only;
-    snap.hold_code = s.hold_code;
-    const auto goal = r.catheter->configuration->goal();
-    for (std::size_t i = 0; i < 4; ++i) snap.configuration_goal[i] = goal[static_cast<Eigen::Index>(i)];
-    snap.configuration_moving = s.mode == ControlMode::configuration && !r.catheter->configuration->done(t);
-    snap.joystick_source = s.joystick_source;
-    snap.joystick_deadman = s.joystick_deadman;
-    snap.joystick_conflict = s.joystick_conflict;
-    snap.joystick_axes = s.joystick_axes;
-    snap.relaxing = s.relaxing;
-    snap.relax_outcome = s.relax_outcome;
-    snap.withdrawing = s.withdrawing;
-  }
   r.snapshot.store(snap);
+  r.controller->publish(ctx);
 }
 
 }  // namespace tendril::server

@@ -1,4 +1,4 @@
-#include "tendril/server/calibration_request.hpp"
+#include "steerable_catheter/calibration_request.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -1,12 +1,12 @@
-#include "catheter_settings.hpp"
+#include "steerable_catheter/catheter_settings.hpp"
 
 #include <cmath>
 #include <fstream>
 #include <numbers>
 #include <sstream>
 
-#include "config_reader.hpp"
 #include "tendril/drivers/sim/catheter_vessel_contact.hpp"
+#include "tendril/server/config_reader.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::server {
@@ -75,7 +75,9 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
                       ": catheter: a steerable catheter has 4 joints (insertion, roll, proximal and "
                       "distal bend drives), this robot has " +
                       std::to_string(rc.joints.size()));
-  const Reader r(rc.catheter, file, "catheter");
+  const nlohmann::json& catheter =
+      rc.settings.contains("catheter") ? rc.settings["catheter"] : nlohmann::json::object();
+  const Reader r(catheter, file, "catheter");
   CatheterSettings s;
 
   // Nominal model: the constant-curvature shape of the tip-only calibration (k rad/mm at the tip).
@@ -101,7 +103,7 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     try {
       (void)teleop::ModalCatheterKinematics(s.nominal);
     } catch (const std::invalid_argument& e) {
-      m.fail("", std::string("a model that works (") + e.what() + ")", rc.catheter["model"]);
+      m.fail("", std::string("a model that works (") + e.what() + ")", catheter["model"]);
     }
     const auto proximal = pair(m, "proximal_loss", {0.063, -0.049});
     const auto distal = pair(m, "distal_loss", {0.17, 0.019});
@@ -139,7 +141,7 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     try {
       teleop::validate(c);
     } catch (const std::invalid_argument& e) {
-      a.fail("", std::string("settings that work (") + e.what() + ")", rc.catheter["active_compliance"]);
+      a.fail("", std::string("settings that work (") + e.what() + ")", catheter["active_compliance"]);
     }
     if (c.max_deflection > s.deflection.limit_mm)
       a.fail("max_deflection_mm",
@@ -169,13 +171,14 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
       t.fail("max_speed", "4 speeds (insertion mm/s, roll rad/s, bend mm/s, bend mm/s)", speeds);
     for (std::size_t i = 0; i < 4; ++i) {
       if (!speeds[i].is_number() || !(speeds[i].get<double>() >= 0) ||
-          speeds[i].get<double>() > rc.joints[i].max_velocity)
+          speeds[i].get<double>() > rc.joints[i].limit.max_velocity)
         t.fail("max_speed", "speeds from 0 to each joint's max_velocity", speeds);
       s.telemanipulation_max_speed[i] = speeds[i].get<double>();
     }
   } else {
     for (std::size_t i = 0; i < 4; ++i)
-      s.telemanipulation_max_speed[i] = std::min(s.telemanipulation_max_speed[i], rc.joints[i].max_velocity);
+      s.telemanipulation_max_speed[i] =
+          std::min(s.telemanipulation_max_speed[i], rc.joints[i].limit.max_velocity);
   }
   s.retraction_only_while_held = r.boolean_or("retraction_only_while_held", true);
   s.max_contact_force_n = r.positive_or("max_contact_force_n", s.max_contact_force_n);
@@ -200,7 +203,7 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
       o.mapping = evdev_mapping(e);
       for (const auto& axis : o.mapping.axes) {
         bool known = false;
-        for (const auto& joint : rc.joints) known = known || joint.name == axis.output;
+        for (const auto& joint : rc.joints) known = known || joint.name() == axis.output;
         if (!known)
           e.fail("axes", "each axis to name a joint of this robot (unknown: " + axis.output + ")",
                  e.raw("axes"));

@@ -1,4 +1,4 @@
-#include "tendril/server/calibration_job.hpp"
+#include "steerable_catheter/calibration_job.hpp"
 
 #include <array>
 #include <cerrno>
@@ -8,9 +8,9 @@
 #include <memory>
 #include <numbers>
 
-#include "catheter_settings.hpp"
+#include "steerable_catheter/calibration_request.hpp"
+#include "steerable_catheter/catheter_settings.hpp"
 #include "tendril/calibration/side_view_outline.hpp"
-#include "tendril/server/calibration_request.hpp"
 #include "tendril/teleop/shape_calibration.hpp"
 
 namespace tendril::server {
@@ -132,7 +132,7 @@ json run(const RobotConfig& robot, CalibrationRequest request, const teleop::Job
 }  // namespace
 
 std::variant<JobQueue::Work, ApiResult> make_calibration_job(const RobotConfig& robot, const json& request) {
-  if (robot.catheter.is_null())
+  if (!robot.settings.contains("catheter"))
     return ApiResult::error(
         422, "not_a_catheter",
         "robot '" + robot.name + "' has no catheter settings: shape calibration is for steerable catheters");

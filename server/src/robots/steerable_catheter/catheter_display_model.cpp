@@ -1,4 +1,4 @@
-#include "tendril/server/robot_kinematics.hpp"
+#include "steerable_catheter/catheter_robot.hpp"
 
 #include "tendril/server/config.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
@@ -55,8 +55,8 @@ std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, cons
 
 }  // namespace
 
-std::unique_ptr<RobotKinematics> make_kinematics(const nlohmann::json& k, std::size_t joint_count,
-                                                 const std::string& file) {
+std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& k, std::size_t joint_count,
+                                                             const std::string& file) {
   const auto model = k.value("model", std::string{});
   if (model == "constant_curvature_catheter") {
     if (joint_count != 4)

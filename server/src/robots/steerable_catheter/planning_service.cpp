@@ -1,4 +1,4 @@
-#include "tendril/server/planning_service.hpp"
+#include "steerable_catheter/planning_service.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -12,9 +12,9 @@
 #include <sstream>
 #include <variant>
 
-#include "catheter_settings.hpp"
+#include "steerable_catheter/calibration_job.hpp"
+#include "steerable_catheter/catheter_settings.hpp"
 #include "tendril/drivers/sim/simulated_side_view_camera.hpp"
-#include "tendril/server/calibration_job.hpp"
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/job_queue.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
@@ -77,7 +77,7 @@ CenterlinePolyline truncated(const CenterlinePolyline& p, double max_length) {
 // insertion frame, resampled at ds.
 teleop::VesselCenterline reachable_path(const teleop::CenterlinePolyline& branch, const RobotConfig& rc,
                                         double ds) {
-  const auto& insertion = rc.joints.at(0);
+  const auto& insertion = rc.joints.at(0).limit;
   const double reach = insertion.upper - insertion.soft_margin;
   return teleop::VesselCenterline::from_polyline(
              polyline_length(branch) > reach ? truncated(branch, reach) : branch, ds)
@@ -203,8 +203,8 @@ json design_json(const teleop::CatheterParameters& p, bool free_flexure) {
 teleop::ShapeErrorPlannerOptions planner_options(const RobotConfig& rc, double dq1, bool flexure) {
   teleop::ShapeErrorPlannerOptions o;
   o.insertion_step = dq1;
-  const auto& prox = rc.joints.at(2);
-  const auto& dist = rc.joints.at(3);
+  const auto& prox = rc.joints.at(2).limit;
+  const auto& dist = rc.joints.at(3).limit;
   o.proximal_drive_min = prox.lower + prox.soft_margin;
   o.proximal_drive_max = prox.upper - prox.soft_margin;
   o.distal_drive_min = dist.lower + dist.soft_margin;
@@ -217,7 +217,7 @@ teleop::ShapeErrorPlannerOptions planner_options(const RobotConfig& rc, double d
 std::string first_limit_violation(const RobotConfig& rc, const teleop::PathPlan& plan) {
   for (std::size_t k = 0; k < plan.steps.size(); ++k) {
     for (std::size_t i = 0; i < 4 && i < rc.joints.size(); ++i) {
-      const auto& j = rc.joints[i];
+      const auto& j = rc.joints[i].limit;
       const double v = plan.steps[k].q[static_cast<Eigen::Index>(i)];
       // Path following holds setpoints inside the soft margins.
       if (v < j.lower + j.soft_margin || v > j.upper - j.soft_margin) {
@@ -302,15 +302,19 @@ struct PlanningService::Impl {
       : options(o), queue(JobQueueOptions{o.workers, o.max_pending_jobs, o.max_finished_jobs}) {
     for (auto& rc : configs) {
       RobotModel m;
-      if (rc.kinematics.value("model", std::string{}) == "constant_curvature_catheter" &&
+      const auto kinematics = rc.settings.value("kinematics", json::object());
+      if (rc.kind == "steerable_catheter" &&
+          kinematics.value("model", std::string{}) == "constant_curvature_catheter" &&
           rc.joints.size() == 4) {
         try {
-          m.design = configured_design(rc.kinematics);
+          m.design = configured_design(kinematics);
         } catch (const std::exception& e) {
           m.why_not = std::string("its kinematics could not be read: ") + e.what();
         }
       } else {
-        m.why_not = "the planner models the steerable catheter (kinematics constant_curvature_catheter) only";
+        m.why_not =
+            "the planner models the steerable catheter (kind steerable_catheter, kinematics "
+            "constant_curvature_catheter) only";
       }
       m.config = std::move(rc);
       robots.push_back(std::move(m));
@@ -469,7 +473,8 @@ struct PlanningService::Impl {
               vessel_id](const teleop::JobControl& control) {
         const auto start = std::chrono::steady_clock::now();
         const double length = polyline_length(branch);
-        const bool cut = length > rc.joints.at(0).upper - rc.joints.at(0).soft_margin;  // said in the result
+        const bool cut =
+            length > rc.joints.at(0).limit.upper - rc.joints.at(0).limit.soft_margin;  // said in the result
         const auto aligned = reachable_path(branch, rc, p.ds);
         auto options = planner_options(rc, p.dq1, p.flexure);
         teleop::PathPlan plan;
@@ -708,7 +713,7 @@ ApiResult PlanningService::simulated_side_view(const std::string& robot, const Q
   const bool simulated =
       !rc.buses.empty() && std::all_of(rc.buses.begin(), rc.buses.end(),
                                        [](const BusConfig& b) { return b.interface == "virtual"; });
-  if (rc.catheter.is_null() || !simulated)
+  if (!rc.settings.contains("catheter") || !simulated)
     return ApiResult::error(
         409, "not_simulated",
         "robot '" + robot +

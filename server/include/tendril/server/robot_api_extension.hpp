@@ -1,0 +1,42 @@
+// RobotApiExtension: a robot type's part of the network API, at the edge (JSON in, JSON out, with the
+// API.md error shape). The JSON layer over RobotService (http/control_json.hpp) asks each robot's
+// extension for the fields, commands, topics and routes its type adds; the core API knows none of them.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "tendril/server/control_api.hpp"
+
+namespace tendril::server {
+
+class RobotApiExtension {
+ public:
+  virtual ~RobotApiExtension() = default;
+  // The type's own fields of GET /robots, of operating_state, and its scene entities.
+  virtual void describe(nlohmann::json& robot) const { (void)robot; }
+  virtual void state(nlohmann::json& operating_state) const { (void)operating_state; }
+  virtual void scene(nlohmann::json& entities) const { (void)entities; }
+  // The type's commands; command() gets the parsed JSON body (the caller checked role and lease).
+  virtual std::vector<RobotCommandInfo> commands() const { return {}; }
+  virtual ApiResult command(const std::string& name, const nlohmann::json& body) {
+    (void)body;
+    return ApiResult::error(404, "not_found", "no command " + name);
+  }
+  // Fields of operating_state that change with every sensor reading, not only with the state (dotted
+  // paths, e.g. "joystick.axes"): the /{robot}/operating_state topic leaves them out, so it changes
+  // only when the state does, and the whole state goes out on /{robot}/<topic> at rate_hz instead.
+  struct LiveState {
+    std::string topic;        // leaf, e.g. "catheter"
+    std::string schema_name;  // e.g. "tendril.CatheterState"
+    double rate_hz = 10.0;
+    std::vector<std::string> fields;
+  };
+  virtual std::optional<LiveState> live_state() const { return std::nullopt; }
+};
+
+}  // namespace tendril::server
