@@ -94,13 +94,19 @@ export function assertErrorShape(res, status, code) {
 
 export const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-// Polls `probe` until it returns a truthy value; bounded by a count of polls, not by wall-clock
-// assertions. Returns the last value (truthy or not) so the caller can assert with a message.
+// Polls `probe` until it is done: an object with a `done` key is done when that key is truthy, any
+// other value when it is truthy (`true`, a found message). Bounded by a count of polls, not by
+// wall-clock assertions. Returns the last value (done or not) so the caller can assert with a message.
+export function isDone(value) {
+  if (value !== null && typeof value === 'object' && 'done' in value) return Boolean(value.done);
+  return Boolean(value);
+}
+
 export async function pollUntil(probe, {polls = 100, intervalMs = 50} = {}) {
   let last;
   for (let i = 0; i < polls; i++) {
     last = await probe();
-    if (last && last.done) return last;
+    if (isDone(last)) return last;
     await sleep(intervalMs);
   }
   return last;
