@@ -91,10 +91,7 @@ class SerialArmApi final : public RobotApiExtension {
 
 }  // namespace
 
-std::unique_ptr<RobotApiExtension> make_serial_arm_api(SerialArm& robot, RobotService& service,
-                                                       std::function<bool(const PluginCommand&)> post) {
-  (void)service;
-  (void)post;
+std::unique_ptr<RobotApiExtension> make_serial_arm_api(SerialArm& robot) {
   return std::make_unique<SerialArmApi>(robot);
 }
 

@@ -278,9 +278,10 @@ std::optional<ServiceError> SerialArm::dry_run(const Eigen::Isometry3d& start, c
   teleop::SerialArmData d = model_.make_data();
   teleop::ArmVector q = q0;
   const double settle = 1.0;  // s after the trajectory for the pose law to close the last error
-  for (double t = kStep; t <= duration + settle; t += kStep) {
-    const auto result =
-        teleop::track(model_, d, q, trajectory.sample(t), settings_.gains, settings_.cartesian, kStep);
+  const auto steps = static_cast<int>(std::ceil((duration + settle) / kStep));
+  for (int k = 1; k <= steps; ++k) {
+    const auto result = teleop::track(model_, d, q, trajectory.sample(k * kStep), settings_.gains,
+                                      settings_.cartesian, kStep);
     if (!result.joints.valid)
       return ServiceError{ErrorKind::invalid, "unreachable",
                           "move_cp: the path passes through a singularity the damped inverse cannot resolve"};
@@ -420,7 +421,10 @@ std::optional<ServiceError> SerialArm::resume_refusal(const OperatingStateView& 
 
 std::unique_ptr<RobotApiExtension> SerialArm::api(RobotService& service,
                                                   std::function<bool(const PluginCommand&)> post) {
-  return make_serial_arm_api(*this, service, std::move(post));
+  // The arm adds no commands of its own: the CRTK commands reach it through cartesian_command().
+  (void)service;
+  (void)post;
+  return make_serial_arm_api(*this);
 }
 
 }  // namespace tendril::server

@@ -207,7 +207,7 @@ class SerialArm final : public RobotPlugin {
   hardware::LatestValue<ArmSnapshot> published_;
 };
 
-std::unique_ptr<RobotApiExtension> make_serial_arm_api(SerialArm& robot, RobotService& service,
-                                                       std::function<bool(const PluginCommand&)> post);
+// The type's part of the network API (serial_arm_api.cpp).
+std::unique_ptr<RobotApiExtension> make_serial_arm_api(SerialArm& robot);
 
 }  // namespace tendril::server
