@@ -117,7 +117,7 @@ TEST_F(CalibrationJobTest, RefusesMalformedRequestsAndNamesTheKey) {
                {{"arc_length_mm", {0.0, 1.0}}, {"actuation_mm", {0.0}}, {"tangent_angle_rad", {{1.5}}}}}}),
         400, "2 rows");
   RobotConfig arm = robot;
-  arm.catheter = nullptr;
+  arm.settings.erase("catheter");
   auto job = make_calibration_job(arm, {{"segment", "proximal"}, {"samples", samples}});
   ASSERT_TRUE(std::holds_alternative<ApiResult>(job));
   EXPECT_EQ(std::get<ApiResult>(job).code, "not_a_catheter");

@@ -233,9 +233,9 @@ RobotConfig channel_srmc(double deflection_limit_mm) {
                                         {"bend_radius_mm", kChannel.bend_radius},
                                         {"turn_deg", kChannel.turn_deg},
                                         {"lumen_radius_mm", kChannel.lumen}};
-  c.catheter["spring_deflection"]["limit_mm"] = deflection_limit_mm;
+  c.settings["catheter"]["spring_deflection"]["limit_mm"] = deflection_limit_mm;
   // A potentiometer range that can read the passive run's deflection (±10 mm over 0–5 V).
-  c.catheter["spring_deflection"]["volts_per_mm"] = 0.24;
+  c.settings["catheter"]["spring_deflection"]["volts_per_mm"] = 0.24;
   return c;
 }
 

@@ -167,7 +167,7 @@ TEST_F(PathFollowingTest, SwitchesOnlyWhileHoldingAndStepsThroughThePlanWithoutA
   }
   // Per tick the setpoint moves at most max_velocity · dt (no jump anywhere on the way).
   for (std::size_t j = 0; j < 4; ++j)
-    EXPECT_LE(max_step[j], config.joints[j].max_velocity * 0.001 * 1.01) << config.joints[j].name;
+    EXPECT_LE(max_step[j], config.joints[j].limit.max_velocity * 0.001 * 1.01) << config.joints[j].name();
 
   const auto end = api->path_step("srmc", {{"advance", 1}});
   EXPECT_EQ(end.status, 409);
