@@ -122,6 +122,11 @@ bash tests/api/run.sh build/server/tendrild 2>&1 | tee build/api.log
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/api.log)
 record api "$status" "$p" "$f"
+# Two robots in one server (the catheter and the UR5 arm), a server of its own (~10 s).
+bash tests/api/two_robots/run.sh build/server/tendrild 2>&1 | tee build/api_two_robots.log
+status=${PIPESTATUS[0]}
+read -r p f < <(node_counts build/api_two_robots.log)
+record api_two_robots "$status" "$p" "$f"
 
 # ---- 4. browser tests ---------------------------------------------------------------------------
 stage "browser tests (Playwright + chromium) against the sanitized tendrild"

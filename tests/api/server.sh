@@ -49,6 +49,10 @@ start_tendrild() {
     if (process.argv[3] !== "1" && robot.catheter && robot.catheter.simulation) delete robot.catheter.simulation.vessel;
     fs.writeFileSync(process.argv[2], JSON.stringify(robot, null, 2));
   ' "$repo_root/config/robots/srmc.json" "$tendrild_workdir/srmc.json" "${TENDRIL_TEST_VESSEL:-0}"
+  # TENDRIL_TEST_EXTRA_ROBOTS: more robot files (space-separated paths), served next to the catheter
+  # (tests/api/two_robots/run.sh adds the arm).
+  local extra_robots="" extra
+  for extra in ${TENDRIL_TEST_EXTRA_ROBOTS:-}; do extra_robots+=", \"$extra\""; done
   cat > "$tendrild_workdir/server.json" <<JSON
 {
   "listen": "127.0.0.1:$port",
@@ -58,7 +62,7 @@ start_tendrild() {
   "control_rate_hz": 1000,
   "publish_rate_hz": 50,
   "realtime_priority": true,
-  "robots": ["$tendrild_workdir/srmc.json"],
+  "robots": ["$tendrild_workdir/srmc.json"$extra_robots],
   "imaging": {"enabled": true, "width": 512, "height": 512, "fps": 10, "jpeg_quality": 80,
               "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [0, 0, 50],
               "vessel": "$repo_root/config/vessels/synthetic_ica.csv"}

@@ -280,7 +280,10 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
     for (const auto& bc : rc.buses)
       consumer_ms = consumer_ms == 0 ? bc.master_heartbeat_timeout_ms
                                      : std::min(consumer_ms, bc.master_heartbeat_timeout_ms);
-    so.max_lost_control_time = safety::lost_control_bound(so.command_timeout, consumer_ms / 1000.0);
+    // A robot on no CAN bus (its type provides the joints over another link) has no heartbeat consumer
+    // time here: the command timeout alone bounds it, and its file states its link's own, tighter bound.
+    so.max_lost_control_time = safety::lost_control_bound(
+        so.command_timeout, consumer_ms > 0 ? consumer_ms / 1000.0 : so.command_timeout);
     if (rc.max_lost_control_ms > 0) {
       if (rc.max_lost_control_ms / 1000.0 > so.max_lost_control_time)
         throw ConfigError(file + ": max_lost_control_ms: expected at most " +

@@ -1,0 +1,267 @@
+// The serial arm's part of the control cycle (control thread): the force sensor's watchdog and F_max
+// (seed 002 REQ-SAFE-1), the Cartesian mode's move_cp / servo_cp / servo_cv on the joint setpoint, and
+// the way out of a force hold (REQ-SAFE-2: retract along the contact force at ≤ 10 mm/s). No
+// allocation, no locks, no exceptions: the kinematic workspaces are preallocated.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "serial_arm/serial_arm_robot.hpp"
+
+namespace tendril::server {
+
+namespace {
+using safety::OperatingState;
+}  // namespace
+
+SerialArmController::SerialArmController(SerialArm& robot)
+    : robot_(robot), data_(robot.model().make_data()), probe_(robot.model().make_data()) {}
+
+Eigen::Vector3d SerialArmController::force_base(const ControlContext& ctx) noexcept {
+  // The sensor reports in the tool frame (the arm's measured pose turns it into the base frame).
+  for (std::size_t i = 0; i < teleop::kArmJoints; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q[i];
+  if (!robot_.model().forward_kinematics(q_, probe_)) return Eigen::Vector3d::Zero();
+  return probe_.tool.linear() * Eigen::Vector3d(force_.force_n[0], force_.force_n[1], force_.force_n[2]);
+}
+
+void SerialArmController::sense(ControlContext& ctx) noexcept {
+  const hardware::ForceReading reading = robot_.sensor_->read();
+  if (reading.valid) force_ = reading;
+  force_age_s_ = force_.valid ? static_cast<double>(ctx.now_ns - force_.stamp_ns) * 1e-9 : 0.0;
+  force_fresh_ = force_.valid && force_age_s_ <= robot_.settings_.force_stale_s;
+  if (ctx.state != OperatingState::kEnabled || !ctx.drives_ready) return;
+  const auto& s = robot_.settings_;
+  char detail[96];
+  if (!force_fresh_) {
+    std::snprintf(detail, sizeof detail, "force sensor silent for %.0f ms (bound %.0f ms)",
+                  force_age_s_ * 1e3, s.force_stale_s * 1e3);
+    ctx.hold(safety::FaultCode::kSensorStale, -1, detail);
+    return;
+  }
+  const double f = Eigen::Vector3d(force_.force_n[0], force_.force_n[1], force_.force_n[2]).norm();
+  if (f > s.max_contact_force_n) {
+    std::snprintf(detail, sizeof detail, "contact force %.2f N over F_max %.2f N; retracting", f,
+                  s.max_contact_force_n);
+    if (ctx.hold(safety::FaultCode::kExternal, -1, detail)) {
+      force_hold_ = true;
+      retracting_ = true;
+      retracted_mm_ = 0.0;
+    }
+  }
+}
+
+void SerialArmController::stop(ControlContext& ctx) noexcept {
+  motion_ = ArmMotion::none;
+  twist_limited_ = false;
+  for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
+}
+
+void SerialArmController::integrate(ControlContext& ctx,
+                                    const teleop::CartesianCommandResult& result) noexcept {
+  twist_limited_ = result.twist_limited || result.joints.velocity_limited || result.joints.position_limited;
+  if (!result.joints.valid) {
+    stop(ctx);
+    return;
+  }
+  teleop::ArmVector next = q_ + result.joints.joint_velocity * ctx.period;
+  // The workspace box (REQ-SAFE-1): a setpoint whose tool would leave it does not move.
+  const auto& s = robot_.settings_;
+  workspace_limited_ = false;
+  if (robot_.model().forward_kinematics(next, probe_)) {
+    const Eigen::Vector3d p = probe_.tool.translation();
+    const Eigen::Vector3d now = data_.tool.translation();
+    for (Eigen::Index i = 0; i < 3; ++i) {
+      const bool outward =
+          (p[i] < s.workspace_min[i] && p[i] < now[i]) || (p[i] > s.workspace_max[i] && p[i] > now[i]);
+      workspace_limited_ = workspace_limited_ || outward;
+    }
+  }
+  if (workspace_limited_) {
+    for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
+    return;
+  }
+  for (std::size_t i = 0; i < ctx.n; ++i) {
+    const auto k = static_cast<Eigen::Index>(i);
+    ctx.qd_des[i] = result.joints.joint_velocity[k];
+    ctx.q_des[i] = next[k];
+  }
+}
+
+void SerialArmController::control(ControlContext& ctx) noexcept {
+  if (ctx.mode != kCartesianMode) return;
+  for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
+  const auto& s = robot_.settings_;
+  if (motion_ == ArmMotion::none) {
+    for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
+    return;
+  }
+  // Streams end when they are not refreshed within the command timeout (the supervisor holds the
+  // robot then, as for servo_jv).
+  if ((motion_ == ArmMotion::servo_cv || motion_ == ArmMotion::servo_cp) &&
+      ctx.t - last_stream_ > ctx.limits->servo_timeout_s) {
+    stop(ctx);
+    return;
+  }
+  robot_.model().update(q_, data_);
+  teleop::CartesianCommandResult result;
+  switch (motion_) {
+    case ArmMotion::servo_cv:
+      result = teleop::servo_cv(robot_.model(), data_, q_, twist_, s.cartesian, ctx.period);
+      break;
+    case ArmMotion::servo_cp:
+      result = teleop::servo_cp(robot_.model(), data_, q_, goal_, s.gains, s.cartesian, ctx.period);
+      break;
+    case ArmMotion::move_cp: {
+      const double t = ctx.t - trajectory_delay_;
+      result =
+          teleop::track(robot_.model(), data_, q_, trajectory_.sample(t), s.gains, s.cartesian, ctx.period);
+      if (trajectory_.done(t)) {
+        // Done once the setpoint's tool is on the goal (the pose law closes what the feed-forward left).
+        const double e = (data_.tool.translation() - trajectory_.goal_position()).norm();
+        const double a = Eigen::AngleAxisd(data_.tool.linear().transpose() *
+                                           trajectory_.goal_orientation().toRotationMatrix())
+                             .angle();
+        // Within a hundredth of the goal tolerance, or 5 s after the trajectory (the pose law's last
+        // approach is exponential: it is well inside the tolerance by then).
+        if ((e <= 0.01 * s.goal_tolerance_mm && a <= 0.01 * s.goal_tolerance_rad) ||
+            t > trajectory_.start_time() + trajectory_.duration() + 5.0) {
+          stop(ctx);
+          return;
+        }
+      }
+      break;
+    }
+    case ArmMotion::none:
+      break;
+  }
+  integrate(ctx, result);
+}
+
+bool SerialArmController::while_held(ControlContext& ctx) noexcept {
+  // REQ-SAFE-2: out of a force hold, back away along the contact force (the push the tissue gives the
+  // tool) at the retract speed until the force is under the resume bound, for at most retract_max_mm.
+  if (!retracting_) return false;
+  const auto& s = robot_.settings_;
+  const Eigen::Vector3d f = force_base(ctx);
+  // The target is 80 % of the resume bound: the reading's noise (0.02 N) must not leave the force on it.
+  if (!force_fresh_ || f.norm() <= 0.8 * s.resume_contact_force_n || retracted_mm_ >= s.retract_max_mm) {
+    retracting_ = false;
+    for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
+    return false;
+  }
+  for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
+  robot_.model().update(q_, data_);
+  teleop::Twist twist = teleop::Twist::Zero();
+  twist.head<3>() = s.retract_speed_mm_s * f.normalized();
+  const auto result = teleop::servo_cv(robot_.model(), data_, q_, twist, s.cartesian, ctx.period);
+  if (!result.joints.valid) {
+    retracting_ = false;
+    return false;
+  }
+  for (std::size_t i = 0; i < ctx.n; ++i) {
+    const auto k = static_cast<Eigen::Index>(i);
+    ctx.qd_des[i] = result.joints.joint_velocity[k];
+    ctx.q_des[i] += result.joints.joint_velocity[k] * ctx.period;
+  }
+  retracted_mm_ += result.twist.head<3>().norm() * ctx.period;
+  return true;
+}
+
+void SerialArmController::apply(ControlContext& ctx, const PluginCommand& command) noexcept {
+  // Re-checked here: the mode or state may have changed since the network thread looked.
+  if (ctx.mode != kCartesianMode || ctx.state != OperatingState::kEnabled || !ctx.drives_ready) return;
+  const auto& v = command.values;
+  switch (static_cast<ArmCommand>(command.id)) {
+    case ArmCommand::servo_cv:
+      if (command.count != 6) return;
+      for (Eigen::Index i = 0; i < 6; ++i) twist_[i] = v[static_cast<std::size_t>(i)];
+      motion_ = ArmMotion::servo_cv;
+      last_stream_ = ctx.t;
+      ctx.supervisor->servo_command_received(ctx.t);
+      return;
+    case ArmCommand::servo_cp:
+    case ArmCommand::move_cp: {
+      if (command.count != 8) return;
+      goal_.setIdentity();
+      goal_.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+      goal_.linear() = Eigen::Quaterniond(v[6], v[3], v[4], v[5]).normalized().toRotationMatrix();
+      if (static_cast<ArmCommand>(command.id) == ArmCommand::servo_cp) {
+        motion_ = ArmMotion::servo_cp;
+        last_stream_ = ctx.t;
+        ctx.supervisor->servo_command_received(ctx.t);
+        return;
+      }
+      for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
+      if (!robot_.model().forward_kinematics(q_, data_)) return;
+      // The network thread's dry run chose the duration; keep it so the answer's duration_s holds.
+      if (!trajectory_.plan(data_.tool, goal_, robot_.settings_.cartesian, ctx.t, v[7])) return;
+      trajectory_delay_ = 0.0;
+      motion_ = ArmMotion::move_cp;
+      return;
+    }
+  }
+}
+
+void SerialArmController::delay(ControlContext& ctx, double lost) noexcept {
+  (void)ctx;
+  if (motion_ == ArmMotion::move_cp) trajectory_delay_ += lost;
+}
+
+void SerialArmController::reset(ControlContext& ctx) noexcept {
+  // The setpoint was set from outside (enable, pause, a mode switch, a clamp): every motion ends there.
+  motion_ = ArmMotion::none;
+  twist_limited_ = false;
+  workspace_limited_ = false;
+  (void)ctx;
+}
+
+void SerialArmController::operator_lost(ControlContext& ctx) noexcept {
+  if (motion_ == ArmMotion::servo_cv || motion_ == ArmMotion::servo_cp) stop(ctx);
+}
+
+bool SerialArmController::moving(const ControlContext& ctx) const noexcept {
+  (void)ctx;
+  return motion_ != ArmMotion::none || retracting_;
+}
+
+bool SerialArmController::hold_cleared(const ControlContext& ctx, char* why,
+                                       std::size_t why_size) const noexcept {
+  (void)ctx;
+  const auto& s = robot_.settings_;
+  const double f = Eigen::Vector3d(force_.force_n[0], force_.force_n[1], force_.force_n[2]).norm();
+  const char* reason = nullptr;
+  if (!force_fresh_) {
+    reason = "resume refused: the force sensor is silent";
+  } else if (force_hold_ && (retracting_ || f > s.resume_contact_force_n)) {
+    reason = "resume refused: the contact force is still over the resume bound";
+  }
+  if (reason && why && why_size > 0) std::snprintf(why, why_size, "%s", reason);
+  return reason == nullptr;
+}
+
+void SerialArmController::hold_ended(ControlContext& ctx) noexcept {
+  (void)ctx;
+  force_hold_ = false;
+  retracting_ = false;
+  retracted_mm_ = 0.0;
+}
+
+void SerialArmController::publish(const ControlContext& ctx) noexcept {
+  ArmSnapshot s;
+  for (std::size_t i = 0; i < ctx.n && i < s.setpoint.size(); ++i) s.setpoint[i] = ctx.q_des[i];
+  s.force_n = force_.force_n;
+  s.force_valid = force_.valid;
+  s.force_fresh = force_fresh_;
+  s.force_age_s = force_age_s_;
+  s.motion = motion_;
+  const Eigen::Quaterniond o(goal_.linear());
+  s.goal = {
+      goal_.translation().x(), goal_.translation().y(), goal_.translation().z(), o.x(), o.y(), o.z(), o.w()};
+  s.twist_limited = twist_limited_;
+  s.workspace_limited = workspace_limited_;
+  s.force_hold = force_hold_;
+  s.retracting = retracting_;
+  robot_.published_.store(s);
+}
+
+}  // namespace tendril::server
