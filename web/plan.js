@@ -9,6 +9,7 @@ import {StepPlot} from './plot.js';
 
 const $ = (sel) => document.querySelector(sel);
 const JOB_POLL_MS = 400;
+const commandableNow = (ctx) => (ctx.commandable ? ctx.commandable() : true);
 
 export class PlanPanel {
   // ctx: {api, view(): CatheterView|null, robot(): robot description, status(text, kind), onPathLoaded()}
@@ -139,8 +140,9 @@ export class PlanPanel {
     ui.upload.disabled = !ui.file.files?.length;
     ui.plan.disabled = !ui.vessel.value || running;
     ui.cancel.disabled = !running;
-    ui.load.disabled = !this.plan || !this.job;
-    const canStep = !!(this.path && this.path.loaded && inPathMode && os.state === 'ENABLED');
+    ui.load.disabled = !this.plan || !this.job || !commandableNow(this.ctx);
+    const commandable = this.ctx.commandable ? this.ctx.commandable() : true;
+    const canStep = !!(this.path && this.path.loaded && inPathMode && os.state === 'ENABLED') && commandable;
     ui.prev.disabled = !canStep || this.path.step <= 0;
     ui.next.disabled = !canStep || this.path.step >= this.path.steps - 1;
     ui.go.disabled = !canStep;
