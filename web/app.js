@@ -586,7 +586,11 @@ function renderFrame() {
     state.catheterMsgMs = Date.now();
     shown.catheter = cath.stampMs;
     catheter?.update(cath.msg);
-    if (cath.msg.state === 'PAUSED') { updateBanner(); updateControls(); }
+    if (cath.msg.state === 'PAUSED') {
+      updateBanner();
+      updateControls();
+      plan?.renderStopReason();
+    }
   }
   const diag = latest.take(topics.diagnostics);
   if (diag) applyDiagnostics(diag.msg);
@@ -1123,6 +1127,7 @@ async function start() {
   plan = new PlanPanel({
     api, view: () => view, robot: () => state.robot, operating: () => state.operating, status: showStatus,
     commandable: () => !state.stale && state.role !== 'viewer',
+    hold: () => currentHold(),
     onPathLoaded: () => updateModeBar(),
   });
   wireCommands();
