@@ -279,7 +279,7 @@ function updateControls() {
   if (!os) hint = 'Waiting for the robot state…';
   else if (viewer) hint = 'Viewer: this session may watch but not command (open the operator link to command).';
   else if (state.offline) hint = 'No connection: the values shown are old; nothing can be commanded.';
-  else if (stale) hint = `Stale data (${formatAge(state.streamAgeMs)} old): commands wait for fresh data.`;
+  else if (stale) hint = 'Stale data (its age is in the banner): commands wait for fresh data.';
   else if (estop) hint = 'E-stop latched: Reset, then Enable.';
   else if (fault) hint = 'Fault: Reset to acknowledge, then Enable.';
   else if (hold) hint = `${HOLD_TITLES[hold.cause] || 'Held'}: the banner above says why and offers ` +
@@ -400,6 +400,8 @@ let topics = null;             // topic names of the selected robot
 // as new as the joint stream once nothing of theirs waits to be shown.
 const shown = {joints: NaN, scene: NaN, catheter: NaN};
 let sceneNextAt = 0;
+const MAX_WAIT_MS = 250;       // an expensive panel is brought up to date at least this often
+const lastTaken = new Map();   // topic -> frame time its newest message was last shown
 let lastAgeUpdate = 0;
 
 // REST requests pause while the server does not answer; one probe (GET /health) with exponential
@@ -594,26 +596,28 @@ function renderFrame() {
   }
   const diag = latest.take(topics.diagnostics);
   if (diag) applyDiagnostics(diag.msg);
-  // The 3D view: at most every SCENE_SHARE times its own cost, so a slow (software) renderer cannot
-  // make the page fall behind the stream.
-  if (latest.pending(topics.scene) && start >= sceneNextAt && performance.now() - start < FRAME_BUDGET_MS) {
+  // The expensive panels take what is left of the frame's budget; one that has waited MAX_WAIT_MS
+  // goes regardless, so that a slow machine (where the cheap part alone fills the budget) delays it but
+  // never starves it. The 3D view also waits SCENE_SHARE times its own last cost (at most 1 s).
+  const due = (topic) => latest.pending(topic) &&
+      (performance.now() - start < FRAME_BUDGET_MS || start - (lastTaken.get(topic) ?? 0) >= MAX_WAIT_MS);
+  if (start >= sceneNextAt && due(topics.scene)) {
     const t0 = performance.now();
     const scene = latest.take(topics.scene);
+    lastTaken.set(topics.scene, start);
     if (scene) {
       view?.applySceneUpdate(scene.msg);
       applyTipFromScene(scene.msg);
     }
-    sceneNextAt = t0 + (performance.now() - t0) * (1 + SCENE_SHARE);
+    sceneNextAt = t0 + Math.min(1000, (performance.now() - t0) * (1 + SCENE_SHARE));
   }
   if (!latest.pending(topics.scene)) shown.scene = shown.joints;
-  for (const key of ['ap', 'lateral']) {
-    if (performance.now() - start >= FRAME_BUDGET_MS) break;
-    const frame = latest.take(topics[key]);
-    if (frame) images[key].frame(frame.msg);
-  }
-  if (performance.now() - start < FRAME_BUDGET_MS) {
-    const map = latest.take(topics.map);
-    if (map) view?.setPointCloud(map.msg);
+  for (const key of ['ap', 'lateral', 'map']) {
+    if (!due(topics[key])) continue;
+    const m = latest.take(topics[key]);
+    lastTaken.set(topics[key], start);
+    if (m && key === 'map') view?.setPointCloud(m.msg);
+    else if (m) images[key].frame(m.msg);
   }
   if (start - lastAgeUpdate >= 100) updateAges();
 }
