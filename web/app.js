@@ -578,7 +578,8 @@ function renderFrame() {
   const os = latest.take(topics.operating);
   if (os) applyOperatingState(os.msg);
   const js = latest.take(topics.joints);
-  if (js) {
+  // Never older than what is shown (a late stream message after a fresher REST answer is dropped).
+  if (js && !(js.stampMs < shown.joints)) {
     applyJointState(js.msg, true);
     shown.joints = js.stampMs;
   }
