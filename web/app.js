@@ -510,7 +510,7 @@ function refreshConnectionIndicator() {
     setConnection('stale', `STALE ${formatAge(age)}`, streaming ? 'stream behind' : 'polling behind');
   } else if (streaming) {
     const latency = streamLatencyMs();
-    setConnection('live', 'live (WebSocket)', Number.isFinite(latency) ? `latency ${formatAge(latency)}` : '');
+    setConnection('live', 'live stream', Number.isFinite(latency) ? `latency ${formatAge(latency)}` : '');
     ui.connection.dataset.latencyMs = Number.isFinite(latency) ? latency.toFixed(1) : '';
   } else {
     setConnection('polling', 'polling (REST)', `data ${formatAge(age)} old`);
