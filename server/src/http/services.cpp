@@ -89,6 +89,7 @@ std::vector<fg::Service> service_list(const std::vector<ServiceDef>& definitions
          {{"type", "object"},
           {"properties", {{"code", {{"type", "string"}}}, {"message", {{"type", "string"}}}}}}}}}};
   std::vector<fg::Service> services;
+  services.reserve(definitions.size());
   for (const auto& def : definitions)
     services.push_back({def.id, def.name, "tendril/" + def.name, dump(def.request_schema), dump(response)});
   return services;
