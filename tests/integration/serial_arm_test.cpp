@@ -323,7 +323,9 @@ TEST_F(SerialArmTest, EstopStopsTheArm) {
   ASSERT_EQ(api->estop().status, 200);
   // Quick stop at the arm's 8 rad/s²: 1 rad/s stops in 0.125 s (plus the link's latency).
   steps(200);
-  for (const auto& v : api->measured_js("ur5").body["velocity"]) EXPECT_LT(std::abs(v.get<double>()), 5e-3);
+  // The answer is kept: a range-for over a member of a temporary would read freed memory.
+  const auto stopped = api->measured_js("ur5");
+  for (const auto& v : stopped.body["velocity"]) EXPECT_LT(std::abs(v.get<double>()), 5e-3);
   EXPECT_TRUE(op()["estop"].get<bool>());
   EXPECT_NE(op()["state"], "ENABLED");
   EXPECT_EQ(arm().simulated_arm().truth().state, sim::ArmControllerState::quick_stop);
@@ -464,8 +466,8 @@ TEST_F(TwoRobotsTest, OneEstopStopsBoth) {
   for (const std::string robot : {"ur5", "srmc"}) {
     EXPECT_TRUE(op(robot)["estop"].get<bool>()) << robot;
     EXPECT_NE(op(robot)["state"], "ENABLED") << robot;
-    for (const auto& v : api->measured_js(robot).body["velocity"])
-      EXPECT_LT(std::abs(v.get<double>()), 0.01) << robot;
+    const auto stopped = api->measured_js(robot);
+    for (const auto& v : stopped.body["velocity"]) EXPECT_LT(std::abs(v.get<double>()), 0.01) << robot;
   }
   ASSERT_EQ(api->estop_reset().status, 200);
   steps(5);

@@ -52,6 +52,7 @@
 
 #include "tendril/drivers/can/socketcan_bus.hpp"
 #include "tendril/drivers/canopen/protocol.hpp"
+#include "tendril/drivers/sim/simulated_analog_input_node.hpp"
 #include "tendril/drivers/sim/simulated_drive.hpp"
 
 extern char** environ;
@@ -118,6 +119,14 @@ class DriveRack {
     slot->drive = std::make_unique<sim::SimulatedCia402Drive>(node_id, *slot->bus, std::move(params));
     slots_.push_back(std::move(slot));
   }
+  // The catheter's SIMULATED spring-deflection ADC node (CiA 401) on its own vcan0 endpoint: the
+  // catheter holds the robot without its readings, as it must on the real rack.
+  void add_adc(std::uint8_t node_id) {
+    adc_bus_ = std::make_unique<can::SocketCanBus>("vcan0");
+    sim::AnalogInputNodeParameters params;
+    params.node_id = node_id;
+    adc_ = std::make_unique<sim::SimulatedAnalogInputNode>(*adc_bus_, params);
+  }
   std::vector<std::unique_ptr<Slot>>& slots() { return slots_; }
   bool realtime() const { return realtime_.load(); }
   double worst_cycle_ms() const { return static_cast<double>(worst_cycle_ns_.load()) / 1e6; }
@@ -144,6 +153,7 @@ class DriveRack {
       const auto cycle = now - previous;
       const double dt = std::clamp(std::chrono::duration<double>(cycle).count(), 1e-4, 0.01);
       for (auto& slot : slots_) cycle_one(*slot, now, previous, dt);
+      if (adc_) adc_->step(dt);
       if (slots_[0]->watch.kill_time.load() != 0)
         worst_cycle_ns_.store(std::max<std::int64_t>(worst_cycle_ns_.load(), (now - previous).count()));
       previous = now;
@@ -199,6 +209,8 @@ class DriveRack {
   }
 
   std::vector<std::unique_ptr<Slot>> slots_;
+  std::unique_ptr<can::SocketCanBus> adc_bus_;
+  std::unique_ptr<sim::SimulatedAnalogInputNode> adc_;
   std::thread thread_;
   std::atomic<bool> stop_{false};
   std::atomic<bool> realtime_{false};
@@ -275,11 +287,21 @@ TEST(TendrildSigkill, DrivesQuickStopWithinTheHeartbeatConsumerTimeOfTheMastersD
   const int consumer_ms = bus["master_heartbeat_timeout_ms"];
   const int heartbeat_ms = bus["heartbeat_period_ms"];
   // The catheter's spring-deflection and joystick ADC nodes are simulated with the virtual bus only;
-  // this test is about the drives. One TCG CPU is shared with the drives, so the control loop's
-  // lost-time bound (half the shorter of the command timeout and the heartbeat consumer time) is
-  // widened to its most, 125 ms, by a longer command timeout; the consumer time under test stays.
-  robot.erase("catheter");
+  // this test is about the drives, so the catheter section keeps its model and the spring-deflection
+  // sensor (simulated in the rack, at rest), and the joystick node is left out. One TCG CPU is
+  // shared with the drives, so the control loop's lost-time bound (half the shorter of the command timeout
+  // and the heartbeat consumer time) is widened to its most, 125 ms, by a longer command timeout; the
+  // consumer time under test stays.
+  robot["catheter"] = json{{"model", robot["catheter"]["model"]},
+                           {"spring_deflection", robot["catheter"]["spring_deflection"]}};
+  try {
+    rack.add_adc(static_cast<std::uint8_t>(robot["catheter"]["spring_deflection"]["node_id"].get<int>()));
+  } catch (const can::CanSetupError& e) {
+    FAIL() << "vcan0 for the ADC node: " << e.what();
+  }
   robot["command_timeout_ms"] = 1000;
+  // A robot file's control rate must be the server's (the one control thread runs every robot).
+  robot["control_rate_hz"] = 250;
 
   const auto dir = std::filesystem::temp_directory_path() / ("tendril-sigkill-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
@@ -337,13 +359,15 @@ TEST(TendrildSigkill, DrivesQuickStopWithinTheHeartbeatConsumerTimeOfTheMastersD
       http(port, bhttp::verb::post, "/api/v1/robots/srmc/state_command", token, R"({"command":"enable"})");
   ASSERT_EQ(enable.status, 200) << enable.body.dump();
   bool ready = false;
+  std::string last_state;
   for (int i = 0; i < 300 && !ready; ++i) {
     const Reply s = http(port, bhttp::verb::get, "/api/v1/robots/srmc/operating_state", token);
     ready = s.status == 200 && s.body.value("state", "") == "ENABLED" &&
             s.body.value("drives_ready", false) && !s.body.value("is_busy", true);
+    last_state = s.body.dump();
     if (!ready) std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
-  ASSERT_TRUE(ready) << read_file(log);
+  ASSERT_TRUE(ready) << "last operating_state: " << last_state << "\n" << read_file(log);
   for (auto& slot : rack.slots()) {
     const auto configured = slot->watch.consumer.load();
     EXPECT_EQ(configured & 0xFFFFu, static_cast<std::uint32_t>(consumer_ms))
