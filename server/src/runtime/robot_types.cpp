@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "tendril/drivers/sim/simulated_drive.hpp"
+#include "tendril/server/planning_api.hpp"
 
 namespace tendril::server {
 
@@ -22,6 +23,11 @@ std::vector<std::string> RobotTypes::kinds() const {
   std::vector<std::string> out;
   for (const auto& [kind, type] : types_) out.push_back(kind);
   return out;
+}
+
+std::unique_ptr<PlanningApi> RobotType::planning_service(const std::vector<RobotConfig>& robots) const {
+  (void)robots;
+  return nullptr;
 }
 
 std::optional<sim::DriveParameters> RobotType::simulated_drive(const std::string& preset,

@@ -269,10 +269,8 @@ class RobotType {
                                                               const JointConfig& joint) const;
   // Jobs the type offers over REST for its robots (plans, designs, calibrations: planning_api.hpp), or
   // null. `robots` are the configured robots of this type.
-  virtual std::unique_ptr<PlanningApi> planning_service(const std::vector<RobotConfig>& robots) const {
-    (void)robots;
-    return nullptr;
-  }
+  // Defined where PlanningApi is complete (gcc instantiates the unique_ptr's deleter here otherwise).
+  virtual std::unique_ptr<PlanningApi> planning_service(const std::vector<RobotConfig>& robots) const;
   // Parses and checks the type's settings (throws ConfigError naming file and key) and builds the robot.
   virtual std::unique_ptr<RobotPlugin> create(const RobotConfig& config, RobotAssembly& assembly) const = 0;
 };
