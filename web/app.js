@@ -488,6 +488,9 @@ function connectWebSocket(robotName) {
       state.wsLive = true;
       images.ap.setConnected(true);
       images.lateral.setConnected(true);
+      // The stream carries only new events: fetch the ones raised while the socket was down (the
+      // server closes a socket whose reader falls 5 s behind), so the log never has a hole.
+      api.faults().then((d) => addEvents(eventsFromFaults(d))).catch(() => {});
     },
     onClose: () => {
       state.wsLive = false;
@@ -515,7 +518,10 @@ function connectWebSocket(robotName) {
           if (msg.state === 'PAUSED') { updateBanner(); updateControls(); }
           break;
         case t.scene: view?.applySceneUpdate(msg); break;
-        case t.events: addEvents(Array.isArray(msg.events) ? msg.events : [msg]); break;
+        case t.events:
+          // `recent` repeats the last events: a message this page never got loses none of them.
+          addEvents(Array.isArray(msg.recent) ? msg.recent : Array.isArray(msg.events) ? msg.events : [msg]);
+          break;
         case t.diagnostics: applyDiagnostics(msg); break;
         case t.ap: images.ap.frame(msg); break;
         case t.lateral: images.lateral.frame(msg); break;

@@ -26,10 +26,14 @@ function applyPose(object, pose) {
   if (o) object.quaternion.set(o.x || 0, o.y || 0, o.z || 0, o.w === undefined ? 1 : o.w);
 }
 
+// Shared materials (CatheterView.material) are never disposed: three.js frees a shader program when
+// its last material goes, and compiling it again takes seconds in a software renderer (SwiftShader),
+// seconds in which the page handles no stream message. Entities that change with every message
+// (tip frame, contact markers) would otherwise recompile their programs at the stream's rate.
 function disposeTree(object) {
   object.traverse((child) => {
     child.geometry?.dispose();
-    if (child.material) [].concat(child.material).forEach((m) => m.dispose());
+    if (child.material) [].concat(child.material).forEach((m) => { if (!m.userData.shared) m.dispose(); });
   });
 }
 
@@ -57,6 +61,7 @@ export class CatheterView {
     this.entityKeys = new Map();  // entity id -> content key of what is drawn
     this.lastBackbone = null;
     this.tipFromScene = false;
+    this.materials = new Map();  // shared materials by kind and parameters (see disposeTree)
     // Without a GPU (software rasteriser) draw cheaper: no multisampling, 1:1 pixels, fewer frames,
     // so the browser does not starve the server on the same small machine.
     this.software = /swiftshader|llvmpipe|software/i.test(probeRenderer());
@@ -114,7 +119,12 @@ export class CatheterView {
     this.tipMarker.visible = false;
     this.scene.add(this.tipMarker);
 
-    this.resizeObserver = new ResizeObserver(() => this.resize());
+    // A new drawing buffer costs tens of milliseconds to seconds in a software renderer: resize once the
+    // panel's size has settled (meanwhile the canvas is stretched by CSS), never at every layout change.
+    this.resizeObserver = new ResizeObserver(() => {
+      clearTimeout(this.resizeTimer);
+      this.resizeTimer = setTimeout(() => this.resize(), this.available && this.sized ? 300 : 0);
+    });
     this.resizeObserver.observe(container);
     this.resize();
     // At most ~30 frames a second (10 in software), and none while nothing changes.
@@ -143,6 +153,8 @@ export class CatheterView {
   resize() {
     const w = Math.max(1, this.container.clientWidth);
     const h = Math.max(1, this.container.clientHeight);
+    if (this.sized && this.sized.w === w && this.sized.h === h) return;
+    this.sized = {w, h};
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / h;
     this.camera.updateProjectionMatrix();
@@ -219,7 +231,8 @@ export class CatheterView {
       }
     }
     if (this.tipFromScene) this.tipAxes.visible = false;
-    this.requestRender();
+    // setBackbone and setEntity ask for a frame when they changed something; an update that repeats
+    // the scene (the stream sends one with every new time stamp) draws nothing.
   }
 
   removeEntity(id) {
@@ -231,19 +244,32 @@ export class CatheterView {
     this.entityKeys.delete(id);
   }
 
+  // One material per kind, colour and opacity for the whole view.
+  material(kind, color, opacity = 1, extra = {}) {
+    const c = color instanceof THREE.Color ? color : new THREE.Color(color);
+    const key = `${kind}|${c.getHexString()}|${opacity}|${JSON.stringify(extra)}`;
+    let m = this.materials.get(key);
+    if (!m) {
+      m = new THREE[kind]({color: c, transparent: opacity < 1, opacity, ...extra});
+      m.userData.shared = true;
+      this.materials.set(key, m);
+    }
+    return m;
+  }
+
   setEntity(id, entity) {
     // The stream repeats unchanged entities with new timestamps; rebuild only what changed.
     const key = JSON.stringify([entity.lines, entity.arrows, entity.spheres, entity.cubes]);
     if (this.entityKeys.get(id) === key) return;
     this.entityKeys.set(id, key);
     this.removeEntity(id);
+    this.requestRender();
     const group = new THREE.Group();
     for (const line of entity.lines || []) {
       const pts = (line.points || []).map(toVec);
       if (pts.length < 2) continue;
       const geometry = new THREE.BufferGeometry().setFromPoints(pts);
-      const material = new THREE.LineBasicMaterial({color: colorOf(line.color), transparent: (line.color?.a ?? 1) < 1,
-                                                    opacity: line.color?.a ?? 1});
+      const material = this.material('LineBasicMaterial', colorOf(line.color), line.color?.a ?? 1);
       // type 0 line strip, 1 line loop, 2 line list
       const obj = line.type === 2 ? new THREE.LineSegments(geometry, material)
                 : line.type === 1 ? new THREE.LineLoop(geometry, material)
@@ -260,14 +286,19 @@ export class CatheterView {
       const helper = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), length,
                                            colorOf(arrow.color), (arrow.head_length || given * 0.25) * k,
                                            (arrow.head_diameter || given * 0.15) * k);
+      // ArrowHelper makes its own materials; the shared ones keep the programs alive.
+      helper.line.material.dispose();
+      helper.cone.material.dispose();
+      helper.line.material = this.material('LineBasicMaterial', colorOf(arrow.color), 1, {toneMapped: false});
+      helper.cone.material = this.material('MeshBasicMaterial', colorOf(arrow.color), 1, {toneMapped: false});
       applyPose(helper, arrow.pose);
       group.add(helper);
     }
     for (const sphere of entity.spheres || []) {
       const s = sphere.size || {x: 1, y: 1, z: 1};
       const mesh = new THREE.Mesh(new THREE.SphereGeometry(0.5, 20, 14),
-                                  new THREE.MeshStandardMaterial({color: colorOf(sphere.color), transparent: true,
-                                                                  opacity: sphere.color?.a ?? 1}));
+                                  this.material(this.software ? 'MeshLambertMaterial' : 'MeshStandardMaterial',
+                                                colorOf(sphere.color), sphere.color?.a ?? 1));
       mesh.scale.set(s.x, s.y, s.z);
       applyPose(mesh, sphere.pose);
       group.add(mesh);
@@ -275,8 +306,8 @@ export class CatheterView {
     for (const cube of entity.cubes || []) {
       const s = cube.size || {x: 1, y: 1, z: 1};
       const mesh = new THREE.Mesh(new THREE.BoxGeometry(s.x, s.y, s.z),
-                                  new THREE.MeshStandardMaterial({color: colorOf(cube.color), transparent: true,
-                                                                  opacity: cube.color?.a ?? 1}));
+                                  this.material(this.software ? 'MeshLambertMaterial' : 'MeshStandardMaterial',
+                                                colorOf(cube.color), cube.color?.a ?? 1));
       applyPose(mesh, cube.pose);
       group.add(mesh);
     }

@@ -283,5 +283,37 @@ TEST_F(RuntimeTest, StreamsTopicsOnlyWhenTheyChange) {
   EXPECT_FALSE(api->topic_message("/nope/scene", 0, again).has_value());
 }
 
+// The WebSocket gives a slow reader only a topic's newest message: the events topic repeats the
+// recent events so that a reader that missed a message still sees every event.
+TEST_F(RuntimeTest, EventsTopicRepeatsRecentEventsForAReaderThatMissedAMessage) {
+  std::uint64_t first = 0;
+  const auto before = api->topic_message("/safety/events", 0, first);
+  enable();  // DISABLED -> ENABLED: one transition event
+  steps(10);
+  std::uint64_t second = 0;
+  const auto one = api->topic_message("/safety/events", first, second);
+  ASSERT_TRUE(one.has_value());
+  ASSERT_GT(second, first);
+  EXPECT_EQ(api->state_command("srmc", {{"command", "pause"}}).status, 200);
+  steps(10);
+  // A reader that got `before` but never `one`: the newest message alone must hold both events.
+  std::uint64_t third = 0;
+  const auto two = api->topic_message("/safety/events", second, third);
+  ASSERT_TRUE(two.has_value());
+  EXPECT_GT(third, second);
+  const auto& fresh = (*two)["events"];
+  const auto& recent = (*two)["recent"];
+  ASSERT_FALSE(fresh.empty());
+  EXPECT_EQ(fresh.back()["to"], "PAUSED") << two->dump();
+  ASSERT_GE(recent.size(), fresh.size() + (*one)["events"].size()) << two->dump();
+  // Oldest first, ending with the same newest event as `events`.
+  EXPECT_EQ(recent.back(), fresh.back());
+  bool has_enable = false;
+  for (const auto& e : recent) has_enable = has_enable || e["to"] == "ENABLED";
+  EXPECT_TRUE(has_enable) << two->dump();
+  for (std::size_t i = 1; i < recent.size(); ++i)
+    EXPECT_LE(recent[i - 1]["time"].get<double>(), recent[i]["time"].get<double>());
+}
+
 }  // namespace
 }  // namespace tendril::server

@@ -523,7 +523,13 @@ std::optional<json> JsonControlApi::topic_message(const std::string& topic, std:
     if (version == since_version) return std::nullopt;
     auto list = json::array();
     for (const auto& e : fresh) list.push_back(event_json(e));
-    return json{{"events", list}};
+    // A slow reader gets only the newest message of a topic (ws_connection.cpp), so a message alone
+    // could skip events: `recent` repeats the last ones (oldest first) for a reader to fill that hole.
+    constexpr std::size_t kRecentEvents = 32;
+    auto recent = json::array();
+    const auto last = service_.faults(kRecentEvents);
+    for (auto it = last.rbegin(); it != last.rend(); ++it) recent.push_back(event_json(*it));
+    return json{{"events", list}, {"recent", recent}};
   }
   const auto slash = topic.find('/', 1);
   if (topic.empty() || topic[0] != '/' || slash == std::string::npos) return std::nullopt;

@@ -326,15 +326,23 @@ json operating_state_schema() {
             {"estop", {{"type", "boolean"}}}}}};
 }
 
+// A message carries the events new since the previous one and the most recent ones again (`recent`,
+// oldest first): a slow reader gets only a topic's newest message, and `recent` fills what it missed.
 json safety_event_schema() {
+  const json event = {{"type", "object"},
+                      {"properties",
+                       {{"time", {{"type", "number"}}},
+                        {"robot", {{"type", "string"}}},
+                        {"kind", {{"type", "string"}}},
+                        {"code", {{"type", "string"}}},
+                        {"from", {{"type", "string"}}},
+                        {"to", {{"type", "string"}}},
+                        {"joint", {{"type", "string"}}},
+                        {"message", {{"type", "string"}}}}}};
+  const json list = {{"type", "array"}, {"items", event}};
   return {{"title", "tendril.SafetyEvent"},
           {"type", "object"},
-          {"properties",
-           {{"timestamp", {{"type", "number"}}},
-            {"robot", {{"type", "string"}}},
-            {"code", {{"type", "string"}}},
-            {"severity", {{"type", "string"}}},
-            {"message", {{"type", "string"}}}}}};
+          {"properties", {{"events", list}, {"recent", list}}}};
 }
 
 // Shape of foxglove.SceneUpdate (foxglove-sdk schemas/jsonschema), reduced to the top level:
