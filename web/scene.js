@@ -242,6 +242,7 @@ export class CatheterView {
     disposeTree(obj);
     this.entities.delete(id);
     this.entityKeys.delete(id);
+    this.requestRender();
   }
 
   // One material per kind, colour and opacity for the whole view.
