@@ -76,8 +76,9 @@ TEST(CatheterVesselContact, PrunedDistanceEqualsTheDistanceToEverySegment) {
 // on every joint, at poses pressed into the curved wall.
 TEST(CatheterVesselContact, GeneralisedForcesAreMinusTheEnergyGradient) {
   CatheterVesselContact contact(arc_channel(45.0, 20.0, 2.0), shape(), {});
-  for (const Eigen::Vector4d q : {Eigen::Vector4d(20.0, 0.0, 0.0, 0.0), Eigen::Vector4d(24.0, 0.4, -1.0, 2.0),
-                                  Eigen::Vector4d(27.0, -0.3, 3.0, -2.0)}) {
+  for (const Eigen::Vector4d& q :
+       {Eigen::Vector4d(20.0, 0.0, 0.0, 0.0), Eigen::Vector4d(24.0, 0.4, -1.0, 2.0),
+        Eigen::Vector4d(27.0, -0.3, 3.0, -2.0)}) {
     const auto f = contact.evaluate(q);
     ASSERT_GT(f.points_in_contact, 0) << q.transpose();
     for (int j = 0; j < 4; ++j) {
