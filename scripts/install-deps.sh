@@ -19,7 +19,8 @@ if [ "$(id -u)" != 0 ]; then
   sudo_cmd=(sudo)
 fi
 
-packages=(build-essential cmake ninja-build pkg-config git ca-certificates curl jq
+# clang and lld build tendrild for scripts/run.sh too (faster than gcc and ld; README, "Run it").
+packages=(build-essential clang lld cmake ninja-build pkg-config git ca-certificates curl jq
   libboost-system-dev libboost-dev libeigen3-dev nlohmann-json3-dev libssl-dev openssl libopencv-dev)
 # Node.js >= 20 runs the console tools (npm ci, the API and browser tests, the benches; package.json
 # "engines"). It may come from a vendor package; Debian 12's own nodejs is 18, past its end of life
@@ -28,7 +29,7 @@ node_major() { node -p 'process.versions.node.split(".")[0]' 2>/dev/null || echo
 command -v node >/dev/null || packages+=(nodejs)
 command -v npm >/dev/null || packages+=(npm)
 if [ "$with_tests" = 1 ]; then
-  packages+=(libgtest-dev libgmock-dev libbenchmark-dev clang clang-format clang-tidy libclang-rt-14-dev
+  packages+=(libgtest-dev libgmock-dev libbenchmark-dev clang-format clang-tidy libclang-rt-14-dev
     chromium qemu-system-x86 busybox-static iproute2 xz-utils cpio can-utils kmod)
 fi
 
