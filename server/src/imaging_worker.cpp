@@ -204,9 +204,8 @@ ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::fil
   }
   f.photons_per_pixel = r.number("photons_per_pixel", f.photons_per_pixel, 1.0, 1e7);
   f.blur_sigma_px = r.number("blur_sigma_px", f.blur_sigma_px, 0.0, 20.0);
-  // The simulator names its radio-opaque instrument after the catheter it was written for; any
-  // flexible instrument in the vessel is drawn the same way.
-  f.catheter_diameter_mm = r.number("instrument_diameter_mm", f.catheter_diameter_mm, 0.05, 20.0);
+  // Any flexible radio-opaque instrument in the vessel is drawn the same way.
+  f.instrument_diameter_mm = r.number("instrument_diameter_mm", f.instrument_diameter_mm, 0.05, 20.0);
   f.contrast_attenuation_per_mm =
       r.number("contrast_attenuation_per_mm", f.contrast_attenuation_per_mm, 0, 10);
   f.anatomy = r.boolean("anatomy", true);

@@ -190,7 +190,7 @@ struct SimulatedFluoroscope::Impl {
       max_mag = std::max(max_mag, d.magnification);
     }
     if (max_mag == 0.0) return;
-    const double widest_mm = std::max(opts.catheter_diameter_mm, opts.tip_marker_diameter_mm);
+    const double widest_mm = std::max(opts.instrument_diameter_mm, opts.tip_marker_diameter_mm);
     const int margin = static_cast<int>(std::ceil(0.5 * widest_mm * max_mag / pitch)) + 2 + blur_radius;
     const cv::Rect image(0, 0, w, h);
     const cv::Rect drawn = cv::Rect(cv::Point(static_cast<int>(std::floor(min_c)) - margin,
@@ -201,7 +201,7 @@ struct SimulatedFluoroscope::Impl {
     if (drawn.area() == 0) return;
 
     // Catheter body.
-    const double rc = 0.5 * opts.catheter_diameter_mm;
+    const double rc = 0.5 * opts.instrument_diameter_mm;
     std::vector<double> radii(backbone.size(), rc);
     const double mu_c = opts.catheter_attenuation_per_mm;
     draw_tube(layer, backbone, radii, kCatheterBands,
@@ -288,9 +288,10 @@ SimulatedFluoroscope::SimulatedFluoroscope(FluoroView view, FluoroscopeOptions o
           "photons_per_pixel must be at least 1");
   require(std::isfinite(options.blur_sigma_px) && options.blur_sigma_px >= 0 && options.blur_sigma_px <= 20,
           "blur sigma must be 0..20 px");
-  for (double v : {options.catheter_diameter_mm, options.tip_marker_diameter_mm, options.tip_marker_length_mm,
-                   options.catheter_attenuation_per_mm, options.tip_marker_attenuation_per_mm,
-                   options.contrast_attenuation_per_mm, options.tissue_attenuation, options.display_gain})
+  for (double v :
+       {options.instrument_diameter_mm, options.tip_marker_diameter_mm, options.tip_marker_length_mm,
+        options.catheter_attenuation_per_mm, options.tip_marker_attenuation_per_mm,
+        options.contrast_attenuation_per_mm, options.tissue_attenuation, options.display_gain})
     require(std::isfinite(v) && v >= 0, "diameters, lengths, attenuations and gain must be finite and >= 0");
   for (const auto& vessel : vessels) {
     require(vessel.centerline.size() == vessel.radius_mm.size(),

@@ -31,8 +31,8 @@ class RobotApiExtension {
   // paths, e.g. "joystick.axes"): the /{robot}/operating_state topic leaves them out, so it changes
   // only when the state does, and the whole state goes out on /{robot}/<topic> at rate_hz instead.
   struct LiveState {
-    std::string topic;        // leaf, e.g. "catheter"
-    std::string schema_name;  // e.g. "tendril.CatheterState"
+    std::string topic;        // leaf under /{robot}/, named by the plug-in
+    std::string schema_name;  // the plug-in's own schema name (tendril.<Kind>State)
     double rate_hz = 10.0;
     std::vector<std::string> fields;
   };

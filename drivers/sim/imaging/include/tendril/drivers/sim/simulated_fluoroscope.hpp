@@ -47,7 +47,7 @@ struct FluoroscopeGeometry {
 
 struct FluoroscopeOptions {
   FluoroscopeGeometry geometry;
-  double catheter_diameter_mm = 1.0;
+  double instrument_diameter_mm = 1.0;
   double catheter_attenuation_per_mm = 1.0;  // μ of the catheter (braided, radio-opaque)
   double tip_marker_diameter_mm = 1.6;       // platinum marker band at the tip: the darkest spot
   double tip_marker_length_mm = 1.5;
