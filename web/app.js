@@ -224,6 +224,12 @@ function updateBanner() {
     title = `Stale data: ${formatAge(state.streamAgeMs)} old`;
     cause = `What this page shows is older than ${STALE_MS} ms, so it may not be where the robot is. ` +
         'Commands are disabled until fresh data arrives; E-STOP, Pause and Disable still work.';
+    // A hold's cause and way out stay in view (as last received): a slow frame must not hide them.
+    if (hold) {
+      cause += ` Last known: ${HOLD_TITLES[hold.cause] || String(hold.cause).replace(/_/g, ' ')} — ` +
+          `${hold.message || 'the robot holds its position'}.`;
+      next = hold.next || '';
+    }
   } else if (hold) {
     // Always the cause and the way out, here where the operator looks (not on another tab).
     level = 'paused';
@@ -241,8 +247,9 @@ function updateBanner() {
   ui.bannerTitle.textContent = title;
   ui.bannerCause.textContent = cause;
   ui.bannerNext.textContent = next;
-  // The ways out the server allows now, as buttons beside the words.
-  const allowed = new Set(hold && !state.stale ? hold.allowed || [] : []);
+  // The ways out the server allows now, as buttons beside the words. They stay in place while the
+  // page shows old data (disabled below), so the way out does not vanish on a slow frame.
+  const allowed = new Set(hold ? hold.allowed || [] : []);
   const relaxing = !!hold?.relax?.running;
   ui.relaxButton.hidden = !(allowed.has('relax') || relaxing);
   ui.relaxButton.textContent = relaxing ? 'Stop relaxing' : 'Relax springs';

@@ -439,6 +439,13 @@ test('catheter: configuration sliders in degrees move the catheter; the joystick
   await switchMode('configuration');
   await page.fill(tid('cfg-theta-proximal-num'), '15');
   await page.fill(tid('cfg-theta-distal-num'), '-20');
+  // What the page said it would do and what it answered: the failure message carries both.
+  const preview = await page.locator(tid('cfg-preview')).textContent();
+  await page.evaluate(() => {
+    window.__statusSeen = [];
+    const el = document.querySelector('[data-testid="command-status"]');
+    new MutationObserver(() => window.__statusSeen.push(el.textContent)).observe(el, {childList: true, characterData: true, subtree: true});
+  });
   await page.click(tid('cfg-move-button'));
   try {
     await page.waitForFunction(() => {
@@ -452,8 +459,9 @@ test('catheter: configuration sliders in degrees move the catheter; the joystick
       proximal: document.querySelector('[data-testid="cfg-theta-proximal-now"]').textContent,
       distal: document.querySelector('[data-testid="cfg-theta-distal-now"]').textContent,
       badge: document.querySelector('[data-testid="state-badge"]').title,
+      statusSeen: window.__statusSeen,
     }));
-    err.message += ` page showed ${JSON.stringify(shown)}`;
+    err.message += ` page showed ${JSON.stringify(shown)}; before Move the preview said: ${preview}`;
     throw err;
   }
   await page.screenshot({path: path.join(ARTIFACTS, '05c-configuration.png')});
@@ -576,46 +584,44 @@ test('losing and regaining the connection keeps the lease (while it is valid) an
 // the stops offered; when it catches up, the page is live again.
 test('a stream that falls behind is marked STALE everywhere and nothing but the stops is commandable', async () => {
   const second = await context.newPage();
-  let delayMs = 0;
+  const setDelay = (ms) => second.evaluate((d) => { window.__streamDelayMs = d; }, ms);
   try {
-    // The relay runs in this test process; the image channels are left out (not subscribed) so that
-    // the relay itself does not make the stream late.
-    await second.routeWebSocket(/\/ws$/, (ws) => {
-      const server = ws.connectToServer();
-      const imageChannels = new Set();
-      server.onMessage((m) => {
-        if (typeof m === 'string' && m.includes('"advertise"')) {
-          for (const c of JSON.parse(m).channels || []) if (c.topic.startsWith('/imaging/')) imageChannels.add(c.id);
+    // Every stream message reaches the page `__streamDelayMs` late: the delay is made inside the
+    // browser (a relay through this test process could not keep up with the stream on two loaded
+    // cores and fell seconds behind on its own).
+    await second.addInitScript(() => {
+      window.__streamDelayMs = 0;
+      const Native = window.WebSocket;
+      window.WebSocket = class DelayedWebSocket extends Native {
+        set onmessage(handler) {
+          super.onmessage = handler && ((ev) => {
+            const delay = window.__streamDelayMs;
+            if (delay) setTimeout(() => handler.call(this, ev), delay);
+            else handler.call(this, ev);
+          });
         }
-        if (delayMs) setTimeout(() => ws.send(m), delayMs);
-        else ws.send(m);
-      });
-      ws.onMessage((m) => {
-        if (typeof m === 'string' && m.includes('"subscribe"')) {
-          const msg = JSON.parse(m);
-          msg.subscriptions = (msg.subscriptions || []).filter((sub) => !imageChannels.has(sub.channelId));
-          server.send(JSON.stringify(msg));
-        } else {
-          server.send(m);
-        }
-      });
+        get onmessage() { return super.onmessage; }
+      };
     });
     await second.goto(`${BASE_URL}/`);  // the session cookie of the first page: same operator session
     await second.waitForFunction(() => document.querySelector('[data-testid="age-joints"]').dataset.ageMs !== '', null, WAIT);
-    delayMs = 700;
-    await second.waitForFunction(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'stale' &&
-                                       document.querySelector('[data-testid="banner"]').dataset.level === 'stale' &&
-                                       ['joints', 'scene', 'plots'].every((k) => document.querySelector(`[data-testid="age-${k}"]`).dataset.stale === 'true'),
-                                 null, WAIT);
-    const seen = await second.evaluate(() => ({
-      ages: Object.fromEntries(['joints', 'scene', 'plots'].map((k) => {
-        const el = document.querySelector(`[data-testid="age-${k}"]`);
-        return [k, {stale: el.dataset.stale, text: el.textContent, ms: Number(el.dataset.ageMs)}];
-      })),
-      banner: document.querySelector('[data-testid="banner"]').textContent.replace(/\s+/g, ' ').trim(),
-      disabled: Object.fromEntries(['enable-button', 'move-button', 'mode-joint', 'estop-button', 'estop-reset-button'].map(
-          (id) => [id, document.querySelector(`[data-testid="${id}"]`).disabled])),
-    }));
+    await setDelay(700);
+    // Everything is read in the instant the page turned STALE everywhere: a moment later the page may
+    // (rightly) be live again, e.g. when the late stream paused for a second and it polled REST.
+    const seen = await (await second.waitForFunction(() => {
+      const stale = document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'stale' &&
+                    document.querySelector('[data-testid="banner"]').dataset.level === 'stale' &&
+                    ['joints', 'scene', 'plots'].every((k) => document.querySelector(`[data-testid="age-${k}"]`).dataset.stale === 'true');
+      return stale && {
+        ages: Object.fromEntries(['joints', 'scene', 'plots'].map((k) => {
+          const el = document.querySelector(`[data-testid="age-${k}"]`);
+          return [k, {stale: el.dataset.stale, text: el.textContent, ms: Number(el.dataset.ageMs)}];
+        })),
+        banner: document.querySelector('[data-testid="banner"]').textContent.replace(/\s+/g, ' ').trim(),
+        disabled: Object.fromEntries(['enable-button', 'move-button', 'mode-joint', 'estop-button', 'estop-reset-button'].map(
+            (id) => [id, document.querySelector(`[data-testid="${id}"]`).disabled])),
+      };
+    }, null, WAIT)).jsonValue();
     for (const [k, a] of Object.entries(seen.ages)) {
       assert.equal(a.stale, 'true', `${k} panel marked STALE: ${JSON.stringify(a)}`);
       assert.match(a.text, /STALE/, `${k} age badge says STALE`);
@@ -627,7 +633,7 @@ test('a stream that falls behind is marked STALE everywhere and nothing but the 
     }
     assert.equal(seen.disabled['estop-button'], false, 'E-STOP stays available');
     await second.screenshot({path: path.join(ARTIFACTS, '09b-stale-stream.png')});
-    delayMs = 0;
+    await setDelay(0);
     await second.waitForFunction(() => document.querySelector('[data-testid="age-joints"]').dataset.stale === 'false', null, WAIT);
   } finally {
     await second.close();
