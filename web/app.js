@@ -224,10 +224,11 @@ function updateBanner() {
     title = `Stale data: ${formatAge(state.streamAgeMs)} old`;
     cause = `What this page shows is older than ${STALE_MS} ms, so it may not be where the robot is. ` +
         'Commands are disabled until fresh data arrives; E-STOP, Pause and Disable still work.';
-    // A hold's cause and way out stay in view (as last received): a slow frame must not hide them.
+    // A hold's cause and way out stay in view, as last received and in the hold's own words (the same
+    // height as the hold's banner, so a page that turns STALE now and then does not jump).
     if (hold) {
-      cause += ` Last known: ${HOLD_TITLES[hold.cause] || String(hold.cause).replace(/_/g, ' ')} — ` +
-          `${hold.message || 'the robot holds its position'}.`;
+      title += ` · ${HOLD_TITLES[hold.cause] || `Held: ${String(hold.cause).replace(/_/g, ' ')}`}`;
+      cause = `${capitalise(hold.message || 'the robot holds its position')}.`;
       next = hold.next || '';
     }
   } else if (hold) {
