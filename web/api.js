@@ -21,6 +21,7 @@ export class Api {
     this.useBearer = false;     // switched on after a 401 with the cookie
     this.clientName = `console-${Math.random().toString(36).slice(2, 10)}`;  // a label in lease messages
     this.leaseToken = null;     // from POST /lease, sent with Bearer requests
+    this.onNetwork = null;      // (answered: bool) after every request: the page backs off while false
   }
 
   async request(method, path, body, options = {}) {
@@ -73,8 +74,10 @@ export class Api {
         cache: 'no-store',
       });
     } catch (err) {
+      this.onNetwork?.(false);
       throw new ApiError(0, 'network', `server unreachable (${err.message})`);
     }
+    this.onNetwork?.(true);
     const text = await response.text();
     if (wantText && response.ok) return text;
     let data = null;

@@ -7,6 +7,7 @@ import {FoxgloveConnection} from './foxglove.js';
 import {CatheterPanel} from './catheter.js';
 import {buildJointPanel} from './joints.js';
 import {ImagePanel} from './images.js';
+import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
 import {PlanPanel} from './plan.js';
 import {TimePlot} from './plot.js';
 
@@ -60,6 +61,14 @@ const ui = {
   timingLegend: $('[data-testid="timing-legend"]'),
   takeoverDialog: $('[data-testid="takeover-dialog"]'),
   takeoverText: $('[data-testid="takeover-text"]'),
+  role: $('[data-testid="role-status"]'),
+  // Age of what each panel shows (issue 12: stale data must never look live).
+  ages: {
+    joints: $('[data-testid="age-joints"]'),
+    scene: $('[data-testid="age-scene"]'),
+    plots: $('[data-testid="age-plots"]'),
+    catheter: $('[data-testid="age-catheter"]'),
+  },
 };
 
 const state = {
@@ -67,13 +76,16 @@ const state = {
   robot: null,          // description of the selected robot from GET /robots
   operating: null,      // latest operating_state
   leaseHeld: false,
-  wsLive: false,        // WebSocket open and delivering the joint stream
-  lastWsJointMs: 0,
-  lastRestOkMs: 0,
+  wsLive: false,        // WebSocket open
+  lastWsJointMs: 0,     // browser time the newest joint_states message arrived
+  lastRestOkMs: 0,      // browser time the last polled joint state arrived
+  stale: true,          // what the page shows is older than STALE_MS (or there is none): no commands
+  streamAgeMs: Infinity,  // age of the joint values shown
+  latencyMs: [],        // stream latency (arrival - server stamp) of the last second's joint messages
+  role: null,           // 'operator' | 'viewer', from the stream's serverInfo
   events: [],           // newest first
   lastFaultCause: '',
   offline: false,       // neither stream nor REST answered lately
-  rttMs: NaN,           // round trip of GET /health, every 2 s
   advertised: new Set(),  // topics the stream currently offers
   timingSource: null,   // 'diagnostics' | 'metrics' | null
   catheterMsg: null,    // newest /{robot}/catheter message (operating_state with the live catheter values)
@@ -204,7 +216,21 @@ function updateBanner() {
   } else if (state.offline && state.robot) {
     level = 'offline';
     title = 'No connection';
-    cause = 'The values shown are stale. The server keeps the robot safe on its own; check the network or tendrild.';
+    cause = `The values shown are stale${Number.isFinite(state.streamAgeMs) ? ` (${formatAge(state.streamAgeMs)} old)` : ''}. ` +
+        'The server keeps the robot safe on its own; check the network or tendrild. Commands are disabled; E-STOP still works.';
+  } else if (state.stale && state.robot && os) {
+    // Connected but behind: the page shows the past. Said above everything but an e-stop or a fault.
+    level = 'stale';
+    title = `Stale data: ${formatAge(state.streamAgeMs)} old`;
+    cause = `What this page shows is older than ${STALE_MS} ms, so it may not be where the robot is. ` +
+        'Commands are disabled until fresh data arrives; E-STOP, Pause and Disable still work.';
+    // A hold's cause and way out stay in view, as last received and in the hold's own words (the same
+    // height as the hold's banner, so a page that turns STALE now and then does not jump).
+    if (hold) {
+      title += ` · ${HOLD_TITLES[hold.cause] || `Held: ${String(hold.cause).replace(/_/g, ' ')}`}`;
+      cause = `${capitalise(hold.message || 'the robot holds its position')}.`;
+      next = hold.next || '';
+    }
   } else if (hold) {
     // Always the cause and the way out, here where the operator looks (not on another tab).
     level = 'paused';
@@ -222,8 +248,9 @@ function updateBanner() {
   ui.bannerTitle.textContent = title;
   ui.bannerCause.textContent = cause;
   ui.bannerNext.textContent = next;
-  // The ways out the server allows now, as buttons beside the words.
-  const allowed = new Set(hold && !state.offline ? hold.allowed || [] : []);
+  // The ways out the server allows now, as buttons beside the words. They stay in place while the
+  // page shows old data (disabled below), so the way out does not vanish on a slow frame.
+  const allowed = new Set(hold ? hold.allowed || [] : []);
   const relaxing = !!hold?.relax?.running;
   ui.relaxButton.hidden = !(allowed.has('relax') || relaxing);
   ui.relaxButton.textContent = relaxing ? 'Stop relaxing' : 'Relax springs';
@@ -232,7 +259,7 @@ function updateBanner() {
   ui.bannerResume.hidden = !hold;
   ui.bannerResume.classList.toggle('btn-go', !!hold?.cleared);
   ui.bannerResume.title = hold && !hold.cleared ? `Not yet: ${hold.next || 'the cause persists'}` : '';
-  for (const b of [ui.relaxButton, ui.withdrawButton, ui.bannerResume]) b.disabled = !state.leaseHeld;
+  for (const b of [ui.relaxButton, ui.withdrawButton, ui.bannerResume]) b.disabled = !state.leaseHeld || state.stale;
 }
 
 function updateControls() {
@@ -241,17 +268,26 @@ function updateControls() {
   const enabled = !!(os && os.state === 'ENABLED');
   const fault = !!(os && os.state === 'FAULT');
   const paused = !!(os && os.state === 'PAUSED' && !estop);
-  ui.enableButton.disabled = !os || estop || enabled || fault || paused;
-  ui.disableButton.disabled = !os || os.state === 'DISABLED';
+  // Nothing that starts motion while the page shows old data; the stops stay (and a viewer sees no
+  // command it could not send).
+  const stale = state.stale;
+  const viewer = state.role === 'viewer';
+  ui.enableButton.disabled = !os || estop || enabled || fault || paused || stale || viewer;
+  ui.disableButton.disabled = !os || os.state === 'DISABLED' || viewer;
   ui.pauseButton.hidden = paused;
-  ui.pauseButton.disabled = !enabled || estop;
+  ui.pauseButton.disabled = !enabled || estop || viewer;
   ui.resumeButton.hidden = !paused;
+  ui.resumeButton.disabled = stale || viewer;
+  ui.leaseButton.disabled = viewer;
   const hold = currentHold(os);
   ui.resumeButton.classList.toggle('btn-go', !!hold?.cleared);
   ui.resumeButton.title = hold && !hold.cleared ? `Not yet: ${hold.next || 'the cause persists'}` : '';
-  ui.resetButton.disabled = !os || (!estop && os.state !== 'FAULT');
+  ui.resetButton.disabled = !os || (!estop && os.state !== 'FAULT') || stale || viewer;
   let hint = '';
   if (!os) hint = 'Waiting for the robot state…';
+  else if (viewer) hint = 'Viewer: this session may watch but not command (open the operator link to command).';
+  else if (state.offline) hint = 'No connection: the values shown are old; nothing can be commanded.';
+  else if (stale) hint = 'Stale data (its age is in the banner): commands wait for fresh data.';
   else if (estop) hint = 'E-stop latched: Reset, then Enable.';
   else if (fault) hint = 'Fault: Reset to acknowledge, then Enable.';
   else if (hold) hint = `${HOLD_TITLES[hold.cause] || 'Held'}: the banner above says why and offers ` +
@@ -264,9 +300,28 @@ function updateControls() {
   if (!hint && invalid.length) hint = `Goal outside limits: ${invalid.join(', ')}`;
   const edited = !!joints && joints.edited();
   if (!hint && !edited) hint = 'Type or drag a goal; joints you do not touch stay where they are.';
-  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0 || !edited;
+  ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0 || !edited || stale || viewer;
   ui.moveHint.textContent = hint;
   ui.movePreview.textContent = joints ? joints.preview() : '';
+}
+
+// The session's role as the server states it (serverInfo metadata): a viewer may watch and subscribe
+// but not command, so its page shows no command as available (E-STOP stays: the server decides).
+function setRole(role) {
+  if (role !== 'operator' && role !== 'viewer') return;
+  state.role = role;
+  document.body.dataset.role = role;
+  // Said only for a viewer (the exception); an operator's role shows in the lease status.
+  ui.role.textContent = role === 'viewer' ? 'VIEWER: watch only' : '';
+  ui.role.dataset.role = role;
+  ui.role.title = role === 'viewer'
+    ? 'This session has the viewer role: it sees everything and commands nothing (the server refuses with 403).'
+    : 'This session has the operator role: it may command while it holds the lease.';
+  catheter?.setViewer(role === 'viewer');
+  updateControls();
+  updateModeBar();
+  updateBanner();
+  plan?.updateButtons();
 }
 
 function setLease(held, otherMessage = '') {
@@ -275,7 +330,7 @@ function setLease(held, otherMessage = '') {
   if (changed) updateBanner();
   ui.lease.classList.toggle('held', held);
   ui.lease.classList.toggle('other', !held && !!otherMessage);
-  ui.lease.textContent = held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'no lease (viewer)';
+  ui.lease.textContent = held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'lease: free';
   ui.lease.title = otherMessage;
   ui.leaseButton.textContent = held ? 'Release lease' : 'Take lease';
   ui.leaseButton.setAttribute('aria-label', held ? 'Release operator lease' : 'Take operator lease');
@@ -340,6 +395,35 @@ function eventsFromFaults(data) {
 }
 
 // ---------------------------------------------------------------- live data
+// The stream's messages go into `latest` (newest per topic, undecoded); one animation frame decodes
+// and shows them, the cheap ones first, the 3D view and the images within a frame budget. Every panel
+// knows the server time of the state it shows, so its age is always on screen.
+const latest = new LatestByTopic();
+const clock = new ServerClock();
+const FRAME_BUDGET_MS = 8;     // work per frame beyond which the expensive panels wait for the next one
+const SCENE_SHARE = 3;         // the 3D view may take at most 1 / (1 + SCENE_SHARE) of the main thread
+const POLL_MS = 125;           // REST fallback (stream refused): 8 Hz keeps polled values under STALE_MS
+let topics = null;             // topic names of the selected robot
+// Server time (ms) of the state each panel shows. The on-change topics (operating state, scene) are
+// as new as the joint stream once nothing of theirs waits to be shown.
+const shown = {joints: NaN, scene: NaN, catheter: NaN};
+let sceneNextAt = 0;
+const MAX_WAIT_MS = 250;       // an expensive panel is brought up to date at least this often
+const lastTaken = new Map();   // topic -> frame time its newest message was last shown
+let lastAgeUpdate = 0;
+
+// REST requests pause while the server does not answer; one probe (GET /health) with exponential
+// backoff (0.5, 1, 2, 4, 5, 5 … s) decides when it is back. The stream reconnects with the same
+// backoff (foxglove.js). Commands the operator presses are always sent (E-STOP above all).
+const net = new Backoff({
+  probe: async () => {
+    await api.health();
+    return true;
+  },
+  onChange: () => refreshConnectionIndicator(),
+});
+api.onNetwork = (answered) => (answered ? net.answered() : net.failed());
+
 function applyJointState(js, withSetpoint) {
   if (!joints || !js) return;
   joints.updateMeasured(js);
@@ -360,83 +444,240 @@ function applyShape(shape) {
   if (view && shape && Array.isArray(shape.points)) view.setBackbone(shape.points);
 }
 
-function applyTipPose(cp) {
-  if (!cp || !Array.isArray(cp.position)) return;
-  const [x, y, z] = cp.position;
+function showTip(position, zAxis) {
+  const [x, y, z] = position;
   ui.tip.textContent = `tip x ${x.toFixed(1)}  y ${y.toFixed(1)}  z ${z.toFixed(1)} mm`;
   ui.configTip.textContent = `${x.toFixed(1)}, ${y.toFixed(1)}, ${z.toFixed(1)} mm`;
-  const q = cp.orientation;
-  if (Array.isArray(q) && q.length === 4) {
+  if (zAxis) {
     // The tip frame's z axis (the catheter's heading) as azimuth in XY and elevation above XY.
-    const [qx, qy, qz, qw] = q;
-    const zx = 2 * (qx * qz + qw * qy);
-    const zy = 2 * (qy * qz - qw * qx);
-    const zz = 1 - 2 * (qx * qx + qy * qy);
+    const [zx, zy, zz] = zAxis;
     const deg = 180 / Math.PI;
     ui.configDirection.textContent =
         `az ${(Math.atan2(zy, zx) * deg).toFixed(1)}°, el ${(Math.atan2(zz, Math.hypot(zx, zy)) * deg).toFixed(1)}°`;
   }
+}
+
+// Tip pose from GET measured_cp (REST fallback only).
+function applyTipPose(cp) {
+  if (!cp || !Array.isArray(cp.position)) return;
+  const q = cp.orientation;
+  let zAxis = null;
+  if (Array.isArray(q) && q.length === 4) {
+    const [qx, qy, qz, qw] = q;
+    zAxis = [2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx), 1 - 2 * (qx * qx + qy * qy)];
+  }
+  showTip(cp.position, zAxis);
   view?.setTipPose(cp.position, cp.orientation);
 }
 
-function setConnection(kind, text, rtt = '') {
+// Tip pose from the scene's tip frame (tendril draws it as three arrows along the tip's x, y, z axes,
+// each the x axis rotated by its pose): the read-out and the 3D view come from the same message.
+function applyTipFromScene(update) {
+  const tip = (update?.entities || []).find((e) => /(^|\/)tip_frame$/.test(e.id || ''));
+  const arrows = tip?.arrows;
+  if (!Array.isArray(arrows) || arrows.length < 3) return;
+  const p = arrows[2].pose?.position;
+  const o = arrows[2].pose?.orientation;
+  if (!p || !o) return;
+  // x axis rotated by the quaternion (x, y, z, w): the first column of its rotation matrix.
+  const zAxis = [1 - 2 * (o.y * o.y + o.z * o.z), 2 * (o.x * o.y + o.w * o.z), 2 * (o.x * o.z - o.w * o.y)];
+  showTip([p.x, p.y, p.z], zAxis);
+}
+
+function setConnection(kind, text, detail = '') {
   ui.connection.className = `connection ${kind}`;
   ui.connectionText.textContent = text;
-  ui.connectionRtt.textContent = rtt;
-  ui.connection.setAttribute('aria-label', `Connection: ${text}${rtt ? `, round trip ${rtt}` : ''}`);
+  ui.connectionRtt.textContent = detail;
+  ui.connection.setAttribute('aria-label', `Connection: ${text}${detail ? `, ${detail}` : ''}`);
   ui.connection.dataset.kind = kind;
 }
 
-function refreshConnectionIndicator() {
-  const now = Date.now();
-  let offline = false;
-  const rtt = Number.isFinite(state.rttMs) ? `RTT ${state.rttMs < 10 ? state.rttMs.toFixed(1) : state.rttMs.toFixed(0)} ms` : '';
-  if (state.wsLive && now - state.lastWsJointMs < 1500) setConnection('live', 'live (WebSocket)', rtt);
-  else if (now - state.lastRestOkMs < 2000) setConnection('polling', 'polling (REST)', rtt);
-  else {
-    setConnection('offline', 'no connection to server');
-    offline = true;
-  }
-  if (offline !== state.offline) {
-    state.offline = offline;
-    // Stale numbers must not look live: grey them out and say so.
-    document.body.classList.toggle('stale', offline);
-    updateBanner();
-  }
+// Stream latency: arrival time minus the server's publish stamp, worst of the last second (the worst
+// is what an operator acts on). Needs the clocks compared (ServerClock); the tooltip says how well.
+function streamLatencyMs() {
+  const now = wallNowMs();
+  state.latencyMs = state.latencyMs.filter((l) => now - l.at < 1000);
+  return state.latencyMs.length ? Math.max(...state.latencyMs.map((l) => l.ms)) : NaN;
 }
 
 function wsStreaming() { return state.wsLive && Date.now() - state.lastWsJointMs < 1000; }
 
-// REST polling: the whole picture while the WebSocket is down, and the tip pose always (the stream
-// has no tip-pose topic the console reads).
+function refreshConnectionIndicator() {
+  const now = Date.now();
+  const streaming = wsStreaming();
+  const polling = !streaming && now - state.lastRestOkMs < 2000;
+  const offline = !streaming && !polling;
+  const age = state.streamAgeMs;
+  const clockNote = clock.known
+    ? `server clock offset ${clock.offsetMs.toFixed(1)} ms (± ${clock.errorMs.toFixed(1)} ms)`
+    : 'server clock not compared yet: ages assume the browser and the server clocks agree';
+  if (offline) {
+    setConnection('offline', net.reachable ? 'no data from server' : 'no connection to server',
+                  Number.isFinite(age) ? `data ${formatAge(age)} old` : '');
+  } else if (state.stale) {
+    setConnection('stale', `STALE ${formatAge(age)}`, streaming ? 'stream behind' : 'polling behind');
+  } else if (streaming) {
+    const latency = streamLatencyMs();
+    setConnection('live', 'live stream', Number.isFinite(latency) ? `latency ${formatAge(latency)}` : '');
+    ui.connection.dataset.latencyMs = Number.isFinite(latency) ? latency.toFixed(1) : '';
+  } else {
+    setConnection('polling', 'polling (REST)', `data ${formatAge(age)} old`);
+  }
+  ui.connection.title = `${clockNote}. Data older than ${STALE_MS} ms is marked STALE and commands other than ` +
+      `the stops are disabled.${net.reachable ? '' : ` Server not answering: retrying in ${(net.delayMs / 1000).toFixed(1)} s.`}`;
+  if (offline !== state.offline) {
+    state.offline = offline;
+    updateStale(true);
+  }
+}
+
+// One age badge: "12 ms" while fresh, "STALE 1.3 s" past the bound.
+function setAge(el, ageMs) {
+  if (!el) return;
+  const stale = !(ageMs <= STALE_MS);
+  el.textContent = Number.isFinite(ageMs) ? (stale ? `STALE ${formatAge(ageMs)}` : formatAge(ageMs)) : 'no data';
+  el.dataset.stale = String(stale);
+  el.dataset.ageMs = Number.isFinite(ageMs) ? ageMs.toFixed(0) : '';
+  el.title = `age of the data shown here (server time stamp to now); STALE past ${STALE_MS} ms`;
+  const panel = el.closest('[data-age-panel]');
+  if (panel) {
+    panel.dataset.stale = String(stale);
+    panel.dataset.staleText = stale ? `STALE · ${Number.isFinite(ageMs) ? `${formatAge(ageMs)} old` : 'no data'}` : '';
+  }
+}
+
+function updateAges() {
+  const now = wallNowMs();
+  lastAgeUpdate = performance.now();
+  const jointsAge = clock.ageMs(shown.joints, now);
+  state.streamAgeMs = jointsAge;
+  setAge(ui.ages.joints, jointsAge);
+  setAge(ui.ages.plots, jointsAge);
+  setAge(ui.ages.scene, clock.ageMs(shown.scene, now));
+  if (catheter && topics && state.advertised.has(topics.catheter)) setAge(ui.ages.catheter, clock.ageMs(shown.catheter, now));
+  updateStale(false);
+  refreshConnectionIndicator();
+}
+
+// Stale or offline: the page says so everywhere and offers no command but the stops (E-STOP, Pause,
+// Disable) until fresh data arrives.
+function updateStale(force) {
+  const stale = state.offline || !(state.streamAgeMs <= STALE_MS);
+  document.body.dataset.stale = String(stale);
+  if (stale === state.stale && !force) {
+    if (stale) updateBanner();  // the age in the banner grows
+    return;
+  }
+  state.stale = stale;
+  document.body.classList.toggle('stale', stale);
+  catheter?.setCommandable(!stale);
+  updateBanner();
+  updateControls();
+  updateModeBar();
+  plan?.updateButtons();
+  refreshConnectionIndicator();
+}
+
+// One animation frame: the newest message of each topic, decoded once.
+function renderFrame() {
+  requestAnimationFrame(renderFrame);
+  if (!topics) return;
+  const start = performance.now();
+  const os = latest.take(topics.operating);
+  if (os) applyOperatingState(os.msg);
+  const js = latest.take(topics.joints);
+  // Never older than what is shown (a late stream message after a fresher REST answer is dropped).
+  if (js && !(js.stampMs < shown.joints)) {
+    applyJointState(js.msg, true);
+    shown.joints = js.stampMs;
+  }
+  const cath = latest.take(topics.catheter);
+  if (cath) {
+    state.catheterMsg = cath.msg;
+    state.catheterMsgMs = Date.now();
+    shown.catheter = cath.stampMs;
+    catheter?.update(cath.msg);
+    if (cath.msg.state === 'PAUSED') {
+      updateBanner();
+      updateControls();
+      plan?.renderStopReason();
+    }
+  }
+  const diag = latest.take(topics.diagnostics);
+  if (diag) applyDiagnostics(diag.msg);
+  // The expensive panels take what is left of the frame's budget; one that has waited MAX_WAIT_MS
+  // goes regardless, so that a slow machine (where the cheap part alone fills the budget) delays it but
+  // never starves it. The 3D view also waits SCENE_SHARE times its own last cost (at most 1 s).
+  const due = (topic) => latest.pending(topic) &&
+      (performance.now() - start < FRAME_BUDGET_MS || start - (lastTaken.get(topic) ?? 0) >= MAX_WAIT_MS);
+  if (start >= sceneNextAt && due(topics.scene)) {
+    const t0 = performance.now();
+    const scene = latest.take(topics.scene);
+    lastTaken.set(topics.scene, start);
+    if (scene) {
+      view?.applySceneUpdate(scene.msg);
+      applyTipFromScene(scene.msg);
+    }
+    sceneNextAt = t0 + Math.min(1000, (performance.now() - t0) * (1 + SCENE_SHARE));
+  }
+  if (!latest.pending(topics.scene)) shown.scene = shown.joints;
+  for (const key of ['ap', 'lateral', 'map']) {
+    if (!due(topics[key])) continue;
+    const m = latest.take(topics[key]);
+    lastTaken.set(topics[key], start);
+    if (m && key === 'map') view?.setPointCloud(m.msg);
+    else if (m) images[key].frame(m.msg);
+  }
+  if (start - lastAgeUpdate >= 100) updateAges();
+}
+
+// REST polling: the whole picture while the stream is not delivering (refused by a proxy, or gone),
+// never while the server does not answer (then Backoff probes). The tip pose comes from the scene on
+// the stream, from GET measured_cp only here.
 let pollTick = 0;
 async function poll() {
   const robot = state.robot?.name;
-  if (!robot) return;
+  if (!robot || wsStreaming() || !net.reachable) return;
   pollTick++;
-  const fallback = !wsStreaming();
   const jobs = [];
-  if (fallback) {
-    jobs.push(api.measuredJs(robot).then((js) => applyJointState(js, false)));
-    jobs.push(api.setpointJs(robot).then((sp) => {
-      joints?.updateSetpoint(sp);
-      plotJointState(sp?.name, sp?.position, 0);
-    }));
-    jobs.push(api.operatingState(robot).then(applyOperatingState));
-    if (pollTick % 2 === 0) jobs.push(api.shape(robot).then(applyShape));
-    if (pollTick % 10 === 0) jobs.push(api.faults().then((d) => addEvents(eventsFromFaults(d))));
+  jobs.push(api.measuredJs(robot).then((js) => {
+    applyJointState(js, false);
+    if (Number.isFinite(Number(js?.timestamp))) shown.joints = shown.scene = Number(js.timestamp) * 1000;
+    state.lastRestOkMs = Date.now();
+  }));
+  jobs.push(api.setpointJs(robot).then((sp) => {
+    joints?.updateSetpoint(sp);
+    plotJointState(sp?.name, sp?.position, 0);
+  }));
+  jobs.push(api.operatingState(robot).then(applyOperatingState));
+  if (pollTick % 4 === 0) {
+    jobs.push(api.shape(robot).then(applyShape));
+    jobs.push(api.measuredCp(robot).then(applyTipPose));
   }
-  if (pollTick % 2 === 0) jobs.push(api.measuredCp(robot).then(applyTipPose));
+  if (pollTick % 40 === 0) jobs.push(api.faults().then((d) => addEvents(eventsFromFaults(d))));
   const results = await Promise.allSettled(jobs);
-  if (results.length && results.some((r) => r.status === 'fulfilled')) state.lastRestOkMs = Date.now();
   const unauthorised = results.find((r) => r.status === 'rejected' && r.reason?.status === 401);
   if (unauthorised) showStatus(describeError(unauthorised.reason), 'error');
+  updateAges();
+  refreshConnectionIndicator();
+}
+
+// Compares the clocks (for the ages) when the stream (re)connects and once a minute.
+async function syncClock() {
+  const robot = state.robot?.name;
+  if (!robot || !net.reachable) return;
+  try {
+    await clock.measure(async () => (await api.measuredJs(robot)).timestamp);
+  } catch {
+    // ages keep the previous comparison (or assume agreeing clocks)
+  }
   refreshConnectionIndicator();
 }
 
 // The lease lapses when unused (server side), so an open console that holds it renews it; GET /lease
 // also tells who holds it when it is someone else.
 async function pollLease() {
+  if (!net.reachable) return;
   let status;
   try {
     status = await api.lease();
@@ -473,21 +714,29 @@ function startPolling() {
     } finally {
       busy = false;
     }
-  }, 100);
+  }, POLL_MS);
 }
 
-function connectWebSocket(robotName) {
-  const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const t = {
+function topicNames(robotName) {
+  return {
     joints: `/${robotName}/joint_states`, operating: `/${robotName}/operating_state`, scene: `/${robotName}/scene`,
     diagnostics: `/${robotName}/diagnostics`, events: '/safety/events', ap: '/imaging/ap', lateral: '/imaging/lateral',
     map: '/maps/vessel', catheter: `/${robotName}/catheter`,
   };
+}
+
+function connectWebSocket(robotName) {
+  const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  const t = topicNames(robotName);
+  topics = t;
+  latest.clear();
   const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, Object.values(t), {
     onOpen: () => {
       state.wsLive = true;
+      net.answered();
       images.ap.setConnected(true);
       images.lateral.setConnected(true);
+      syncClock();
       // The stream carries only new events: fetch the ones raised while the socket was down (the
       // server closes a socket whose reader falls 5 s behind), so the log never has a hole.
       api.faults().then((d) => addEvents(eventsFromFaults(d))).catch(() => {});
@@ -498,41 +747,38 @@ function connectWebSocket(robotName) {
       images.lateral.setConnected(false);
       refreshConnectionIndicator();
     },
-    onChannels: (topics) => {
-      state.advertised = topics;
-      images.ap.setAdvertised(topics.has(t.ap));
-      images.lateral.setAdvertised(topics.has(t.lateral));
+    onServerInfo: (info) => setRole(info?.metadata?.role),
+    onChannels: (advertised) => {
+      state.advertised = advertised;
+      images.ap.setAdvertised(advertised.has(t.ap));
+      images.lateral.setAdvertised(advertised.has(t.lateral));
       chooseTimingSource();
     },
-    onMessage: (topic, msg) => {
-      switch (topic) {
-        case t.joints:
-          state.lastWsJointMs = Date.now();
-          applyJointState(msg, true);
-          break;
-        case t.operating: applyOperatingState(msg); break;
-        case t.catheter:
-          state.catheterMsg = msg;
-          state.catheterMsgMs = Date.now();
-          catheter?.update(msg);
-          if (msg.state === 'PAUSED') { updateBanner(); updateControls(); }
-          break;
-        case t.scene: view?.applySceneUpdate(msg); break;
-        case t.events:
-          // `recent` repeats the last events: a message this page never got loses none of them.
+    onRaw: (topic, bytes, stampNs) => {
+      if (topic === t.events) {
+        // Events are never coalesced here; the server gives a slow reader only a topic's newest
+        // message, so `recent` repeats the last events and a message never seen loses none.
+        try {
+          const msg = JSON.parse(new TextDecoder().decode(bytes));
           addEvents(Array.isArray(msg.recent) ? msg.recent : Array.isArray(msg.events) ? msg.events : [msg]);
-          break;
-        case t.diagnostics: applyDiagnostics(msg); break;
-        case t.ap: images.ap.frame(msg); break;
-        case t.lateral: images.lateral.frame(msg); break;
-        case t.map: view?.setPointCloud(msg); break;
-        default: break;
+        } catch {
+          // not JSON: ignored
+        }
+        return;
+      }
+      latest.put(topic, bytes, stampNs);
+      if (topic === t.joints) {
+        state.lastWsJointMs = Date.now();
+        const stampMs = latest.stampOf(topic);
+        state.latencyMs.push({at: wallNowMs(), ms: clock.ageMs(stampMs)});
+        if (state.latencyMs.length > 200) state.latencyMs.splice(0, 100);
       }
     },
     onStatus: (msg) => { if (msg.level >= 1) showStatus(`server: ${msg.message}`, msg.level >= 2 ? 'error' : 'ok'); },
   });
   conn.open();
   window.tendrilConnection = conn;  // for debugging from the browser console, and the browser tests
+  window.tendrilLive = {latest, clock, state, shown, net, view: () => view};
 }
 
 // ---------------------------------------------------------------- loop timing
@@ -606,7 +852,7 @@ function prometheusValue(text, name, labels = '') {
 }
 
 async function pollMetrics() {
-  if (state.timingSource !== 'metrics') return;
+  if (state.timingSource !== 'metrics' || !net.reachable) return;
   let text;
   try {
     text = await api.metricsText();
@@ -631,19 +877,6 @@ async function pollMetrics() {
   renderTimingLegend();
   const overruns = prometheusValue(text, 'tendril_control_overruns_total');
   showOverruns(overruns);
-}
-
-// Round trip of a cheap request, every 2 s, shown next to the connection state.
-async function measureRtt() {
-  const t0 = performance.now();
-  try {
-    await api.health();
-    state.rttMs = performance.now() - t0;
-    state.lastRestOkMs = Date.now();
-  } catch {
-    state.rttMs = NaN;
-  }
-  refreshConnectionIndicator();
 }
 
 // ---------------------------------------------------------------- commands
@@ -725,6 +958,7 @@ function updateModeBar() {
     const active = !!os && os.mode === b.dataset.mode;
     b.setAttribute('aria-pressed', String(active));
     b.classList.toggle('active', active);
+    b.disabled = state.stale || state.role === 'viewer';
   }
   ui.modeBar.dataset.currentMode = os?.mode ?? '';
   // The last refused switch, as the server keeps it (whoever asked for it).
@@ -885,6 +1119,8 @@ function selectRobot(name) {
   if (robot.configuration) {
     catheter ??= new CatheterPanel($('#panel-catheter'), api, {robotName: robot.name, showStatus});
     catheter.setRobot(robot);
+    catheter.setViewer(state.role === 'viewer');
+    catheter.setCommandable(!state.stale);
   }
   ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${j.unit})`, j.name)));
   const first = robot.joints[0];
@@ -907,6 +1143,8 @@ async function start() {
   });
   plan = new PlanPanel({
     api, view: () => view, robot: () => state.robot, operating: () => state.operating, status: showStatus,
+    commandable: () => !state.stale && state.role !== 'viewer',
+    hold: () => currentHold(),
     onPathLoaded: () => updateModeBar(),
   });
   wireCommands();
@@ -935,13 +1173,20 @@ async function start() {
   connectWebSocket(state.robot.name);
   startPolling();
   setInterval(refreshConnectionIndicator, 500);
-  measureRtt();
-  setInterval(measureRtt, 2000);
+  setInterval(syncClock, 60000);
   setInterval(pollMetrics, 1000);
+  requestAnimationFrame(renderFrame);
+  setInterval(() => { if (performance.now() - lastAgeUpdate > 250) updateAges(); }, 250);  // rAF sleeps in hidden tabs
   plan.refresh();
   plan.refreshPath();
-  // Path-following state (step, moving) changes without the console asking: follow it.
-  setInterval(() => { if (plan.pathAvailable !== false) plan.refreshPath().then(updateModeBar); }, 1000);
+  // Path-following state (step, moving) is not on the stream (see the README): GET it once a second
+  // while a plan is loaded, every 5 s otherwise, never while the server does not answer.
+  let pathTick = 0;
+  setInterval(() => {
+    pathTick++;
+    if (plan.pathAvailable === false || !net.reachable) return;
+    if (plan.path?.loaded || pathTick % 5 === 0) plan.refreshPath().then(updateModeBar);
+  }, 1000);
 }
 
 start();

@@ -28,6 +28,8 @@ export class CatheterPanel {
     this.deadmanPointer = false;
     this.deadmanKey = false;
     this.deadmanGamepad = false;
+    this.commandable = true;   // false while the page shows stale data or is disconnected
+    this.viewer = false;       // a viewer session commands nothing
     this.pad = {x: 0, y: 0};
     this.sending = false;
     this.lastError = '';
@@ -201,7 +203,8 @@ export class CatheterPanel {
     const gamepadAxes = this.readGamepad();
     const mode = this.operating?.mode;
     const movable = mode === 'telemanipulation' || mode === 'active_compliance' || this.operating?.retraction_only;
-    const held = this.deadman && movable && !this.root.hidden;
+    // Stale data or a viewer session: the deadman counts as released (one deadman:false goes out).
+    const held = this.deadman && movable && !this.root.hidden && this.commandable && !this.viewer;
     this.el.deadman.setAttribute('aria-pressed', String(this.deadman));
     this.el.deadman.classList.toggle('held', this.deadman);
     if (!held && !this.sending) return;
@@ -215,6 +218,17 @@ export class CatheterPanel {
       if (text !== this.lastError) this.showStatus(text, 'error');
       this.lastError = text;
     }
+  }
+
+  setCommandable(commandable) {
+    this.commandable = commandable;
+    this.updateMoveButton();
+  }
+
+  setViewer(viewer) {
+    this.viewer = viewer;
+    this.el.deadman.disabled = viewer;
+    this.updateMoveButton();
   }
 
   refresh() {
@@ -345,8 +359,9 @@ export class CatheterPanel {
     const os = this.operating;
     const configurationMode = os?.mode === 'configuration';
     const set = Number(this.el.preview.dataset.moves) > 0;
-    this.el.move.disabled = !configurationMode || os?.state !== 'ENABLED' || !set;
-    this.el.move.title = !configurationMode ? 'Switch to Configuration mode to move in bend angles'
+    this.el.move.disabled = !configurationMode || os?.state !== 'ENABLED' || !set || !this.commandable || this.viewer;
+    this.el.move.title = this.viewer ? 'Viewer session: watch only' : !this.commandable ? 'Stale data: wait for fresh data'
+        : !configurationMode ? 'Switch to Configuration mode to move in bend angles'
         : os?.state !== 'ENABLED' ? 'The robot must be ENABLED to move' : !set ? 'Set a value first' : '';
   }
 }

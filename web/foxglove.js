@@ -9,7 +9,7 @@ const OP_MESSAGE_DATA = 0x01;
 export class FoxgloveConnection {
   // topics: the topics to subscribe to as soon as the server advertises them.
   // handlers: {onOpen, onClose(reason), onServerInfo(info), onMessage(topic, json, timestampNs), onStatus(msg),
-  //            onChannels(advertisedTopics: Set)}
+  //            onChannels(advertisedTopics: Set), onRaw(topic, bytes, timestampNs) (instead of onMessage)}
   constructor(url, topics, handlers) {
     this.url = url;
     this.wanted = new Set(topics);
@@ -90,6 +90,12 @@ export class FoxgloveConnection {
     const timestampNs = view.getBigUint64(5, true);
     const topic = this.subscriptionTopic.get(subscriptionId);
     if (!topic) return;
+    // onRaw: the payload undecoded, so that a client keeping only the newest message per topic
+    // parses only what it shows (a dropped image is never decoded).
+    if (this.handlers.onRaw) {
+      this.handlers.onRaw(topic, new Uint8Array(data, 13), timestampNs);
+      return;
+    }
     let payload;
     try {
       payload = JSON.parse(this.decoder.decode(new Uint8Array(data, 13)));

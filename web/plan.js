@@ -6,9 +6,11 @@
 // planning routes (404) gets a plain "not available" message, never invented data.
 import {ApiError} from './api.js';
 import {StepPlot} from './plot.js';
+import {planVerdict} from './plan_verdict.js';
 
 const $ = (sel) => document.querySelector(sel);
 const JOB_POLL_MS = 400;
+const commandableNow = (ctx) => (ctx.commandable ? ctx.commandable() : true);
 
 export class PlanPanel {
   // ctx: {api, view(): CatheterView|null, robot(): robot description, status(text, kind), onPathLoaded()}
@@ -30,6 +32,9 @@ export class PlanPanel {
       progress: $('[data-testid="plan-progress"]'),
       jobStatus: $('[data-testid="plan-job-status"]'),
       summary: $('[data-testid="plan-summary"]'),
+      verdict: $('[data-testid="plan-verdict"]'),
+      stepStrip: $('[data-testid="plan-steps"]'),
+      stopReason: $('[data-testid="path-stop-reason"]'),
       load: $('[data-testid="plan-load-button"]'),
       pathStatus: $('[data-testid="path-status"]'),
       prev: $('[data-testid="step-prev-button"]'),
@@ -46,6 +51,8 @@ export class PlanPanel {
     this.job = null;        // the plan job being computed or shown
     this.plan = null;       // result of a succeeded plan job
     this.path = null;       // GET path_following answer
+    this.verdict = null;    // planVerdict() of the plan shown, with its job id
+    this.fetchingPlan = null;
     this.pathAvailable = null;
     this.wire();
     this.updateButtons();
@@ -119,28 +126,101 @@ export class PlanPanel {
     } else if (!path || !path.loaded) {
       ui.pathStatus.textContent = 'No plan loaded on the robot.';
     } else {
-      const step = path.step >= 0 ? `step ${path.step} of ${path.steps - 1}` : `not started (${path.steps} steps)`;
-      ui.pathStatus.textContent = `Plan ${path.plan ?? ''} loaded: ${step}${path.moving ? ', moving…' : ''}`;
+      // Steps are numbered 0…n-1 as in the API (the step box and POST …/step take the same numbers).
+      const step = path.step >= 0 ? `at step ${path.step} (steps 0–${path.steps - 1})` : `not started (steps 0–${path.steps - 1})`;
+      const next = this.stepVerdict(path.step + 1);
+      const nextText = next && next.verdict !== 'ok' && path.step + 1 < path.steps
+        ? ` · next step ${path.step + 1}: ${next.reasons[0]}` : '';
+      ui.pathStatus.textContent = `Plan ${path.plan ?? ''} loaded: ${step}${path.moving ? ', moving…' : ''}${nextText}`;
+      if (path.plan && this.verdict?.planId !== path.plan) this.fetchVerdict(path.plan);
       ui.stepInput.max = String(Math.max(0, path.steps - 1));
       if (path.step >= 0) {
         this.errorPlot.setCurrent(path.step);
         this.ctx.view()?.setPlanStep(path.step);
+        this.markStep(path.step);
       }
     }
     ui.pathStatus.dataset.step = path && path.loaded ? String(path.step) : '';
     this.updateButtons();
   }
 
+  // The verdict of step k of the plan loaded on the robot (null when unknown).
+  stepVerdict(k) {
+    if (!this.verdict || (this.path?.plan && this.verdict.planId !== this.path.plan)) return null;
+    return this.verdict.v.steps[k] || null;
+  }
+
+  // A plan loaded on the robot but computed elsewhere (another page, a script): its verdict too.
+  async fetchVerdict(planId) {
+    if (this.fetchingPlan === planId) return;
+    this.fetchingPlan = planId;
+    try {
+      const job = await this.ctx.api.job(planId);
+      if (job?.result) this.setVerdict(planId, job.result);
+    } catch {
+      // the job may have expired on the server: no verdict
+    }
+  }
+
+  setVerdict(planId, result) {
+    const v = planVerdict(result, this.ctx.robot(), this.branchRadius);
+    this.verdict = {planId, v};
+    const {ui} = this;
+    const words = {ok: 'Followable', contact: 'Expect wall contact', 'cannot-follow': 'Cannot be followed', unknown: 'Not judged'};
+    ui.verdict.dataset.verdict = v.verdict;
+    ui.verdict.textContent = `${v.verdict === 'ok' ? '✓' : '⚠'} ${words[v.verdict]}` +
+        (v.reasons.length ? `: ${v.reasons.join('; ')}` : ': every step within the vessel and the joint limits');
+    ui.stepStrip.replaceChildren(...v.steps.map((st) => {
+      const cell = document.createElement('span');
+      cell.className = 'plan-step';
+      cell.dataset.step = String(st.step);
+      cell.dataset.verdict = st.verdict;
+      cell.title = `step ${st.step}: ${Number.isFinite(st.positionMm) ? st.positionMm.toFixed(1) : '?'} mm / ` +
+          `${Number.isFinite(st.orientationDeg) ? st.orientationDeg.toFixed(0) : '?'}° worst error` +
+          (st.reasons.length ? ` — ${st.reasons.join('; ')}` : ' — ok');
+      return cell;
+    }));
+    this.markStep(this.path?.step ?? -1);
+  }
+
+  markStep(k) {
+    for (const c of this.ui.stepStrip.children) c.classList.toggle('current', Number(c.dataset.step) === k);
+  }
+
+  // Why following stopped, whenever a plan is under way and the robot is not ENABLED in path following.
+  renderStopReason() {
+    const {ui, path} = this;
+    const os = this.ctx.operating?.();
+    let reason = '';
+    if (path && path.loaded && path.step >= 0 && os) {
+      const where = `Following stopped at step ${path.step} (steps 0–${path.steps - 1})`;
+      const hold = this.ctx.hold?.();
+      if (os.estop) reason = `${where}: the e-stop is latched. Reset, Enable, switch to Path following, then step on.`;
+      else if (os.state === 'FAULT') reason = `${where}: fault — ${os.fault?.message || 'see the banner and the events'}. Reset, then Enable.`;
+      else if (hold) {
+        reason = `${where}: held — ${hold.message || String(hold.cause).replace(/_/g, ' ')}. ${hold.next || 'Resume when clear.'}`;
+      } else if (os.state === 'DISABLED') reason = `${where}: the robot is disabled. Enable it, then step on.`;
+      else if (os.mode !== 'path_following') reason = `${where}: the robot left Path following mode (now ${String(os.mode).replace(/_/g, ' ')}).`;
+      const v = this.stepVerdict(path.step + 1);
+      if (reason && v && v.verdict !== 'ok') reason += ` The plan warned: step ${path.step + 1} ${v.reasons[0]}.`;
+    }
+    ui.stopReason.textContent = reason;
+    ui.stopReason.hidden = !reason;
+    ui.stopReason.dataset.stopped = String(!!reason);
+  }
+
   updateButtons() {
     const {ui} = this;
+    this.renderStopReason();
     const running = this.job && ['queued', 'running'].includes(this.job.state);
     const os = this.ctx.operating?.();
     const inPathMode = os && os.mode === 'path_following';
     ui.upload.disabled = !ui.file.files?.length;
     ui.plan.disabled = !ui.vessel.value || running;
     ui.cancel.disabled = !running;
-    ui.load.disabled = !this.plan || !this.job;
-    const canStep = !!(this.path && this.path.loaded && inPathMode && os.state === 'ENABLED');
+    ui.load.disabled = !this.plan || !this.job || !commandableNow(this.ctx);
+    const commandable = this.ctx.commandable ? this.ctx.commandable() : true;
+    const canStep = !!(this.path && this.path.loaded && inPathMode && os.state === 'ENABLED') && commandable;
     ui.prev.disabled = !canStep || this.path.step <= 0;
     ui.next.disabled = !canStep || this.path.step >= this.path.steps - 1;
     ui.go.disabled = !canStep;
@@ -258,7 +338,8 @@ export class PlanPanel {
     const sm = result?.summary || {};
     const f = (v, d = 2) => (Number.isFinite(Number(v)) ? Number(v).toFixed(d) : '—');
     const design = result?.design ? ` · design L1 ${f(result.design.L1, 1)} mm, L2 ${f(result.design.L2, 1)} mm` : '';
-    this.ui.summary.textContent = `${steps.length} steps · position error mean ${f(sm.mean_position_error_mm)} / ` +
+    this.setVerdict(this.job?.id, result);
+    this.ui.summary.textContent = `${steps.length} steps (0–${steps.length - 1}) · position error mean ${f(sm.mean_position_error_mm)} / ` +
       `max ${f(sm.max_position_error_mm)} mm · orientation error mean ${f(sm.mean_orientation_error_deg, 1)} / ` +
       `max ${f(sm.max_orientation_error_deg, 1)}° · computed in ${f(sm.compute_s, 1)} s${design}` +
       (result?.truncated_to_insertion_range ? ' · ⚠ truncated to the insertion range' : '') +

@@ -194,17 +194,15 @@ test('a lease held by someone else is refused and the console says by whom', asy
   }
 });
 
-test('taking over a lease held elsewhere needs the confirmation dialog', async (t) => {
+test('taking over a lease held elsewhere needs the confirmation dialog', async () => {
   const taken = await otherOperator('POST', '/lease');
   assert.equal(taken.status, 200, await taken.text());
   try {
     const probe = await otherOperatorAs('e2e-probe', 'POST', '/lease');
     const refusal = await probe.json();
     assert.equal(probe.status, 409, JSON.stringify(refusal));
-    if (!refusal.error?.takeover_token) {
-      t.skip('this tendrild sends no takeover_token with 409 lease_held (takeover not implemented yet)');
-      return;
-    }
+    // The shipped server implements takeover: without the token this test fails rather than skips.
+    assert.ok(refusal.error?.takeover_token, `409 lease_held carries a takeover_token: ${JSON.stringify(refusal)}`);
     await page.click(tid('lease-button'));
     await page.waitForSelector(`${tid('takeover-dialog')}[open]`, WAIT);
     assert.match(await page.locator(tid('takeover-text')).textContent(), /e2e-other-operator/);
@@ -249,7 +247,7 @@ async function enableFromConsole() {
   await page.waitForFunction(() => document.querySelector('[data-testid="enable-button"]').disabled, null, WAIT);
 }
 
-test('take the lease, enable, move: measured values and the 3D view change', async (t) => {
+test('take the lease, enable, move: measured values and the 3D view change', async () => {
   await page.click(tid('lease-button'));
   await page.waitForFunction(() => document.querySelector('[data-testid="lease-status"]').classList.contains('held'), null, WAIT);
   await enableFromConsole();
@@ -298,12 +296,19 @@ test('the plots show setpoint against measured and the loop timing, with their s
                              null, WAIT);
   console.log(`loop timing ${await page.locator(tid('timing-source')).getAttribute('title')}: ${
     await page.locator(tid('timing-legend')).textContent()}`);
-  const rtt = await page.locator(tid('connection-indicator')).textContent();
-  assert.match(rtt, /RTT \d+(\.\d)? ms/, `the connection indicator shows the round trip: ${rtt}`);
-  console.log(`connection indicator: ${rtt.trim()}`);
+  // Issue 12: the latency shown is the stream's own (arrival minus the server's stamp of the joint
+  // messages), not a REST round trip.
+  // Read in the same instant as the check (on a loaded machine the page may turn STALE a moment later).
+  const shown = await (await page.waitForFunction(() => {
+    const el = document.querySelector('[data-testid="connection-indicator"]');
+    return el.dataset.kind === 'live' && /latency/.test(el.textContent) ? el.textContent : false;
+  }, null, WAIT)).jsonValue();
+  assert.match(shown, /latency \d+ ms/, `the connection indicator shows the stream's latency: ${shown}`);
+  assert.doesNotMatch(shown, /RTT/, 'no REST round trip presented as the stream latency');
+  console.log(`connection indicator: ${shown.trim().replace(/\s+/g, ' ')}`);
 });
 
-test('switching mode: accepted while holding, a refused switch shows the reason', async (t) => {
+test('switching mode: accepted while holding, a refused switch shows the reason', async () => {
   const modes = await page.locator('[data-testid^="mode-"][data-mode]').evaluateAll((els) => els.map((e) => e.dataset.mode));
   assert.ok(modes.includes('joint'), `mode bar lists the robot's modes: ${modes}`);
   await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').title.includes('busy false'),
@@ -312,19 +317,23 @@ test('switching mode: accepted while holding, a refused switch shows the reason'
   await page.waitForFunction(() => /Mode Joint: done/.test(document.querySelector('[data-testid="command-status"]').textContent),
                              null, WAIT);
   assert.equal(await page.locator(tid('mode-joint')).getAttribute('aria-pressed'), 'true');
-  if (!modes.includes('path_following')) {
-    t.skip(`this robot offers only ${modes.join(', ')}: no other mode to be refused`);
-    return;
-  }
+  assert.ok(modes.includes('path_following'), `the shipped catheter offers path following: ${modes.join(', ')}`);
   // Path following without a loaded plan: the server refuses and the console shows its reason.
   const loaded = await (await otherOperatorAs('e2e-probe', 'GET', '/robots/srmc/path_following')).json();
-  if (loaded.loaded) {
-    t.skip('a plan is already loaded on the robot; the no-plan refusal cannot be shown');
-    return;
+  // The plan flow test comes later: on this fresh server no plan is loaded yet.
+  assert.ok(!loaded.loaded, `no plan loaded yet: ${JSON.stringify(loaded)}`);
+  // The mode buttons are disabled while the page shows stale data (issue 12); on a loaded machine a
+  // click can land in such a moment, so it is repeated (bounded) until the server's answer shows.
+  for (let attempt = 0; ; ++attempt) {
+    await page.click(tid('mode-path_following'));
+    try {
+      await page.waitForFunction(() => /Mode Path following refused: .+/.test(
+          document.querySelector('[data-testid="command-status"]').textContent), null, {timeout: 5000});
+      break;
+    } catch (err) {
+      if (attempt >= 3) throw err;
+    }
   }
-  await page.click(tid('mode-path_following'));
-  await page.waitForFunction(() => /Mode Path following refused: .+/.test(
-      document.querySelector('[data-testid="command-status"]').textContent), null, WAIT);
   const why = await page.locator(tid('command-status')).textContent();
   assert.match(why, /plan/i, `the refusal gives the server's reason: ${why}`);
   assert.equal(await page.locator(tid('mode-joint')).getAttribute('aria-pressed'), 'true', 'still in joint mode');
@@ -335,7 +344,16 @@ async function measuredJs() {
   return (await (await otherOperatorAs('e2e-probe', 'GET', '/robots/srmc/measured_js')).json()).position;
 }
 
+// The robot holds: the server says so (a page that shows data a few hundred milliseconds old could
+// still say "busy false" from before a move a test just commanded), and so does the page.
 async function waitHolding() {
+  const until = Date.now() + WAIT.timeout;
+  for (;;) {
+    const os = await (await otherOperatorAs('e2e-probe', 'GET', '/robots/srmc/operating_state')).json();
+    if (!os.is_busy) break;
+    if (Date.now() > until) throw new Error(`the robot was still busy after ${WAIT.timeout} ms: ${JSON.stringify(os)}`);
+    await page.waitForTimeout(100);
+  }
   await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').title.includes('busy false'),
                              null, WAIT);
 }
@@ -410,12 +428,9 @@ test('a configuration move carries only what the surgeon set: insertion stays wh
   await page.click(tid('tab-joints'));
 });
 
-test('catheter: configuration sliders in degrees move the catheter; the joystick moves it only with the deadman held', async (t) => {
+test('catheter: configuration sliders in degrees move the catheter; the joystick moves it only with the deadman held', async () => {
   const modes = await page.locator('[data-testid^="mode-"][data-mode]').evaluateAll((els) => els.map((e) => e.dataset.mode));
-  if (!modes.includes('configuration')) {
-    t.skip(`this robot offers only ${modes.join(', ')}`);
-    return;
-  }
+  assert.ok(modes.includes('configuration'), `the shipped catheter offers configuration mode: ${modes.join(', ')}`);
   await page.click(tid('tab-catheter'));
   await page.waitForFunction(() => /mm$/.test(document.querySelector('[data-testid="gauge-proximal"] .gauge-value').textContent),
                              null, WAIT);
@@ -423,6 +438,13 @@ test('catheter: configuration sliders in degrees move the catheter; the joystick
   await switchMode('configuration');
   await page.fill(tid('cfg-theta-proximal-num'), '15');
   await page.fill(tid('cfg-theta-distal-num'), '-20');
+  // What the page said it would do and what it answered: the failure message carries both.
+  const preview = await page.locator(tid('cfg-preview')).textContent();
+  await page.evaluate(() => {
+    window.__statusSeen = [];
+    const el = document.querySelector('[data-testid="command-status"]');
+    new MutationObserver(() => window.__statusSeen.push(el.textContent)).observe(el, {childList: true, characterData: true, subtree: true});
+  });
   await page.click(tid('cfg-move-button'));
   try {
     await page.waitForFunction(() => {
@@ -436,8 +458,9 @@ test('catheter: configuration sliders in degrees move the catheter; the joystick
       proximal: document.querySelector('[data-testid="cfg-theta-proximal-now"]').textContent,
       distal: document.querySelector('[data-testid="cfg-theta-distal-now"]').textContent,
       badge: document.querySelector('[data-testid="state-badge"]').title,
+      statusSeen: window.__statusSeen,
     }));
-    err.message += ` page showed ${JSON.stringify(shown)}`;
+    err.message += ` page showed ${JSON.stringify(shown)}; before Move the preview said: ${preview}`;
     throw err;
   }
   await page.screenshot({path: path.join(ARTIFACTS, '05c-configuration.png')});
@@ -507,17 +530,36 @@ test('losing and regaining the connection keeps the lease (while it is valid) an
   await page.waitForFunction(() => document.querySelector('[data-testid="lease-status"]').classList.contains('held'), null, WAIT);
   await enableFromConsole();
   // Cut the network: REST fails and the stream socket goes (dropped the way a broken link drops it).
+  // Issue 12: while the server was away the page sent ~400 failed requests in 10 s (five routes at
+  // 10 Hz); now one probe at a time with exponential backoff. Count what the page asks in the gap.
+  const requests = [];
+  const count = (request) => { if (new URL(request.url()).pathname.startsWith('/api/')) requests.push(request.url()); };
   await context.setOffline(true);
   await page.evaluate(() => window.tendrilConnection.drop());
+  let offlineS = 0;
   try {
     await waitForBadge(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'offline');
+    page.on('request', count);
+    const t0 = Date.now();
     await waitForBadge(() => document.querySelector('[data-testid="banner"]').dataset.level === 'offline');
     assert.match(await page.locator(tid('banner')).textContent(), /stale/i, 'the banner says the values are stale');
+    // Nothing looks commandable while disconnected; the E-STOP stays.
+    for (const id of ['enable-button', 'move-button', 'mode-joint']) {
+      assert.ok(await page.locator(tid(id)).isDisabled(), `${id} is disabled while disconnected`);
+    }
+    assert.ok(await page.locator(tid('estop-button')).isEnabled(), 'E-STOP stays available');
+    assert.equal(await page.locator(tid('age-joints')).getAttribute('data-stale'), 'true', 'the joint values are marked STALE');
     await page.screenshot({path: path.join(ARTIFACTS, '08-connection-lost.png')});
     await page.waitForTimeout(2000);  // a few seconds without a connection, well inside the 30 s lease
+    offlineS = (Date.now() - t0) / 1000;
   } finally {
+    page.off('request', count);
     await context.setOffline(false);
   }
+  // One poll round may fail before the page knows (five routes at once), then probes after 0.5, 1,
+  // 2 … s: about ten in ~3 s at most, where the page without backoff sent ~100.
+  assert.ok(requests.length <= 10, `${requests.length} REST requests in ${offlineS.toFixed(1)} s offline: ${requests.slice(0, 8).join(' ')}`);
+  console.log(`offline for ${offlineS.toFixed(1)} s: ${requests.length} REST requests`);
   await waitForBadge(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live');
   await page.waitForTimeout(2500);  // the console's lease poll (every 2 s) ran again
   assert.ok(await page.locator(tid('lease-status')).evaluate((e) => e.classList.contains('held')),
@@ -535,20 +577,79 @@ test('losing and regaining the connection keeps the lease (while it is valid) an
   await page.screenshot({path: path.join(ARTIFACTS, '09-reconnected.png')});
 });
 
-test('imaging panels show frames when the server publishes them, else say they are not available', async (t) => {
+// Issue 12: on a slow machine the page fell seconds behind the stream while saying "live". A stream
+// that arrives late (every message held back 700 ms on its way, the socket open and busy) must be
+// marked STALE on every panel, in the connection indicator and in the banner, with no command but
+// the stops offered; when it catches up, the page is live again.
+test('a stream that falls behind is marked STALE everywhere and nothing but the stops is commandable', async () => {
+  const second = await context.newPage();
+  const setDelay = (ms) => second.evaluate((d) => { window.__streamDelayMs = d; }, ms);
+  try {
+    // Every stream message reaches the page `__streamDelayMs` late: the delay is made inside the
+    // browser (a relay through this test process could not keep up with the stream on two loaded
+    // cores and fell seconds behind on its own).
+    await second.addInitScript(() => {
+      window.__streamDelayMs = 0;
+      const Native = window.WebSocket;
+      window.WebSocket = class DelayedWebSocket extends Native {
+        set onmessage(handler) {
+          super.onmessage = handler && ((ev) => {
+            const delay = window.__streamDelayMs;
+            if (delay) setTimeout(() => handler.call(this, ev), delay);
+            else handler.call(this, ev);
+          });
+        }
+        get onmessage() { return super.onmessage; }
+      };
+    });
+    await second.goto(`${BASE_URL}/`);  // the session cookie of the first page: same operator session
+    await second.waitForFunction(() => document.querySelector('[data-testid="age-joints"]').dataset.ageMs !== '', null, WAIT);
+    await setDelay(700);
+    // Everything is read in the instant the page turned STALE everywhere: a moment later the page may
+    // (rightly) be live again, e.g. when the late stream paused for a second and it polled REST.
+    const seen = await (await second.waitForFunction(() => {
+      const stale = document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'stale' &&
+                    document.querySelector('[data-testid="banner"]').dataset.level === 'stale' &&
+                    ['joints', 'scene', 'plots'].every((k) => document.querySelector(`[data-testid="age-${k}"]`).dataset.stale === 'true');
+      return stale && {
+        ages: Object.fromEntries(['joints', 'scene', 'plots'].map((k) => {
+          const el = document.querySelector(`[data-testid="age-${k}"]`);
+          return [k, {stale: el.dataset.stale, text: el.textContent, ms: Number(el.dataset.ageMs)}];
+        })),
+        banner: document.querySelector('[data-testid="banner"]').textContent.replace(/\s+/g, ' ').trim(),
+        disabled: Object.fromEntries(['enable-button', 'move-button', 'mode-joint', 'estop-button', 'estop-reset-button'].map(
+            (id) => [id, document.querySelector(`[data-testid="${id}"]`).disabled])),
+      };
+    }, null, WAIT)).jsonValue();
+    for (const [k, a] of Object.entries(seen.ages)) {
+      assert.equal(a.stale, 'true', `${k} panel marked STALE: ${JSON.stringify(a)}`);
+      assert.match(a.text, /STALE/, `${k} age badge says STALE`);
+      assert.ok(a.ms > 250, `${k} age is over the bound: ${a.ms} ms`);
+    }
+    assert.match(seen.banner, /stale data/i, seen.banner);
+    for (const id of ['enable-button', 'move-button', 'mode-joint', 'estop-reset-button']) {
+      assert.equal(seen.disabled[id], true, `${id} is disabled while the data is stale`);
+    }
+    assert.equal(seen.disabled['estop-button'], false, 'E-STOP stays available');
+    await second.screenshot({path: path.join(ARTIFACTS, '09b-stale-stream.png')});
+    await setDelay(0);
+    await second.waitForFunction(() => document.querySelector('[data-testid="age-joints"]').dataset.stale === 'false', null, WAIT);
+  } finally {
+    await second.close();
+  }
+});
+
+test('imaging panels show the frames of both planes of the simulated fluoroscope', async () => {
+  // The shipped configuration has the simulated bi-plane fluoroscope: both planes must be live here
+  // (a server without it fails this test rather than skipping it).
   const advertised = await page.evaluate(() => [...window.tendrilConnection.advertisedTopics()]);
   for (const [key, topic] of [['ap', '/imaging/ap'], ['lateral', '/imaging/lateral']]) {
-    if (advertised.includes(topic)) {
-      await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}"]`).dataset.frames) >= 3 &&
-                                        document.querySelector(`[data-testid="image-${k}-frame"]`).naturalWidth > 0, key, WAIT);
-      assert.equal(await page.locator(tid(`image-${key}`)).getAttribute('data-state'), 'live');
-    } else {
-      assert.equal(await page.locator(tid(`image-${key}`)).getAttribute('data-state'), 'absent');
-      assert.match(await page.locator(tid(`image-${key}-status`)).textContent(), /not available/i);
-    }
+    assert.ok(advertised.includes(topic), `${topic} advertised: ${advertised.join(', ')}`);
+    await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}"]`).dataset.frames) >= 3 &&
+                                      document.querySelector(`[data-testid="image-${k}-frame"]`).naturalWidth > 0, key, WAIT);
+    assert.equal(await page.locator(tid(`image-${key}`)).getAttribute('data-state'), 'live');
   }
   await page.locator('.images-panel').screenshot({path: path.join(ARTIFACTS, '10-imaging.png')});
-  if (!advertised.includes('/imaging/ap')) t.skip('this tendrild does not publish /imaging/ap: checked the "not available" state only');
 });
 
 // A vessel centreline in mm: straight up the z axis from the catheter base, then curving towards +x.
@@ -564,17 +665,10 @@ function vesselCsv() {
   return `${lines.join('\n')}\n`;
 }
 
-test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot, follow it step by step', async (t) => {
+test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot, follow it step by step', async () => {
   await page.click(tid('tab-plan'));
   const probe = await otherOperatorAs('e2e-plan-probe', 'GET', '/vessels');
-  if (probe.status === 404 || probe.status === 503) {
-    await page.waitForFunction(() => document.querySelector('[data-testid="plan-availability"]').dataset.available === 'false',
-                               null, WAIT);
-    assert.match(await page.locator(tid('plan-availability')).textContent(), /not available/i);
-    await page.screenshot({path: path.join(ARTIFACTS, '11-plan-unavailable.png')});
-    t.skip(`GET /api/v1/vessels is ${probe.status} on this tendrild: checked the "not available" state only`);
-    return;
-  }
+  // The shipped configuration plans: a server without vessels fails here rather than skipping.
   assert.equal(probe.status, 200, await probe.text());
   await page.waitForSelector(`${tid('plan-availability')}[data-available="true"]`, {...WAIT, state: 'attached'});
   const file = path.join(ARTIFACTS, 'e2e-vessel.csv');
@@ -590,6 +684,26 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
   assert.equal(await page.locator(tid('plan-progress')).getAttribute('data-state'), 'succeeded', job);
   assert.match(await page.locator(tid('plan-summary')).textContent(), /\d+ steps/);
   assert.equal(await page.locator(tid('plan-error-plot')).getAttribute('data-available'), 'true');
+  // Issue 12: a verdict for the plan and one per step, from the plan's own numbers.
+  const stepCount = Number(/(\d+) steps/.exec(await page.locator(tid('plan-summary')).textContent())[1]);
+  assert.ok(['ok', 'contact', 'cannot-follow'].includes(await page.locator(tid('plan-verdict')).getAttribute('data-verdict')),
+            `the plan has a verdict: ${await page.locator(tid('plan-verdict')).textContent()}`);
+  assert.equal(await page.locator(`${tid('plan-steps')} [data-step]`).count(), stepCount, 'one verdict per step');
+  // The rule, on the numbers of the plan in the issue (23 mm and 97° worst) and its neighbours: the
+  // console's own verdict module, run in the page.
+  const judged = await page.evaluate(async () => {
+    const {planVerdict} = await import('/plan_verdict.js');
+    const robot = {joints: [{name: 'insertion', unit: 'mm', lower: 0, upper: 120}, {name: 'roll', unit: 'rad', lower: -3.14, upper: 3.14},
+                            {name: 'proximal_bend', unit: 'mm', lower: -6, upper: 10}, {name: 'distal_bend', unit: 'mm', lower: -5, upper: 5}]};
+    const step = (mm, deg, q = [10, 0, 0, 0]) => ({q, position_error_mm: mm / 2, position_error_max_mm: mm,
+                                                    orientation_error_deg: deg / 2, orientation_error_max_deg: deg});
+    const plan = {steps: [step(0.9, 13), step(3.2, 20), step(23, 97), step(0.5, 5, [12, 0, 11, 0])]};
+    const v = planVerdict(plan, robot, [2.5, 2.0, 3.0]);
+    return {verdict: v.verdict, steps: v.steps.map((s) => s.verdict), reason: v.reasons[0]};
+  });
+  assert.deepEqual({verdict: judged.verdict, steps: judged.steps},
+                   {verdict: 'cannot-follow', steps: ['ok', 'contact', 'off-path', 'unreachable']}, judged.reason);
+  assert.match(judged.reason, /cannot be followed from step 2: leaves the vessel: worst error 23\.0 mm \/ 97°/);
   await page.screenshot({path: path.join(ARTIFACTS, '12-plan-computed.png')});
 
   await page.click(tid('plan-load-button'));
@@ -618,6 +732,16 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
     throw err;
   }
   await page.screenshot({path: path.join(ARTIFACTS, '13-path-following.png')});
+  // Issue 12: whenever following stops, the Plan tab says why and what to do.
+  assert.equal(await page.locator(tid('path-stop-reason')).isVisible(), false, 'no stop reason while following');
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').title.includes('busy false'), null, {timeout: 30000});
+  await page.click(tid('pause-button'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="path-stop-reason"]').dataset.stopped === 'true', null, WAIT);
+  const why = await page.locator(tid('path-stop-reason')).textContent();
+  assert.match(why, /Following stopped at step 0 .*paused by the operator.*Resume/i, why);
+  await page.screenshot({path: path.join(ARTIFACTS, '13b-path-stopped.png')});
+  await page.click(tid('resume-button'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="path-stop-reason"]').dataset.stopped === 'false', null, WAIT);
   await page.click(tid('tab-joints'));
 });
 

@@ -28,7 +28,9 @@ before(async () => {
   browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
                                    args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader',
                                           '--enable-unsafe-swiftshader']});
-  const context = await browser.newContext({viewport: {width: 1920, height: 1080}});
+  // The console tests' 1280x800: at 1920x1080 software rendering on two loaded cores took ~280 ms a
+  // frame, so the page was (truthfully) STALE and offered no command.
+  const context = await browser.newContext({viewport: {width: 1280, height: 800}});
   page = await context.newPage();
   page.on('pageerror', (err) => pageErrors.push(err.message));
 });
@@ -54,6 +56,16 @@ async function shown() {
   }));
 }
 
+// What the page shows in an instant when its data is fresh (not STALE, which replaces the hints).
+async function shownFresh() {
+  return (await page.waitForFunction(() => document.body.dataset.stale === 'false' && {
+    badge: document.querySelector('[data-testid="state-badge"]').dataset.state,
+    banner: document.querySelector('[data-testid="banner"]').textContent.replace(/\s+/g, ' ').trim(),
+    status: document.querySelector('[data-testid="command-status"]').textContent,
+    hint: document.querySelector('[data-testid="move-hint"]').textContent,
+  }, null, {timeout: 20000})).jsonValue();
+}
+
 async function waitFor(predicate, arg, options = WAIT) {
   try {
     await page.waitForFunction(predicate, arg, options);
@@ -65,23 +77,43 @@ async function waitFor(predicate, arg, options = WAIT) {
   }
 }
 
+// Clicks a command button and waits for the status line to give its answer. On two loaded cores the
+// page turns STALE for a moment now and then, and a click that lands in such a moment finds the
+// button disabled and does nothing (by design: nothing that moves the robot is commandable on old
+// data); the click is then repeated, bounded. `answer` matches this command's status only.
+async function command(id, answer) {
+  for (let attempt = 0; ; ++attempt) {
+    await page.click(tid(id));
+    try {
+      await page.waitForFunction((source) => new RegExp(source).test(document.querySelector('[data-testid="command-status"]').textContent),
+                                 answer.source, {timeout: 8000});
+      return;
+    } catch (err) {
+      if (attempt >= 3) {
+        err.message += `\npage showed ${JSON.stringify(await shown().catch(() => ({})))}`;
+        throw err;
+      }
+    }
+  }
+}
+
 test('a spring-deflection hold names its cause and offers a way out: withdraw, relax, then resume', async () => {
   await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
   await waitFor(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live');
   await page.click(tid('lease-button'));
   await waitFor(() => document.querySelector('[data-testid="lease-status"]').classList.contains('held'));
   await waitFor(() => !document.querySelector('[data-testid="enable-button"]').disabled);
-  await page.click(tid('enable-button'));
+  await command('enable-button', /Enable: done|Enable refused/);
   await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED');
 
   // Insert into the vessel's bend with the bend drives held: the wall deflects a spring and the
   // robot holds.
   await page.fill(tid('joint-goal-insertion'), '60.00');
-  await page.click(tid('move-button'));
+  await command('move-button', /Moving to goal|Move refused/);
   await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'PAUSED', null, {timeout: 60000});
   await waitFor(() => document.querySelector('[data-testid="banner"]').dataset.cause === 'spring_deflection' &&
                       /relax the springs/.test(document.querySelector('[data-testid="banner-next"]').textContent));
-  let s = await shown();
+  let s = await shownFresh();
   assert.match(s.banner, /Held: spring deflection/i, s.banner);
   assert.match(s.banner, /spring deflected \d+\.\d\d mm \(hold bound 1\.50 mm\)/, s.banner);
   assert.doesNotMatch(s.hint, /Enable the robot/, `the hint says what to do while held: ${s.hint}`);
@@ -92,14 +124,12 @@ test('a spring-deflection hold names its cause and offers a way out: withdraw, r
   await page.screenshot({path: path.join(ARTIFACTS, '30-held-spring-deflection.png')});
 
   // Resume while the spring is still deflected: refused with the cause and what to do; still held.
-  await page.click(tid('resume-button'));
-  await waitFor(() => /Resume refused: .*spring is deflected .*relax/i.test(document.querySelector('[data-testid="command-status"]').textContent));
+  await command('resume-button', /Resume refused: .*spring is deflected .*relax/i);
   assert.equal((await api('GET', '/robots/srmc/operating_state')).state, 'PAUSED');
 
   // Withdraw 1 mm: the one motion a limit hold allowed before, still there.
   const before = (await api('GET', '/robots/srmc/setpoint_js')).position[0];
-  await page.click(tid('withdraw-button'));
-  await waitFor(() => /Withdrawing 1 mm|Withdraw 1 mm refused/.test(document.querySelector('[data-testid="command-status"]').textContent));
+  await command('withdraw-button', /Withdrawing 1 mm|Withdraw 1 mm refused/);
   assert.match(await page.locator(tid('command-status')).textContent(), /Withdrawing 1 mm \(to \d+\.\d mm\)/);
   let after = before;
   for (let i = 0; i < 100 && before - after < 0.999; ++i) {
@@ -110,7 +140,7 @@ test('a spring-deflection hold names its cause and offers a way out: withdraw, r
 
   // Relax: the bend drives follow their springs; the banner says it is relaxing, then that the cause
   // has cleared.
-  await page.click(tid('relax-button'));
+  await command('relax-button', /Relax springs: done|Relax springs refused/);
   await waitFor(() => /Relaxing/.test(document.querySelector('[data-testid="banner-next"]').textContent) ||
                       /Resume to continue/.test(document.querySelector('[data-testid="banner-next"]').textContent));
   await page.screenshot({path: path.join(ARTIFACTS, '31-relaxing.png')});
@@ -119,10 +149,10 @@ test('a spring-deflection hold names its cause and offers a way out: withdraw, r
   assert.ok(await page.locator(tid('banner-resume-button')).evaluate((b) => b.classList.contains('btn-go')),
             'Resume looks ready once the cause has cleared');
   await page.screenshot({path: path.join(ARTIFACTS, '32-relaxed.png')});
-  await page.click(tid('banner-resume-button'));
+  await command('banner-resume-button', /Resume: done|Resume refused/);
   await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED');
   await page.waitForTimeout(1000);  // and it stays ENABLED (no hold again at the next tick)
-  s = await shown();
+  s = await shownFresh();
   assert.equal(s.badge, 'ENABLED', JSON.stringify(s));
   assert.equal((await api('GET', '/robots/srmc/operating_state')).state, 'ENABLED');
   assert.match(s.banner, /Normal/);
@@ -138,9 +168,9 @@ test('an operator pause says so in the banner and Resume ends it', async () => {
   await page.click(tid('pause-button'));
   await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'PAUSED' &&
                       document.querySelector('[data-testid="banner"]').dataset.cause === 'operator_pause');
-  const s = await shown();
+  const s = await shownFresh();
   assert.match(s.banner, /Paused.*paused by the operator.*Resume to continue/i, s.banner);
   assert.doesNotMatch(s.hint, /Enable the robot/, s.hint);
-  await page.click(tid('resume-button'));
+  await command('resume-button', /Resume: done|Resume refused/);
   await waitFor(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED');
 });
