@@ -128,18 +128,23 @@ export class CatheterView {
     this.resizeObserver.observe(container);
     this.resize();
     // At most ~30 frames a second (10 in software), and none while nothing changes. A render's real
-    // cost includes the GPU process (all of it with a software renderer, where one frame of the 3D view
-    // took ~250 ms on two loaded cores) and shows as a long frame: the next render waits three times
-    // that frame, so the 3D view has at most about a quarter of the page's time and the joint values
-    // and their ages stay current (issue 12: a page that renders the 3D view at any cost shows STALE
-    // data most of the time).
+    // cost includes the GPU process (all of it with a software renderer, where a frame with the 3D
+    // view took ~250 ms on two loaded cores) and shows as a long frame. After a frame longer than
+    // SLOW_FRAME_MS the next render waits three times that frame, so the 3D view has at most about a
+    // quarter of the page's time and the joint values and their ages stay current (issue 12: a page
+    // that renders the 3D view at any cost shows STALE data much of the time). A GPU's frames are
+    // shorter than the bound and keep the plain rate.
+    const SLOW_FRAME_MS = 50;
     const baseFrameMs = this.software ? 100 : 30;
     let minFrameMs = baseFrameMs;
     let lastFrame = 0;
     let previous = 0;
     let rendered = false;
     const loop = (now) => {
-      if (rendered) minFrameMs = Math.min(1000, Math.max(baseFrameMs, 3 * (now - previous)));
+      if (rendered) {
+        const frameMs = now - previous;
+        minFrameMs = frameMs > SLOW_FRAME_MS ? Math.min(1000, Math.max(baseFrameMs, 3 * frameMs)) : baseFrameMs;
+      }
       rendered = false;
       previous = now;
       if (this.dirty && now - lastFrame >= minFrameMs) {
