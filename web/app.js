@@ -553,7 +553,9 @@ function updateAges() {
   state.streamAgeMs = jointsAge;
   setAge(ui.ages.joints, jointsAge);
   setAge(ui.ages.plots, jointsAge);
-  setAge(ui.ages.scene, clock.ageMs(shown.scene, now));
+  // The 3D view's age is that of what its canvas shows (a render may wait on a slow machine).
+  const sceneShownMs = view?.shownAtMs?.();
+  setAge(ui.ages.scene, clock.ageMs(Number.isFinite(sceneShownMs) ? sceneShownMs : shown.scene, now));
   if (catheter && topics && state.advertised.has(topics.catheter)) setAge(ui.ages.catheter, clock.ageMs(shown.catheter, now));
   updateStale(false);
   refreshConnectionIndicator();
@@ -621,6 +623,7 @@ function renderFrame() {
     sceneNextAt = t0 + Math.min(1000, (performance.now() - t0) * (1 + SCENE_SHARE));
   }
   if (!latest.pending(topics.scene)) shown.scene = shown.joints;
+  if (view) view.contentStampMs = shown.scene;
   for (const key of ['ap', 'lateral', 'map']) {
     if (!due(topics[key])) continue;
     const m = latest.take(topics[key]);

@@ -244,7 +244,10 @@ export class CatheterPanel {
     if (!Array.isArray(c)) return;
     for (const s of this.sliders) {
       s.live = s.index === 0 ? c[0] : c[s.index] / DEG;
-      if (!s.touched) s.range.value = s.number.value = fmt(s.live, 1);
+      // Not while the field has focus: the live value would land in the middle of the surgeon's typing
+      // (the selection is lost and the keys are appended: "15" typed became 0.115).
+      const focused = document.activeElement === s.number || document.activeElement === s.range;
+      if (!s.touched && !focused) s.range.value = s.number.value = fmt(s.live, 1);
     }
     this.renderPreview();
   }

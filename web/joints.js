@@ -132,7 +132,9 @@ export function buildJointPanel(form, jointDescriptions, onChange) {
         r.setpoint = v;
         r.setpointValue.textContent = r.fmt(v);
         r.spMark.style.left = `calc(${(r.fraction(v) * 100).toFixed(2)}% - 1px)`;
-        if (!r.edited) r.setGoal(v);
+        // A field with focus is being typed into: a live value written now would land in the middle
+        // of the operator's typing (the selection is lost and the keys are appended to it).
+        if (!r.edited && document.activeElement !== r.number && document.activeElement !== r.slider) r.setGoal(v);
       });
       onChange();
     },

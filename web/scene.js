@@ -56,6 +56,10 @@ export class CatheterView {
     this.container = container;
     this.available = false;
     this.dirty = true;
+    // Server time (ms) of the data in the scene graph, set by the page, and of the data on the canvas:
+    // a render may wait (below), and until it runs the canvas shows the older state.
+    this.contentStampMs = NaN;
+    this.shownStampMs = NaN;
     this.hasFitted = false;
     this.entities = new Map();  // SceneUpdate entity id -> Object3D
     this.entityKeys = new Map();  // entity id -> content key of what is drawn
@@ -151,6 +155,7 @@ export class CatheterView {
         lastFrame = now;
         this.dirty = false;
         this.renderer.render(this.scene, this.camera);
+        this.shownStampMs = this.contentStampMs;
         rendered = true;
       }
       requestAnimationFrame(loop);
@@ -166,6 +171,13 @@ export class CatheterView {
   }
 
   requestRender() { this.dirty = true; }
+
+  // Server time of what the canvas shows: the scene graph's when nothing waits to be drawn, else the
+  // last drawn one's (NaN before the first frame or without WebGL).
+  shownAtMs() {
+    if (!this.available) return NaN;
+    return this.dirty ? this.shownStampMs : this.contentStampMs;
+  }
 
   resize() {
     const w = Math.max(1, this.container.clientWidth);
