@@ -100,8 +100,8 @@ const HOLD_TITLES = {
 };
 
 // The hold (cause, wording, what is allowed) while PAUSED, else null. The operating_state topic
-// carries the hold without its live wording (that would change it with every sensor reading); the
-// 10 Hz catheter topic has it whole.
+// carries the hold in the core's wording, which changes only with the hold; the robot's live wording
+// (which changes with every sensor reading) comes on its 10 Hz topic and wins while fresh.
 function currentHold(os = state.operating) {
   if (!os || os.state !== 'PAUSED' || os.estop) return null;
   const hold = os.hold || {cause: 'unknown', message: 'the robot holds its position', next: 'Resume to continue.',

@@ -20,6 +20,35 @@ const operatingState = async () => {
 const setpoint = async () => (await get(`${R}/setpoint_js`)).json.position;
 const holding = () => pollUntil(async () => !(await operatingState()).is_busy, {polls: 400, intervalMs: 50});
 
+// The first /{robot}/operating_state message on the Foxglove WebSocket that satisfies `accept`.
+async function streamedOperatingState(accept) {
+  const ws = new WebSocket(`${BASE_URL.replace(/^http/, 'ws')}/ws?token=${encodeURIComponent(TOKEN)}`,
+      [FoxgloveClient.SUPPORTED_SUBPROTOCOL], {rejectUnauthorized: false});
+  const client = new FoxgloveClient({ws});
+  const topic = `/${ROBOT}/operating_state`;
+  try {
+    return await new Promise((resolve, reject) => {
+      const timer = setTimeout(() => reject(new Error(`no ${topic} message within 10 s`)), 10000);
+      let subscription;
+      client.on('error', reject);
+      client.on('advertise', (channels) => {
+        const channel = channels.find((c) => c.topic === topic);
+        if (channel && subscription === undefined) subscription = client.subscribe(channel.id);
+      });
+      client.on('message', (m) => {
+        if (m.subscriptionId !== subscription) return;
+        const os = JSON.parse(new TextDecoder().decode(new Uint8Array(m.data.buffer, m.data.byteOffset, m.data.byteLength)));
+        if (accept(os)) {
+          clearTimeout(timer);
+          resolve(os);
+        }
+      });
+    });
+  } finally {
+    client.close();
+  }
+}
+
 async function switchTo(mode) {
   const res = await post(`${R}/mode`, {mode});
   assert.equal(res.status, 200, res.text);
@@ -136,6 +165,11 @@ test('an operator pause: operating_state.hold names the cause and the way out; r
   assert.equal(hold.cleared, true);
   assert.deepEqual(hold.allowed, ['resume']);
   assert.match(hold.next, /Resume/);
+  // The stream's operating_state says the same (it leaves out only the robot's live wording), so a
+  // page that has only that topic still names the pause (ci4 of 9c6349f showed "operator pause").
+  const streamed = await streamedOperatingState((os) => os.state === 'PAUSED');
+  assert.equal(streamed.hold?.message, 'paused by the operator', JSON.stringify(streamed.hold));
+  assert.match(streamed.hold?.next ?? '', /Resume/);
   // Nothing to relax in free space, and no withdrawal after an operator's pause (not a limit hold).
   assertErrorShape(await post(`${R}/state_command`, {command: 'relax'}), 409, 'already_relaxed');
   assertErrorShape(await post(`${R}/state_command`, {command: 'withdraw', distance_mm: 1}), 409, 'invalid_state');

@@ -738,8 +738,8 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
   await page.click(tid('pause-button'));
   await page.waitForFunction(() => document.querySelector('[data-testid="path-stop-reason"]').dataset.stopped === 'true', null, WAIT);
   const why = await page.locator(tid('path-stop-reason')).textContent();
-  // The reason names the operator's pause: from the hold's message, or from its cause until the message arrives.
-  assert.match(why, /Following stopped at step 0 .*(paused by the operator|operator pause).*Resume/i, why);
+  // The reason names the operator's pause in the hold's words, which the operating_state stream carries.
+  assert.match(why, /Following stopped at step 0 .*paused by the operator.*Resume/i, why);
   await page.screenshot({path: path.join(ARTIFACTS, '13b-path-stopped.png')});
   await page.click(tid('resume-button'));
   await page.waitForFunction(() => document.querySelector('[data-testid="path-stop-reason"]').dataset.stopped === 'false', null, WAIT);

@@ -551,6 +551,14 @@ std::optional<json> JsonControlApi::topic_message(const std::string& topic, std:
     msg = operating_state_json(robot);
     if (live)
       for (const auto& field : live->fields) erase_path(msg, field);
+    // A hold keeps the core's wording here, which changes only with the hold (the robot's live wording
+    // follows on its own topic): a page that has only this topic still says why the robot holds.
+    if (auto base = service_.operating_state(robot);
+        base && base->hold && msg.contains("hold") && msg["hold"].is_object()) {
+      auto& hold = msg["hold"];
+      if (!hold.contains("message")) hold["message"] = base->hold->message;
+      if (!hold.contains("next")) hold["next"] = base->hold->next;
+    }
     key = msg.dump();
   } else if (live && leaf == live->topic) {
     msg = operating_state_json(robot);
