@@ -1,10 +1,10 @@
 // Fuzz target: HTTP/1.1 framing into the real session code. The input is the byte stream a client
 // sends on one connection (request lines, headers, chunked bodies, chunk extensions, trailers,
-// pipelined requests, an upgrade to /ws); it is fed to tendril's HttpSession over Beast's in-memory
-// test stream, with the same parser, limits and routes as a TCP connection, against a ControlApi that
-// answers every call. Checked: nothing crashes or throws out of the session (a contained exception is
-// a finding too: it is counted and aborts here), and every byte the server writes back is a sequence
-// of HTTP responses (or the WebSocket handshake followed by frames).
+// pipelined requests, an upgrade to /ws); it is fed to tendril's HttpSession over a ByteStream whose
+// transport is Beast's in-memory test stream, with the same parser, limits and routes as a TCP
+// connection, against a ControlApi that answers every call. Checked: nothing crashes or throws out of
+// the session (a contained exception is a finding too: it is counted and aborts here), and every byte
+// the server writes back is a sequence of HTTP responses (or the WebSocket handshake followed by frames).
 #include <cstdint>
 #include <cstdlib>
 #include <string>
@@ -12,8 +12,8 @@
 
 #include <boost/beast/_experimental/test/stream.hpp>
 
-#include "http_session.hpp"
-#include "ws_session.hpp"
+#include "front_end.hpp"
+#include "stream_transport.hpp"
 
 namespace tendril::server {
 
@@ -98,7 +98,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     boost::beast::test::stream server_end(ioc, std::string_view(reinterpret_cast<const char*>(data), size));
     client.connect(server_end);
     server_end.close_remote();  // the server reads the input, then end of stream
-    std::make_shared<HttpSession<boost::beast::test::stream>>(*server, std::move(server_end))->run();
+    // The server's own session code over a ByteStream, as for a TCP or TLS connection.
+    start_http_session(
+        ByteStream(std::make_unique<StreamTransport<boost::beast::test::stream>>(std::move(server_end))),
+        *server);
     // Everything completes without real time passing; timers (WebSocket idle pings) never become due.
     for (int rounds = 0; rounds < 100000 && ioc.poll() > 0; ++rounds) {
     }

@@ -1,14 +1,15 @@
 // Private parts of the HTTP/WebSocket front end shared by its source files (one idea each):
 //   http_server.cpp      the public HttpServer: start/stop, listener, I/O threads, publisher thread
-//   http_session.hpp     one HTTP connection (read with limits, write, upgrade), a template on the
-//                        byte stream, instantiated in http_session_plain.cpp and http_session_tls.cpp
+//   byte_stream.hpp      one connection's byte stream, whatever the transport (stream_transport.hpp:
+//                        plain TCP in byte_stream_tcp.cpp, TLS in byte_stream_tls.cpp)
+//   http_session.hpp     one HTTP connection (read with limits, write, upgrade) over a ByteStream,
+//                        instantiated once in http_session.cpp
 //   request_reader.cpp   the bounded request parser every connection reads with
 //   rest_routes.cpp      REST routing: a request and a caller in, a response out (no sockets)
 //   auth.cpp             token, cookie sessions, roles and client names -> Identity
 //   commands.cpp         command preamble (role, robot, lease), lease actions, parameters
 //   ws_connection.cpp    Foxglove protocol per WebSocket connection (no sockets)
-//   ws_session.hpp       the WebSocket transport, a template on the stream (ws_session_plain.cpp,
-//                        ws_session_tls.cpp)
+//   ws_session.hpp       the WebSocket transport over a ByteStream, instantiated once in ws_session.cpp
 //   publisher.cpp        channels, topic publishing, status broadcasts, front-end metrics
 //   services.cpp         the Foxglove services that mirror the REST commands
 #pragma once
@@ -277,8 +278,11 @@ class HttpServer::Impl {
   std::size_t largest_body_limit() const;
 };
 
-// Start serving one accepted TCP connection (http_session_plain.cpp, http_session_tls.cpp).
+// Start serving one accepted TCP connection (byte_stream_tcp.cpp, byte_stream_tls.cpp).
 void start_plain_http_session(tcp::socket&& socket, HttpServer::Impl& server);
 void start_tls_http_session(tcp::socket&& socket, HttpServer::Impl& server);
+// Start serving one connection over its byte stream, whatever the transport (http_session.cpp).
+class ByteStream;
+void start_http_session(ByteStream&& stream, HttpServer::Impl& server);
 
 }  // namespace tendril::server

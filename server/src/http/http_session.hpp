@@ -5,8 +5,8 @@
 // Containment: every completion handler runs inside contain(); an exception (from Beast, the routes or
 // ControlApi) closes this connection only, is counted and logged once, and the I/O thread goes on.
 //
-// Instantiated for plain TCP (http_session_plain.cpp) and TLS (http_session_tls.cpp), each in its own
-// translation unit, so the two sets of Beast operations compile in parallel.
+// Instantiated once, for ByteStream (http_session.cpp): plain TCP and TLS differ only in the transport
+// under it (byte_stream.hpp), so Beast's HTTP operations are compiled once.
 #pragma once
 
 #include <memory>
@@ -19,9 +19,9 @@
 #include <boost/beast/core/tcp_stream.hpp>
 #include <boost/beast/http/read.hpp>
 #include <boost/beast/http/write.hpp>
-#include <boost/beast/ssl/ssl_stream.hpp>
 #include <boost/beast/websocket/rfc6455.hpp>
 
+#include "byte_stream.hpp"
 #include "front_end.hpp"
 #include "request_reader.hpp"
 #include "rest_routes.hpp"
@@ -30,9 +30,6 @@
 namespace tendril::server {
 
 namespace beast = boost::beast;
-
-template <class Stream>
-inline constexpr bool kIsTlsStream = std::is_same_v<Stream, beast::ssl_stream<beast::tcp_stream>>;
 
 // The WebSocket side of an upgrade (ws_session_*.cpp): takes over the stream and the upgrade request.
 template <class Stream>
@@ -53,17 +50,14 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
     auto self = this->shared_from_this();
     net::dispatch(stream_.get_executor(), [self] {
       self->contain("start", [&] {
-        if constexpr (kIsTlsStream<Stream>) {
-          // TLS first; a client that does not complete the handshake in time is dropped.
-          StreamSocket<Stream>::expires_after(self->stream_, std::chrono::seconds(30));
-          self->stream_.async_handshake(net::ssl::stream_base::server, [self](beast::error_code ec) {
-            self->contain("tls handshake", [&] {
-              if (!ec) self->do_read();
-            });
+        // TLS first (a plain stream's handshake completes at once); a client that does not complete
+        // the handshake in time is dropped.
+        StreamSocket<Stream>::expires_after(self->stream_, std::chrono::seconds(30));
+        self->stream_.async_handshake([self](beast::error_code ec) {
+          self->contain("tls handshake", [&] {
+            if (!ec) self->do_read();
           });
-        } else {
-          self->do_read();
-        }
+        });
       });
     });
   }
@@ -163,12 +157,8 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   }
 
   void do_close() {
-    if constexpr (std::is_same_v<Stream, beast::ssl_stream<beast::tcp_stream>>) {
-      // TLS close_notify, then the socket goes with the session.
-      stream_.async_shutdown([self = this->shared_from_this()](beast::error_code) {});
-    } else {
-      StreamSocket<Stream>::shutdown_send(stream_);
-    }
+    // TLS close_notify or a TCP half-close; the socket goes with the session.
+    stream_.async_shutdown([self = this->shared_from_this()](beast::error_code) {});
   }
 
   Stream stream_;

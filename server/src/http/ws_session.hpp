@@ -1,6 +1,6 @@
 // WsSession<Stream>: the WebSocket transport of one connection (Beast websocket::stream over the
 // connection's byte stream): handshake, read loop, one write in flight, close. The protocol is in
-// WsConnection. Instantiated for plain TCP (ws_session_plain.cpp) and TLS (ws_session_tls.cpp).
+// WsConnection. Instantiated once, for ByteStream (ws_session.cpp), whatever the transport under it.
 //
 // Every completion handler runs inside contain(): an exception closes this connection only.
 #pragma once
