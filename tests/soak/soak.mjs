@@ -148,7 +148,7 @@ async function main() {
 
   // Enable and settle.
   if ((await call('POST', '/lease', {})).status !== 200) problems.push('could not take the lease');
-  const enabled = await call('POST', `/robots/${ROBOT}/state`, {command: 'enable'});
+  const enabled = await call('POST', `/robots/${ROBOT}/state_command`, {command: 'enable'});
   if (enabled.status !== 200) problems.push(`enable answered ${enabled.status}: ${enabled.text}`);
   await waitState((s) => s.drives_ready && !s.is_busy);
   log(`soak: ${MINUTES} min, console open, streaming ${Object.keys(ws.messages).length} channels,` +
@@ -199,7 +199,7 @@ async function main() {
   stream.close();
   await context.close();
   fs.rmSync(userDataDir, {recursive: true, force: true});
-  await call('POST', `/robots/${ROBOT}/state`, {command: 'disable'});
+  await call('POST', `/robots/${ROBOT}/state_command`, {command: 'disable'});
 
   const threadShare = {};
   for (const [name, s] of Object.entries(cpuEnd.threads))
