@@ -6,7 +6,8 @@
 #     1. one build: clang, AddressSanitizer + UndefinedBehaviorSanitizer, the real-time and numeric
 #        libraries at -O1 and the rest at -O0, the libFuzzer targets in the same tree (build/)
 #     2. ctest against that build: unit, integration, server and seed-corpus tests, and the SocketCAN
-#        and uinput tests inside a qemu VM
+#        and uinput tests inside a qemu VM; then, by themselves, the tests labelled alone (the tendrild
+#        SIGKILL test in the VM, which does not keep time beside the others)
 #     3. REST + Foxglove WebSocket API tests against the sanitized tendrild
 #     4. browser tests (Playwright + Debian chromium) against the sanitized tendrild
 #     5. every fuzz target for a bounded time (TENDRIL_FUZZ_SECONDS, default 10), its corpus kept
@@ -15,7 +16,6 @@
 #        commit the whole-tree clang-tidy passed on (.ci/clang-tidy-base) and those that include a
 #        changed header
 #   scripts/test.sh --full    all of the above, plus what leaves the blocking run:
-#     6b. the sanitized ctest tests labelled full-only (vm_tendrild_sigkill)
 #     7. a gcc RelWithDebInfo build with the benchmarks (build-gcc/) and its ctest
 #     8. clang-tidy over the whole tree (and, when clean, the commit to record in .ci/clang-tidy-base)
 #     9. long fuzzing (TENDRIL_FUZZ_SECONDS, default 300 in --full)
@@ -112,10 +112,14 @@ export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
 
 # ---- 2. ctest -----------------------------------------------------------------------------------
 stage "unit, integration, server, seed-corpus and VM tests (ctest, sanitized)"
-ctest --test-dir build --output-on-failure -j "$jobs" --timeout 900 -LE full-only 2>&1 | tee build/ctest.log
+ctest --test-dir build --output-on-failure -j "$jobs" --timeout 900 -LE alone 2>&1 | tee build/ctest.log
 status=${PIPESTATUS[0]}
 read -r p f < <(ctest_counts build/ctest.log)
 record ctest "$status" "$p" "$f"
+ctest --test-dir build --output-on-failure --timeout 900 -L alone 2>&1 | tee build/ctest-alone.log
+status=${PIPESTATUS[0]}
+read -r p f < <(ctest_counts build/ctest-alone.log)
+record ctest-alone "$status" "$p" "$f"
 
 # ---- 3. API tests -------------------------------------------------------------------------------
 stage "API tests over real sockets (REST, @foxglove/ws-protocol) against the sanitized tendrild"
@@ -208,13 +212,6 @@ else
 fi
 
 [ "$mode" = full ] || finish
-
-# ---- 6b. the sanitized tests that left the blocking run (label full-only) -------------------------
-stage "ctest -L full-only (sanitized: the tendrild SIGKILL test in the VM)"
-ctest --test-dir build --output-on-failure --timeout 900 -L full-only 2>&1 | tee build/ctest-full-only.log
-status=${PIPESTATUS[0]}
-read -r p f < <(ctest_counts build/ctest-full-only.log)
-record ctest-full-only "$status" "$p" "$f"
 
 # ---- 7. gcc release build, benchmarks and its ctest ---------------------------------------------
 stage "gcc RelWithDebInfo build with benchmarks (build-gcc)"
