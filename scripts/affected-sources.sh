@@ -23,12 +23,14 @@ mapfile -t changed < <({ git diff --name-only "$base" -- '*.cpp' '*.hpp'; git ls
   headers=()
   for f in "${changed[@]}"; do [[ "$f" == *.hpp ]] && headers+=("$f"); done
   if [ "${#headers[@]}" -gt 0 ]; then
-    # ninja -t deps: "<object>: #deps N ..." then one indented dependency per line; the first
-    # dependency of a compile step is its source file.
+    # ninja -t deps: "<object>: #deps N ..." then one indented dependency per line. The object's source
+    # is its one .cpp dependency (not the first one: with precompiled headers those come first).
     (cd "$build" && ninja -t deps) | awk -v root="$(pwd)/" -v list="$(printf '%s\n' "${headers[@]}")" '
       BEGIN { n = split(list, h, "\n"); for (i = 1; i <= n; i++) if (h[i] != "") want[h[i]] = 1 }
       function rel(p) { if (index(p, root) == 1) p = substr(p, length(root) + 1); sub(/^(\.\.\/)+/, "", p); return p }
-      /^[^ ]/ { source = ""; first = 1; next }
-      /^    / { p = rel(substr($0, 5)); if (first) { source = p; first = 0 } else if (p in want && source ~ /\.cpp$/) print source }'
+      function flush() { if (hit && source != "") print source }
+      /^[^ ]/ { flush(); source = ""; hit = 0; next }
+      /^    / { p = rel(substr($0, 5)); if (p ~ /\.cpp$/ && source == "") source = p; else if (p in want) hit = 1 }
+      END { flush() }'
   fi
 } | sort -u
