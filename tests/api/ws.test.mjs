@@ -6,7 +6,7 @@ import wsProtocol from '@foxglove/ws-protocol';
 import WebSocket from 'ws';
 
 const {FoxgloveClient} = wsProtocol;  // CommonJS package: no named ESM exports
-import {BASE_URL, TOKEN, ROBOT, robotConfig} from './helpers.mjs';
+import {BASE_URL, TOKEN, ROBOT, robotConfig, get} from './helpers.mjs';
 
 const WS_URL = BASE_URL.replace(/^http/, 'ws') + '/ws';
 
@@ -92,6 +92,38 @@ test('serverInfo, advertised channels, and joint_states messages with 4 position
     assert.ok(backbone, `scene has a backbone entity: ${JSON.stringify(scene).slice(0, 200)}`);
     assert.ok(backbone.lines[0].points.length >= 2);
     for (const p of backbone.lines[0].points) for (const k of ['x', 'y', 'z']) assert.ok(Number.isFinite(p[k]));
+  } finally {
+    client.close();
+  }
+});
+
+// Issue 12: at rest the sensors' noise moved the shape by thousandths of a millimetre and the scene went
+// out with every tick, so a software-rendered console redrew the 3D view all the time and showed it
+// STALE. A scene is sent when it changes visibly (more than 0.05 mm or about 0.6°).
+test('a robot at rest: the scene is not resent with every joint_states tick', async () => {
+  const operating = async () => (await get(`/robots/${ROBOT}/operating_state`)).json;
+  assert.equal((await operating()).is_busy, false, 'the robot is at rest');
+  const {client} = connect(`${WS_URL}?token=${encodeURIComponent(TOKEN)}`);
+  try {
+    const counts = {joints: 0, scene: 0};
+    const subscriptions = new Map();
+    client.on('advertise', (list) => {
+      for (const c of list) {
+        if (c.topic === `/${ROBOT}/joint_states`) subscriptions.set(client.subscribe(c.id), 'joints');
+        if (c.topic === `/${ROBOT}/scene`) subscriptions.set(client.subscribe(c.id), 'scene');
+      }
+    });
+    client.on('message', (m) => {
+      const which = subscriptions.get(m.subscriptionId);
+      if (which) counts[which] += 1;
+    });
+    await waitFor(client, 'message', (m) => (subscriptions.get(m.subscriptionId) === 'scene' ? true : undefined));
+    counts.joints = 0;
+    counts.scene = 0;
+    await new Promise((r) => setTimeout(r, 3000));
+    assert.equal((await operating()).is_busy, false, 'the robot stayed at rest');
+    assert.ok(counts.joints >= 30, `joint_states streamed: ${JSON.stringify(counts)}`);
+    assert.ok(counts.scene * 5 <= counts.joints, `the scene went out with the joint states: ${JSON.stringify(counts)}`);
   } finally {
     client.close();
   }

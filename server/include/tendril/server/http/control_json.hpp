@@ -70,12 +70,15 @@ class JsonControlApi final : public ControlApi {
   RobotApiExtension* extension(const std::string& robot) const;
   // Change detection per topic: a new version when `key` differs from the last one.
   std::uint64_t topic_version(const std::string& topic, const std::string& key) const;
+  // A scene topic's change key: changes when the scene differs visibly from the last one that changed it.
+  std::string visible_scene_key(const std::string& topic, nlohmann::json scene) const;
 
   RobotService& service_;
   ExtensionLookup extensions_;
   SchemaLookup schemas_;
   mutable std::mutex topic_mutex_;
   mutable std::map<std::string, std::pair<std::string, std::uint64_t>> topic_cache_;
+  mutable std::map<std::string, std::pair<nlohmann::json, std::uint64_t>> scene_reference_;
 };
 
 }  // namespace tendril::server
