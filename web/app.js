@@ -301,6 +301,9 @@ function updateControls() {
   const edited = !!joints && joints.edited();
   if (!hint && !edited) hint = 'Type or drag a goal; joints you do not touch stay where they are.';
   ui.moveButton.disabled = !os || estop || !enabled || pathMode || invalid.length > 0 || !edited || stale || viewer;
+  // A step moves one joint from the live setpoint: allowed whenever a joint move could be sent.
+  const stepBlocked = !os || estop || !enabled || pathMode || stale || viewer || !state.leaseHeld;
+  joints?.setStepsEnabled(!stepBlocked, hint || 'Steps need an ENABLED robot in a joint-space mode.');
   ui.moveHint.textContent = hint;
   ui.movePreview.textContent = joints ? joints.preview() : '';
 }
@@ -1098,6 +1101,20 @@ function wireCommands() {
   ui.fitView.addEventListener('click', () => view?.fit());
 }
 
+// A step move: one joint by ±1 mm or ±5° from the setpoint the server has now (never from what the page
+// last saw); every other joint stays where it is.
+async function stepJoint(index, delta, amount) {
+  if (!joints || !state.robot) return;
+  const name = joints.jointName(index);
+  const answer = await runCommand(`Step ${name} ${amount}`, async () => {
+    const live = await api.setpointJs(state.robot.name);
+    const goal = joints.stepGoal(live.position, index, delta);
+    if (!goal) throw new Error(`${name} is at its ${delta > 0 ? 'upper' : 'lower'} limit`);
+    return {...(await api.moveJp(state.robot.name, goal)), from: live.position[index], to: goal[index]};
+  });
+  if (answer) showStatus(`Step ${name} ${amount}: moving ${joints.format(index, answer.from)} → ${joints.format(index, answer.to)}`, 'ok');
+}
+
 // ---------------------------------------------------------------- start-up
 async function loadView() {
   try {
@@ -1116,7 +1133,7 @@ function selectRobot(name) {
   state.robot = robot;
   ui.robotKind.textContent = robot.kind ? robot.kind.replace(/_/g, ' ') : '';
   document.title = `${robot.name.toUpperCase()} · tendril console`;
-  joints = buildJointPanel(ui.form, robot.joints, () => updateControls());
+  joints = buildJointPanel(ui.form, robot.joints, () => updateControls(), {onStep: stepJoint});
   buildModeBar(robot);
   ui.catheterTab.hidden = !robot.configuration;
   if (robot.configuration) {

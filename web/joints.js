@@ -6,6 +6,10 @@
 
 const DECIMALS = {mm: 2, rad: 3, deg: 1};
 const STEP = {mm: 0.01, rad: 0.001, deg: 0.1};
+// Step moves, as the cockpits of endovascular robots offer them: ±1 mm for a prismatic joint, ±5° for a
+// revolute one (the label says it in the unit a surgeon reads; the command is in the joint's unit).
+const STEP_MOVE = {mm: {delta: 1, label: '1 mm'}, rad: {delta: 5 * Math.PI / 180, label: '5°'},
+                   deg: {delta: 5, label: '5°'}};
 
 function prettyName(name) {
   const s = String(name).replace(/_/g, ' ');
@@ -23,7 +27,8 @@ function el(tag, attrs = {}, ...children) {
   return e;
 }
 
-export function buildJointPanel(form, jointDescriptions, onChange) {
+// onStep(index, delta, label): a step button was pressed (the caller commands it from the live setpoint).
+export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}) {
   form.replaceChildren();
   const rows = jointDescriptions.map((j, index) => {
     const unit = j.unit || '';
@@ -50,6 +55,17 @@ export function buildJointPanel(form, jointDescriptions, onChange) {
       type: 'range', min: String(lower), max: String(upper), step: String(step),
       'data-testid': `joint-slider-${j.name}`, 'aria-label': `${prettyName(j.name)} goal slider in ${unit}`,
     });
+    const stepMove = STEP_MOVE[unit];
+    const stepButton = (sign) => {
+      const b = el('button', {
+        type: 'button', class: 'btn btn-small btn-step', 'data-testid': `joint-step-${sign > 0 ? 'plus' : 'minus'}-${j.name}`,
+        'aria-label': `Step ${prettyName(j.name).toLowerCase()} ${sign > 0 ? '+' : '−'}${stepMove.label}`,
+        text: `${sign > 0 ? '+' : '−'}${stepMove.label}`,
+      });
+      b.addEventListener('click', () => onStep?.(index, sign * stepMove.delta, `${sign > 0 ? '+' : '−'}${stepMove.label}`));
+      return b;
+    };
+    const steps = stepMove ? [stepButton(-1), stepButton(1)] : [];
     const limitsText = `${fmt(lower)} … ${fmt(upper)} ${unit}` +
       (unit === 'rad' ? ` (${degrees(lower)} … ${degrees(upper)})` : '');
     const row = el('fieldset', {class: 'joint', 'data-testid': `joint-row-${j.name}`, 'aria-label': prettyName(j.name)},
@@ -65,12 +81,13 @@ export function buildJointPanel(form, jointDescriptions, onChange) {
         el('div', {class: 'readout readout-goal'}, el('label', {class: 'readout-label', for: `${id}-goal`, text: 'goal'}),
           el('span', {class: 'goal-input-wrap'}, number, el('span', {class: 'goal-unit', text: unit})))),
       bar,
-      slider);
+      el('div', {class: 'joint-goal-line'}, slider,
+        el('span', {class: 'joint-steps', role: 'group', 'aria-label': `${prettyName(j.name)} step moves`}, ...steps)));
     form.appendChild(row);
 
     const r = {
       name: j.name, unit, lower, upper, decimals, row, number, slider, fill, spMark, measuredValue, measuredDeg,
-      setpointValue, fmt, edited: false, measured: NaN, setpoint: NaN,
+      setpointValue, fmt, steps, edited: false, measured: NaN, setpoint: NaN,
     };
     const fraction = (v) => Math.min(1, Math.max(0, (v - lower) / (upper - lower || 1)));
     r.fraction = fraction;
@@ -144,6 +161,26 @@ export function buildJointPanel(form, jointDescriptions, onChange) {
       return rows.map((r, i) => (r.edited ? Number(r.number.value) : Number(setpoint?.[i] ?? r.setpoint)));
     },
     edited() { return rows.some((r) => r.edited); },
+    // Step buttons are live only while a move could be commanded; `why` is their tooltip otherwise.
+    setStepsEnabled(enabled, why = '') {
+      rows.forEach((r) => r.steps.forEach((b) => {
+        b.disabled = !enabled;
+        b.title = enabled ? '' : why;
+      }));
+    },
+    // A step's goal: `setpoint` (the server's, read just before sending) with joint `index` moved by
+    // `delta` and kept within its limits; null when the joint is already at the limit it steps toward.
+    stepGoal(setpoint, index, delta) {
+      const r = rows[index];
+      if (!r || !Array.isArray(setpoint)) return null;
+      const goal = setpoint.map(Number);
+      const target = Math.min(r.upper, Math.max(r.lower, goal[index] + delta));
+      if (Math.abs(target - goal[index]) < 1e-9) return null;
+      goal[index] = target;
+      return goal;
+    },
+    jointName(index) { return rows[index] ? prettyName(rows[index].name).toLowerCase() : ''; },
+    format(index, v) { return rows[index] ? `${rows[index].fmt(Number(v))} ${rows[index].unit}` : String(v); },
     invalidJoints() { return rows.filter((r) => r.edited && !r.validate()).map((r) => prettyName(r.name)); },
     // "will move: insertion 10.00 → 30.00 mm · unchanged: roll, proximal bend, distal bend"
     preview() {

@@ -286,6 +286,41 @@ test('take the lease, enable, move: measured values and the 3D view change', asy
   await page.screenshot({path: path.join(ARTIFACTS, '05-after-move.png')});
 });
 
+// Issue 12 (the cockpit): step moves of ±1 mm and ±5°, each from the setpoint the server has when it is
+// sent; no other joint moves.
+test('step moves: +1 mm insertion and −5° roll from where the robot is; nothing else moves', async () => {
+  await waitHolding();
+  const untilServer = async (predicate, what) => {
+    const until = Date.now() + 30000;
+    for (;;) {
+      const os = await (await otherOperatorAs('e2e-probe', 'GET', '/robots/srmc/operating_state')).json();
+      const q = await measuredJs();
+      if (!os.is_busy && predicate(q)) return q;
+      if (Date.now() > until) assert.fail(`${what}: measured ${JSON.stringify(q)}, status ${await page.locator(tid('command-status')).textContent()}`);
+      await page.waitForTimeout(100);
+    }
+  };
+  const q0 = await measuredJs();
+  await page.waitForFunction(() => !document.querySelector('[data-testid="joint-step-plus-insertion"]').disabled, null, WAIT);
+  assert.equal((await page.locator(tid('joint-step-plus-insertion')).textContent()).trim(), '+1 mm');
+  assert.equal((await page.locator(tid('joint-step-minus-roll')).textContent()).trim(), '−5°');
+  await page.click(tid('joint-step-plus-insertion'));
+  await page.waitForFunction(() => /Step insertion \+1 mm: moving/.test(document.querySelector('[data-testid="command-status"]').textContent),
+                             null, WAIT);
+  const q1 = await untilServer((q) => Math.abs(q[0] - (q0[0] + 1)) < 0.05, 'insertion +1 mm');
+  for (const i of [1, 2, 3]) assert.ok(Math.abs(q1[i] - q0[i]) < 0.01, `joint ${i} stayed: ${q0[i]} -> ${q1[i]}`);
+  await waitHolding();
+  await page.click(tid('joint-step-minus-roll'));
+  const fiveDeg = 5 * Math.PI / 180;
+  const q2 = await untilServer((q) => Math.abs(q[1] - (q1[1] - fiveDeg)) < 0.005, 'roll −5°');
+  for (const i of [0, 2, 3]) assert.ok(Math.abs(q2[i] - q1[i]) < 0.01, `joint ${i} stayed: ${q1[i]} -> ${q2[i]}`);
+  await page.screenshot({path: path.join(ARTIFACTS, '05c-step-moves.png')});
+  await waitHolding();
+  await page.click(tid('joint-step-plus-roll'));
+  await untilServer((q) => Math.abs(q[1] - q1[1]) < 0.005, 'roll back +5°');
+  await waitHolding();
+});
+
 test('the plots show setpoint against measured and the loop timing, with their source', async () => {
   // The tracking plot is fed by the joint stream: it has drawn lines, not the "waiting" text.
   await page.waitForFunction(() => document.querySelector('[data-testid="tracking-plot"]').dataset.available === 'true',
@@ -755,6 +790,7 @@ test('screenshots at 1280x800 and on a 4K screen (device scale 1 and 2)', async 
   // The 4K pages take minutes in software rendering on two cores: scripts/test.sh --full
   // (TENDRIL_E2E_FULL=1) takes them; the blocking run takes the laptop size.
   const shots = [
+    ['19-1280x720.png', 1280, 720, 1],
     ['20-1280x800.png', 1280, 800, 1],
     ...(process.env.TENDRIL_E2E_FULL ? [['21-4k-scale1.png', 3840, 2160, 1], ['22-4k-scale2.png', 1920, 1080, 2]] : []),
   ];
@@ -774,7 +810,22 @@ test('screenshots at 1280x800 and on a 4K screen (device scale 1 and 2)', async 
       assert.ok(box && box.x + box.width <= width && box.y + box.height <= height, `${name}: E-STOP visible ${JSON.stringify(box)}`);
       const overflow = await p.evaluate(() => document.documentElement.scrollWidth - window.innerWidth);
       assert.ok(overflow <= 0, `${name}: no horizontal scrolling (${overflow} px too wide)`);
+      // Issue 12: "Move to goal" and the plan's step buttons are in view without scrolling, not covered.
+      const shownWhole = (testId) => p.evaluate((id) => {
+        const e = document.querySelector(`[data-testid="${id}"]`);
+        const r = e.getBoundingClientRect();
+        const inside = r.width > 0 && r.top >= 0 && r.left >= 0 && r.bottom <= window.innerHeight && r.right <= window.innerWidth;
+        const top = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+        return {inside, onTop: !!top && (top === e || e.contains(top)), rect: [r.left, r.top, r.right, r.bottom].map(Math.round)};
+      }, testId);
+      const move = await shownWhole('move-button');
+      assert.ok(move.inside && move.onTop, `${name}: Move to goal in view ${JSON.stringify(move)}`);
       await p.screenshot({path: path.join(ARTIFACTS, name)});
+      await p.click(tid('tab-plan'));
+      await p.waitForFunction(() => document.querySelector('[data-testid="plan-availability"]').dataset.available === 'true',
+                              null, {timeout: 30000});
+      const next = await shownWhole('step-next-button');
+      assert.ok(next.inside && next.onTop, `${name}: the plan's Next step in view ${JSON.stringify(next)}`);
       await ctx.close();
     }
   } finally {
