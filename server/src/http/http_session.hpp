@@ -11,7 +11,6 @@
 
 #include <memory>
 #include <optional>
-#include <type_traits>
 
 #include <boost/asio/dispatch.hpp>
 #include <boost/beast/core/flat_buffer.hpp>

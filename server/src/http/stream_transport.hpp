@@ -4,7 +4,6 @@
 // the stream's socket does (timeouts, shutdown, close).
 #pragma once
 
-#include <type_traits>
 #include <utility>
 
 #include <boost/asio/post.hpp>
