@@ -84,6 +84,13 @@ class Assembly final : public RobotAssembly {
           "; " + robot + ": " + what + " " + std::to_string(static_cast<long>(bits)) + " bit/s";
     };
     access.on_start = [bus](std::function<void()> hook) { bus->on_start.push_back(std::move(hook)); };
+    access.claim_node = [bus, robot = unit_.config.name, file = unit_.config.file.string()](
+                            int node_id, const std::string& key, const std::string& what) {
+      if (auto [it, fresh] = bus->node_owner.emplace(node_id, robot + "/" + what); !fresh)
+        throw ConfigError(file + ": " + key + ": node " + std::to_string(node_id) + " on bus '" +
+                          bus->config.name + "' is already " + it->second +
+                          " (node ids are unique per bus, across robots)");
+    };
     return access;
   }
   hardware::JointInterface* joints() override { return unit_.own_joints.get(); }
@@ -203,7 +210,6 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
     std::size_t drive;
   };
   std::map<std::string, std::vector<DriveRef>> drives_of;  // robot -> per joint
-  std::map<std::pair<CanBusComponent*, int>, std::string> node_owner;
   for (const auto& rc : robots) {
     const RobotType& type = *types.find(rc.kind);
     auto& refs = drives_of[rc.name];
@@ -212,7 +218,7 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
       if (!j.drive) continue;
       auto* bus = bus_by_name.at(j.drive->bus);
       const std::string who = rc.name + "/" + j.name();
-      if (auto [it, fresh] = node_owner.emplace(std::pair{bus, j.drive->node_id}, who); !fresh)
+      if (auto [it, fresh] = bus->node_owner.emplace(j.drive->node_id, who); !fresh)
         throw ConfigError(rc.file.string() + ": joints[" + std::to_string(i) + "].drive.node_id: node " +
                           std::to_string(j.drive->node_id) + " on bus '" + bus->config.name +
                           "' is already " + it->second);

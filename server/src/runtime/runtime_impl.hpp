@@ -108,7 +108,8 @@ struct CanBusComponent final : hardware::HardwareComponent {
   std::vector<std::unique_ptr<sim::SimulatedCia402Drive>> sim_drives;  // same index, virtual buses only
   double load = 0.0;
   std::string load_breakdown;
-  double extra_bits_per_second = 0.0;  // the robot types' own nodes
+  double extra_bits_per_second = 0.0;     // the robot types' own nodes
+  std::map<int, std::string> node_owner;  // node id -> "robot/joint" or "robot/what", across robots
   std::string extra_breakdown;
   std::thread bus_thread;
   PeriodicThread sim_thread;

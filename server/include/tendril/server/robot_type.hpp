@@ -173,6 +173,9 @@ class RobotAssembly {
     std::function<void(double bits_per_second, const std::string& what)> add_load;
     // Runs once the bus is up (e.g. NMT start of the type's nodes).
     std::function<void(std::function<void()>)> on_start;
+    // Claims a node id for one of the type's own nodes: throws ConfigError naming `key` (the file's
+    // key) when a drive or another robot's node has it. Robots that share the bus share its node ids.
+    std::function<void(int node_id, const std::string& key, const std::string& what)> claim_node;
   };
   virtual BusAccess bus(const std::string& name) = 0;
   // The joints' JointInterface when the core built it from the robot file's drives (CANopen), or

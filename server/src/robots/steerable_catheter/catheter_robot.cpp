@@ -106,6 +106,10 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
         "which need CiA 402 drives");
   auto bus = assembly.bus(bus_name);
   const auto& d = settings_.deflection;
+  bus.claim_node(d.node_id, "catheter.spring_deflection.node_id", "spring-deflection ADC");
+  if (settings_.analog_joystick)
+    bus.claim_node(settings_.analog_joystick->node_id, "catheter.joysticks.analog.node_id",
+                   "analog joystick ADC");
   canopen::AnalogInputSetup deflection_setup;
   deflection_setup.node_id = d.node_id;
   deflection_setup.stale_after_ns = static_cast<std::int64_t>(d.stale_ms * 1e6);

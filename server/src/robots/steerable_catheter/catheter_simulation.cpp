@@ -33,7 +33,7 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
 
   sim::AnalogInputNodeParameters sensor;
   sensor.node_id = s.deflection.node_id;
-  simulation->sensor_endpoint = bus.attach("sim:spring-deflection-adc");
+  simulation->sensor_endpoint = bus.attach("sim:" + config_.name + "/spring-deflection-adc");
   simulation->sensor_node =
       std::make_unique<sim::SimulatedAnalogInputNode>(*simulation->sensor_endpoint, sensor);
 
@@ -63,7 +63,7 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
   if (s.analog_joystick && s.simulation.analog_joystick_node) {
     sim::AnalogJoystickNodeParameters j;
     j.node_id = s.analog_joystick->node_id;
-    simulation->joystick_endpoint = bus.attach("sim:joystick-adc");
+    simulation->joystick_endpoint = bus.attach("sim:" + config_.name + "/joystick-adc");
     simulation->joystick_node =
         std::make_unique<sim::SimulatedAnalogJoystick>(*simulation->joystick_endpoint, j);
     bus.add_plant(simulation->joystick_node.get());
