@@ -55,7 +55,7 @@ class AcceptingApi final : public ControlApi {
                                               std::uint64_t&) const override {
     return std::nullopt;
   }
-  void operator_lost() override {}
+  void operator_lost(const std::string& robot) override { (void)robot; }
 
  private:
   static ApiResult ok() { return ApiResult::success(nlohmann::json::object()); }

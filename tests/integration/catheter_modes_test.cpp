@@ -537,7 +537,7 @@ TEST_F(CatheterTest, EveryOtherHoldHasAWayOut) {
   EXPECT_GT(setpoint()[0], held + 0.3);
 
   // The operator's connection goes: the stream stops at once; commands work again afterwards.
-  api->operator_lost();
+  api->operator_lost("srmc");
   steps(5);
   const double lost = setpoint()[0];
   steps(100);

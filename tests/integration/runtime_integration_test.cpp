@@ -184,7 +184,7 @@ TEST_F(RuntimeTest, OperatorLostStopsServoAtOnceAndDoesNotResume) {
   enable();
   ASSERT_EQ(api->servo_jv("srmc", {{"velocity", {0.0, 0.0, 1.0, 0.0}}}).status, 200);
   steps(50);
-  api->operator_lost();
+  api->operator_lost("srmc");
   steps(2);
   const double held = api->setpoint_js("srmc").body["position"][2].get<double>();
   steps(1000);

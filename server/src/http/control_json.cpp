@@ -633,7 +633,7 @@ std::optional<json> JsonControlApi::topic_message(const std::string& topic, std:
   return msg;
 }
 
-void JsonControlApi::operator_lost() { service_.operator_lost(); }
+void JsonControlApi::operator_lost(const std::string& robot) { service_.operator_lost(robot); }
 
 ApiResult JsonControlApi::load_path(const std::string& robot, const json& plan, const std::string& plan_id) {
   if (!service_.has_robot(robot)) return to_api_result(unknown_robot(robot));

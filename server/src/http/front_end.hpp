@@ -132,7 +132,8 @@ class HttpServer::Impl {
 
   ControlApi& api;
   HttpOptions opts;
-  http::LeaseManager lease;
+  http::RobotLeases leases;        // one operator lease per robot
+  std::mutex lease_actions_mutex;  // acquire, takeover and release across several robots are atomic
   const std::vector<ServiceDef> service_defs;
   const std::vector<fg::Service> services;
   const std::string server_session_id = random_hex(8);
@@ -218,35 +219,50 @@ class HttpServer::Impl {
 
   ApiResult execute(const CommandRef& command, const std::string& robot, const nlohmann::json& body,
                     const Identity& who);
-  // action: "acquire" (with an optional takeover token), "release" or "status".
+  // action: "acquire" (with an optional takeover token), "release" or "status"; of one robot's lease,
+  // or of every robot's when `robot` is empty (POST /api/v1/lease).
   ApiResult lease_action(const std::string& action, const Identity& who,
-                         const std::string& takeover_token = {});
-  // lease_token: set in the answer that grants the lease (its holder's secret), empty otherwise.
+                         const std::string& takeover_token = {}, const std::string& robot = {});
+  // The leases of `robots` as `who` sees them. lease_token: set in the answer that grants the lease (its
+  // holder's secret), empty otherwise.
   nlohmann::json lease_description(const Identity& who, SteadyClock::time_point now,
+                                   const std::vector<std::string>& robots,
                                    const std::string& lease_token = {}) const;
-  // 409 lease_held for a caller that does not hold the lease, saying who does and what to do.
-  ApiResult lease_refusal(const Identity& who, SteadyClock::time_point now, const std::string& what) const;
+  // 409 lease_held for a caller that does not hold `robot`'s lease, saying who does and what to do.
+  ApiResult lease_refusal(const Identity& who, SteadyClock::time_point now, const std::string& robot,
+                          const std::string& what) const;
+  // Renews the leases of `robots` for `who`, or the refusal for the first one it does not hold.
+  std::optional<ApiResult> use_leases(const Identity& who, SteadyClock::time_point now,
+                                      const std::vector<std::string>& robots, const std::string& what);
+  // "the operator lease", or "the operator lease of ur5" / "of srmc and ur5" on a server of several robots.
+  std::string lease_phrase(const std::vector<std::string>& robots) const;
+  // Where to take a lease: the robot's own route, or /api/v1/lease for every robot.
+  static std::string lease_route(const std::string& robot);
   // Sets parameters for `who` (operator with the lease) and pushes the new values to subscribers.
   ApiResult set_parameters(const nlohmann::json& parameters, const Identity& who);
   void publish_parameter_updates(const nlohmann::json& changed);
 
   // Servo streaming, for the takeover rule: a holder who sent a servo command within the longest
-  // command timeout of any robot is streaming and cannot be displaced. Recorded per lease
+  // command timeout of any robot is streaming and cannot be displaced. Recorded per robot and lease
   // generation, since one lease may be used under several keys (its token and its owner's key).
+  struct ServoSeen {
+    std::uint64_t generation = 0;
+    SteadyClock::time_point time{};
+  };
   std::mutex servo_mutex;
-  std::optional<std::uint64_t> last_servo_generation;
-  SteadyClock::time_point last_servo_time{};
+  std::map<std::string, ServoSeen> last_servo;  // robot -> last servo command
   std::chrono::milliseconds servo_window{150};
-  void note_servo(std::uint64_t generation, SteadyClock::time_point now) {
+  void note_servo(const std::string& robot, std::uint64_t generation, SteadyClock::time_point now) {
     std::lock_guard lock(servo_mutex);
-    last_servo_generation = generation;
-    last_servo_time = now;
+    last_servo[robot] = {generation, now};
   }
-  bool servo_streaming(std::uint64_t generation, SteadyClock::time_point now) {
+  bool servo_streaming(const std::string& robot, std::uint64_t generation, SteadyClock::time_point now) {
     std::lock_guard lock(servo_mutex);
-    return last_servo_generation == generation && now - last_servo_time <= servo_window;
+    const auto it = last_servo.find(robot);
+    return it != last_servo.end() && it->second.generation == generation &&
+           now - it->second.time <= servo_window;
   }
-  // A WebSocket connection closed: stop the robot if it held the lease, and end a lease bound to it.
+  // A WebSocket connection closed: stop the robots whose lease it held, and end the leases bound to it.
   void connection_closed(const Identity& who);
 
   // Status messages to WebSocket clients: to all, or only to the sockets whose lease key is listed.

@@ -45,10 +45,18 @@ ApiResult unknown_robot_result(const std::string& robot) {
                           "no robot named \"" + robot + "\"; GET /api/v1/robots lists them");
 }
 
+namespace {
+std::vector<std::string> robot_names(const ControlApi& api) {
+  std::vector<std::string> names;
+  for (const auto& robot : api.robots()) names.push_back(robot.at("name").get<std::string>());
+  return names;
+}
+}  // namespace
+
 HttpServer::Impl::Impl(ControlApi& api_in, HttpOptions options_in)
     : api(api_in),
       opts(std::move(options_in)),
-      lease(opts.lease_timeout),
+      leases(robot_names(api_in), opts.lease_timeout),
       service_defs(service_definitions(api_in)),
       services(service_list(service_defs)) {
   for (const auto& source : opts.topic_sources) {

@@ -114,4 +114,34 @@ LeaseManager::Takeover LeaseManager::take_over(const std::string& key, const std
   return out;
 }
 
+bool LeaseManager::takeover_token_valid(const std::string& key, const std::string& token,
+                                        Clock::time_point now) const {
+  std::lock_guard lock(mutex_);
+  const auto it = takeover_tokens_.find(token);
+  return it != takeover_tokens_.end() && it->second.key == key && now < it->second.expires;
+}
+
+std::optional<std::string> LeaseManager::token_if_held(const std::string& key, Clock::time_point now) const {
+  std::lock_guard lock(mutex_);
+  if (!held_by_locked(key, now)) return std::nullopt;
+  return lease_token_;
+}
+
+RobotLeases::RobotLeases(const std::vector<std::string>& robots, std::chrono::milliseconds timeout)
+    : robots_(robots), timeout_(timeout) {
+  for (const auto& robot : robots_) by_robot_.emplace(robot, std::make_unique<LeaseManager>(timeout));
+}
+
+LeaseManager* RobotLeases::find(const std::string& robot) const {
+  const auto it = by_robot_.find(robot);
+  return it == by_robot_.end() ? nullptr : it->second.get();
+}
+
+std::optional<std::string> RobotLeases::token_held_by(const std::string& key, Clock::time_point now) const {
+  for (const auto& robot : robots_) {
+    if (auto token = by_robot_.at(robot)->token_if_held(key, now)) return token;
+  }
+  return std::nullopt;
+}
+
 }  // namespace tendril::server::http

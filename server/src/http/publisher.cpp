@@ -306,9 +306,13 @@ std::string HttpServer::Impl::metrics() const {
       out << "tendril_http_requests_refused_total{reason=\"" << reason << "\"} " << count << '\n';
     }
   }
-  const auto lease_status = lease.status({}, SteadyClock::now());
-  metric("tendril_lease_held", "gauge", "1 when an operator holds the command lease.",
-         lease_status.held ? 1 : 0);
+  out << "# HELP tendril_lease_held 1 when an operator holds the robot's command lease.\n"
+         "# TYPE tendril_lease_held gauge\n";
+  const auto now = SteadyClock::now();
+  for (const auto& robot : leases.robots()) {
+    out << "tendril_lease_held{robot=\"" << robot << "\"} "
+        << (leases.find(robot)->status({}, now).held ? 1 : 0) << '\n';
+  }
   for (const auto& source : opts.topic_sources)
     if (source) out << source->metrics();
   return out.str();

@@ -82,9 +82,11 @@ RouteResult handle_metrics(HttpServer::Impl& server, const Request& req, const R
   return res;
 }
 
-StringResponse handle_lease(HttpServer::Impl& server, const Request& req, const Identity& who) {
+// /api/v1/lease (every robot's lease) and /api/v1/robots/{robot}/lease (one robot's).
+StringResponse handle_lease(HttpServer::Impl& server, const Request& req, const Identity& who,
+                            const std::string& robot = {}) {
   const auto method = req.method();
-  if (method == bhttp::verb::get) return result_response(req, server.lease_action("status", who));
+  if (method == bhttp::verb::get) return result_response(req, server.lease_action("status", who, {}, robot));
   if (method == bhttp::verb::post) {
     const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
     if (!body.ok()) return error_response(req, body);
@@ -97,9 +99,10 @@ StringResponse handle_lease(HttpServer::Impl& server, const Request& req, const 
       }
       takeover_token = it->get<std::string>();
     }
-    return result_response(req, server.lease_action("acquire", who, takeover_token));
+    return result_response(req, server.lease_action("acquire", who, takeover_token, robot));
   }
-  if (method == bhttp::verb::delete_) return result_response(req, server.lease_action("release", who));
+  if (method == bhttp::verb::delete_)
+    return result_response(req, server.lease_action("release", who, {}, robot));
   return method_not_allowed(req, "GET, POST, DELETE");
 }
 
@@ -168,6 +171,10 @@ RouteResult handle_api(HttpServer::Impl& server, const Request& req, const Reque
     const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
     if (!body.ok()) return error_response(req, body);
     return result_response(req, server.execute(Command::kEstopReset, {}, body.body, who));
+  }
+  if (route.size() == 3 && route[0] == "robots" && route[2] == "lease") {
+    if (!api.has_robot(route[1])) return error_response(req, unknown_robot_result(route[1]));
+    return handle_lease(server, req, who, route[1]);
   }
   if (route.size() == 3 && route[0] == "robots") {
     const std::string& robot = route[1];
@@ -346,6 +353,7 @@ std::vector<HttpServer::Route> HttpServer::api_routes() {
       {"GET", "/api/v1/faults"},   {"GET", "/api/v1/lease"},        {"POST", "/api/v1/lease"},
       {"DELETE", "/api/v1/lease"}, {"POST", "/api/v1/estop"},       {"POST", "/api/v1/estop/reset"},
   };
+  for (const char* verb : {"GET", "POST", "DELETE"}) routes.push_back({verb, "/api/v1/robots/{robot}/lease"});
   for (const auto& [verb, getter] : robot_getters())
     routes.push_back({"GET", "/api/v1/robots/{robot}/" + verb});
   for (const auto& [verb, command] : core_robot_commands())

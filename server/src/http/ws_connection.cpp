@@ -498,11 +498,18 @@ void WsConnection::handle_service_call(const fg::ServiceCallRequest& call) {
       if (def->command) {
         result = server_.execute(*def->command, robot, body, identity_);
       } else {
+        // Without "robot": every robot's lease, as POST /api/v1/lease.
         const auto action = body.find("action");
         const auto token = body.find("takeover_token");
-        result = server_.lease_action(
-            action != body.end() && action->is_string() ? action->get<std::string>() : "acquire", identity_,
-            token != body.end() && token->is_string() ? token->get<std::string>() : std::string());
+        const auto lease_robot = body.find("robot");
+        if (lease_robot != body.end() && !lease_robot->is_string()) {
+          result = ApiResult::error(400, "bad_request", "lease: \"robot\" must be a robot's name");
+        } else {
+          result = server_.lease_action(
+              action != body.end() && action->is_string() ? action->get<std::string>() : "acquire", identity_,
+              token != body.end() && token->is_string() ? token->get<std::string>() : std::string(),
+              lease_robot != body.end() ? lease_robot->get<std::string>() : std::string());
+        }
       }
     }
   }

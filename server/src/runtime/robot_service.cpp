@@ -522,8 +522,9 @@ Status RobotRuntime::estop_reset(const std::string& actor) {
   return Done{};
 }
 
-void RobotRuntime::operator_lost() {
+void RobotRuntime::operator_lost(const std::string& robot) {
   for (auto& r : impl_->robots) {
+    if (r->config.name != robot) continue;
     RobotCommand c;
     c.kind = CommandKind::hold;
     impl_->post(*r, c);

@@ -64,7 +64,7 @@ test('each robot has its own state and mode; the lease holder commands both, ano
   assert.equal((await state(CATHETER)).mode, 'joint');
   assertErrorShape(await post(`${CATHETER}/mode`, {mode: 'cartesian'}), 422, 'unknown_mode');
   assertErrorShape(await post(`${CATHETER}/move_cp`, {goal: {position: [0, 0, 0], orientation: [0, 0, 0, 1]}}), 422);
-  // The lease is the server's: another client is refused on either robot.
+  // POST /lease took every robot's lease: another client is refused on either robot.
   const other = script('two-robots-other');
   assertErrorShape(await other.post(`${ARM}/state_command`, {command: 'disable'}), 409, 'lease_held');
   assertErrorShape(await other.post(`${CATHETER}/state_command`, {command: 'enable'}), 409, 'lease_held');
@@ -191,4 +191,61 @@ test('an e-stop over the WebSocket (the estop service) stops both robots too', a
   client.close();
   assert.equal((await post('/estop/reset', {})).status, 200);
   for (const r of [ARM, CATHETER]) await disable(r);
+});
+
+test('each robot has its own lease: one script drives the catheter while another drives the arm', async () => {
+  await call('DELETE', '/lease');
+  const surgeon = script('surgeon-console');
+  const engineer = script('lab-engineer');
+  const take = async (who, r) => {
+    const res = await who.post(`${r}/lease`, {});
+    assert.equal(res.status, 200, `${r}/lease: ${res.text}`);
+    who.leaseToken = res.json.lease_token;
+    return res.json;
+  };
+  try {
+    const catheterLease = await take(surgeon, CATHETER);
+    assert.equal(catheterLease.mine, true);
+    assert.deepEqual(Object.keys(catheterLease.robots), ['srmc']);
+    await take(engineer, ARM);
+    // Each commands its own robot, and neither the other's.
+    assert.equal((await surgeon.post(`${CATHETER}/state_command`, {command: 'enable'})).status, 200);
+    assert.equal((await engineer.post(`${ARM}/state_command`, {command: 'enable'})).status, 200);
+    const refused = await engineer.post(`${CATHETER}/state_command`, {command: 'disable'});
+    assertErrorShape(refused, 409, 'lease_held');
+    assert.match(refused.json.error.message, /the operator lease of srmc is held by client:surgeon-console/);
+    assert.match(refused.json.error.message, /POST \/api\/v1\/robots\/srmc\/lease/);
+    assert.equal(refused.json.error.robot, 'srmc');
+    assertErrorShape(await surgeon.post(`${ARM}/move_jp`, {goal: (await get(`${ARM}/setpoint_js`)).json.position}),
+        409, 'lease_held');
+    // GET /lease shows every robot's lease as the caller sees it.
+    const all = (await surgeon.get('/lease')).json;
+    assert.equal(all.robots.srmc.mine, true);
+    assert.equal(all.robots.ur5.mine, false);
+    assert.equal(all.robots.ur5.holder, 'client:lab-engineer');
+    assert.equal(all.mine, false, 'mine means every robot');
+    // Taking every lease is refused while another holds one; the takeover offer names that robot only.
+    const grab = await surgeon.post('/lease', {});
+    assertErrorShape(grab, 409, 'lease_held');
+    assert.deepEqual(grab.json.error.robots, ['ur5']);
+    assert.ok(grab.json.error.takeover_token);
+    assertErrorShape(await surgeon.post(`${ARM}/lease`, {}), 409, 'lease_held');
+    // An e-stop stops both; its reset needs every held lease: not while the engineer holds the arm.
+    assert.equal((await post('/estop', {})).status, 200);
+    const reset = await surgeon.post('/estop/reset', {});
+    assertErrorShape(reset, 409, 'lease_held');
+    assert.match(reset.json.error.message, /ur5 is held by client:lab-engineer/);
+    assert.equal((await state(CATHETER)).estop, true, 'a refused reset leaves the e-stop latched');
+    assert.equal((await engineer.call('DELETE', `${ARM}/lease`)).status, 200);
+    assert.equal((await surgeon.post('/estop/reset', {})).status, 200);
+    // One holder, one token: the arm's lease comes with the token the surgeon already has.
+    const before = surgeon.leaseToken;
+    const armLease = await take(surgeon, ARM);
+    assert.equal(armLease.lease_token, before);
+    assert.equal((await surgeon.get('/lease')).json.mine, true);
+    assert.equal((await surgeon.post(`${ARM}/state_command`, {command: 'disable'})).status, 200);
+  } finally {
+    await surgeon.call('DELETE', '/lease');
+    await engineer.call('DELETE', '/lease');
+  }
 });

@@ -128,7 +128,10 @@ class FakeControlApi : public tendril::server::ControlApi {
     return json{{"position", {static_cast<double>(joint_version.load())}},
                 {"padding", std::string(payload_padding.load(), 'x')}};
   }
-  void operator_lost() override { ++operator_lost_calls; }
+  void operator_lost(const std::string& robot) override {
+    (void)robot;
+    ++operator_lost_calls;
+  }
 };
 
 struct Reply {

@@ -255,6 +255,31 @@ TEST(Lease, OneHolderAtATimeAndExpiresWithoutUse) {
   EXPECT_FALSE(lease.status("session:b", t0 + milliseconds(1902)).held);
 }
 
+TEST(RobotLeases, EachRobotHasItsOwnLeaseAndAHolderKeepsOneToken) {
+  using std::chrono::milliseconds;
+  RobotLeases leases({"srmc", "ur5"}, milliseconds(1000));
+  const RobotLeases::Clock::time_point t0{};
+  ASSERT_NE(leases.find("srmc"), nullptr);
+  EXPECT_EQ(leases.find("mystery"), nullptr);
+  // Two holders, one robot each.
+  ASSERT_TRUE(leases.find("srmc")->acquire("lease:new", "surgeon", "tok-s", t0));
+  ASSERT_TRUE(leases.find("ur5")->acquire("lease:new", "engineer", "tok-e", t0));
+  EXPECT_TRUE(leases.find("srmc")->holds("lease:tok-s", t0));
+  EXPECT_FALSE(leases.find("ur5")->holds("lease:tok-s", t0))
+      << "the surgeon's token commands only the catheter";
+  EXPECT_FALSE(leases.find("srmc")->holds("lease:tok-e", t0));
+  EXPECT_EQ(leases.token_held_by("lease:tok-s", t0), "tok-s");
+  EXPECT_EQ(leases.token_held_by("lease:tok-x", t0), std::nullopt);
+  // A takeover token is good only on the lease that issued it, for the caller it was issued to.
+  leases.find("ur5")->issue_takeover_token("lease:tok-s", "offer", t0);
+  EXPECT_TRUE(leases.find("ur5")->takeover_token_valid("lease:tok-s", "offer", t0 + milliseconds(10)));
+  EXPECT_FALSE(leases.find("srmc")->takeover_token_valid("lease:tok-s", "offer", t0 + milliseconds(10)));
+  EXPECT_FALSE(leases.find("ur5")->takeover_token_valid("lease:tok-e", "offer", t0 + milliseconds(10)));
+  EXPECT_FALSE(leases.find("ur5")->takeover_token_valid("lease:tok-s", "offer", t0 + milliseconds(15001)));
+  // Lapsed: the token holds nothing any more.
+  EXPECT_EQ(leases.token_held_by("lease:tok-s", t0 + milliseconds(1000)), std::nullopt);
+}
+
 TEST(Lease, TheTokenHoldsTheLeaseAndOnlyTheCurrentOne) {
   using std::chrono::milliseconds;
   LeaseManager lease(milliseconds(1000));

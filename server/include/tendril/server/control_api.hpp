@@ -132,9 +132,9 @@ class ControlApi {
   // The message for `topic` if it changed since `since_version`; sets `version`.
   virtual std::optional<nlohmann::json> topic_message(const std::string& topic, std::uint64_t since_version,
                                                       std::uint64_t& version) const = 0;
-  // Called when the lease holder's connection goes away while it was streaming servo commands:
-  // the robot holds (servo stops at once rather than waiting for the command timeout).
-  virtual void operator_lost() = 0;
+  // Called when the connection of the holder of `robot`'s lease goes away while it was streaming servo
+  // commands: that robot holds (servo stops at once rather than waiting for the command timeout).
+  virtual void operator_lost(const std::string& robot) = 0;
 
   // Path following (runtime mode "path_following"): a plan is loaded, then played back one insertion
   // step at a time with joint-space moves. `plan` = {"steps":[{"q":[…], "backbone":[[x,y,z],…]?},…],

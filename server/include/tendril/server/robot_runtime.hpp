@@ -96,7 +96,7 @@ class RobotRuntime final : public RobotService {
   Status servo_cv(const std::string& robot, const CartesianTwist& twist) override;
   Status estop(const std::string& actor) override;
   Status estop_reset(const std::string& actor) override;
-  void operator_lost() override;
+  void operator_lost(const std::string& robot) override;
   std::vector<SafetyEventView> faults(std::size_t max_events) const override;
   std::vector<SafetyEventView> events_since(std::uint64_t since, std::uint64_t& total) const override;
   std::string metrics() const override;

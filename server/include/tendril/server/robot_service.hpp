@@ -249,8 +249,9 @@ class RobotService {
   // `actor` names who pressed it, for the event log.
   virtual Status estop(const std::string& actor) = 0;
   virtual Status estop_reset(const std::string& actor) = 0;
-  // The holder's connection went away while streaming: every stream stops and the robot holds.
-  virtual void operator_lost() = 0;
+  // The connection of the holder of `robot`'s lease went away while streaming: its streams stop and
+  // it holds. Other robots, maybe commanded by someone else, go on.
+  virtual void operator_lost(const std::string& robot) = 0;
 
   virtual std::vector<SafetyEventView> faults(std::size_t max_events) const = 0;
   // The events logged after the first `since` (oldest first); `total` = how many were logged so far.

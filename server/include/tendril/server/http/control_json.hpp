@@ -55,7 +55,7 @@ class JsonControlApi final : public ControlApi {
   std::optional<TopicInfo> topic_schema(const std::string& topic) const override;
   std::optional<nlohmann::json> topic_message(const std::string& topic, std::uint64_t since_version,
                                               std::uint64_t& version) const override;
-  void operator_lost() override;
+  void operator_lost(const std::string& robot) override;
   ApiResult load_path(const std::string& robot, const nlohmann::json& plan,
                       const std::string& plan_id) override;
   ApiResult path_step(const std::string& robot, const nlohmann::json& body) override;

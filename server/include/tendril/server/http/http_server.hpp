@@ -10,14 +10,15 @@
 // - Roles: a token holder is an operator. `?role=viewer` (page or WS URL; sticks to the cookie session) or
 //   the header `X-Tendril-Role: viewer` makes the session read-only: viewers get 403 `forbidden_role` on
 //   commands and on the lease, but may still trigger the e-stop (safety first).
-// - Lease: one operator commands at a time, and holding it takes a secret (lease.hpp): the cookie
+// - Lease: one operator commands a robot at a time (each robot has its own lease, RobotLeases), and
+//   holding it takes a secret (lease.hpp): the cookie
 //   session; the lease token POST /api/v1/lease answers (`X-Tendril-Lease`, or `?lease=` on the WS
 //   URL); for REST callers with the bearer token alone, the bearer token (so plain curl keeps its
 //   lease across connections); for a WebSocket with neither, the connection (its lease ends with it).
 //   `X-Tendril-Client` is a label only. A WebSocket shares its cookie session's identity, so a console
 //   that took the lease over REST also holds it on its socket. The lease expires `lease_timeout` after
 //   it was taken or last used by a command. When a WebSocket holding the lease closes,
-//   ControlApi::operator_lost() is called (servo stops).
+//   ControlApi::operator_lost(robot) is called for each robot whose lease it held (servo stops).
 // - Browsers: WebSocket handshakes and REST calls that carry an Origin header must come from an allowed
 //   origin (403 otherwise); a missing Origin (non-browser client) is allowed.
 #pragma once

@@ -1,4 +1,5 @@
-// The operator lease: at most one client may command at a time. A lease lasts `timeout` after it was
+// The operator lease: at most one client may command a robot at a time (RobotLeases below keeps one
+// lease per robot). A lease lasts `timeout` after it was
 // taken or last used, so a vanished console cannot keep it forever. Time is passed in, so tests step it.
 //
 // Ownership is a secret only the holder has. Every lease has a lease token (random, issued when the
@@ -21,6 +22,7 @@
 #include <chrono>
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -82,6 +84,10 @@ class LeaseManager {
   // Takes the lease for `key` when `token` was issued to `key` and has not expired; consumes the token.
   Takeover take_over(const std::string& key, const std::string& label, const std::string& token,
                      const std::string& fresh_token, Clock::time_point now);
+  // Whether take_over would accept `token` from `key` now (checked on every robot before any moves).
+  bool takeover_token_valid(const std::string& key, const std::string& token, Clock::time_point now) const;
+  // The lease token when `key` holds the lease now.
+  std::optional<std::string> token_if_held(const std::string& key, Clock::time_point now) const;
 
  private:
   bool live_locked(Clock::time_point now) const { return !holder_key_.empty() && now < expires_; }
@@ -101,6 +107,27 @@ class LeaseManager {
     Clock::time_point expires;
   };
   std::map<std::string, PendingTakeover> takeover_tokens_;  // token -> who may use it, until when
+};
+
+// The leases of a server's robots, one LeaseManager each: a surgeon may command the catheter while a
+// script commands the arm (seed 002's set-up), and neither can command the other's robot. A caller's
+// leases share one lease token: a caller that already holds a live lease gets that token again with
+// the next robot's lease, so one X-Tendril-Lease header commands every robot it holds.
+class RobotLeases {
+ public:
+  using Clock = LeaseManager::Clock;
+  RobotLeases(const std::vector<std::string>& robots, std::chrono::milliseconds timeout);
+  // nullptr for a robot the server does not have.
+  LeaseManager* find(const std::string& robot) const;
+  const std::vector<std::string>& robots() const noexcept { return robots_; }
+  std::chrono::milliseconds timeout() const noexcept { return timeout_; }
+  // The token of a live lease `key` holds on any robot (nullopt when it holds none).
+  std::optional<std::string> token_held_by(const std::string& key, Clock::time_point now) const;
+
+ private:
+  std::vector<std::string> robots_;
+  std::chrono::milliseconds timeout_;
+  std::map<std::string, std::unique_ptr<LeaseManager>> by_robot_;  // a LeaseManager holds a mutex
 };
 
 }  // namespace tendril::server::http
