@@ -115,13 +115,16 @@ export class Api {
   moveJp(robot, goal) { return this.post(`/robots/${encodeURIComponent(robot)}/move_jp`, {goal}); }
   estop() { return this.post('/estop', {}); }
   estopReset() { return this.post('/estop/reset', {}); }
-  lease() { return this.get('/lease'); }
-  async takeLease(takeoverToken) {
-    const granted = await this.post('/lease', takeoverToken ? {takeover_token: takeoverToken} : {});
+  // Each robot has its own operator lease (/robots/{r}/lease); without a robot, every robot's (/lease).
+  // The server gives one holder one token for all its leases.
+  leasePath(robot) { return robot ? `/robots/${encodeURIComponent(robot)}/lease` : '/lease'; }
+  lease(robot) { return this.get(this.leasePath(robot)); }
+  async takeLease(robot, takeoverToken) {
+    const granted = await this.post(this.leasePath(robot), takeoverToken ? {takeover_token: takeoverToken} : {});
     if (granted && granted.lease_token) this.leaseToken = granted.lease_token;
     return granted;
   }
-  releaseLease() { return this.del('/lease'); }
+  releaseLease(robot) { return this.del(this.leasePath(robot)); }
   setMode(robot, mode) { return this.post(`/robots/${encodeURIComponent(robot)}/mode`, {mode}); }
   moveConfiguration(robot, goal) { return this.post(`/robots/${encodeURIComponent(robot)}/move_configuration`, {goal}); }
   joystick(robot, axes, deadman) { return this.post(`/robots/${encodeURIComponent(robot)}/joystick`, {axes, deadman}); }

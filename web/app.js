@@ -333,7 +333,9 @@ function setLease(held, otherMessage = '') {
   if (changed) updateBanner();
   ui.lease.classList.toggle('held', held);
   ui.lease.classList.toggle('other', !held && !!otherMessage);
-  ui.lease.textContent = held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'lease: free';
+  // With several robots each has its own lease: the badge names the selected robot's.
+  const of = state.robots.length > 1 && state.robot ? ` (${state.robot.name})` : '';
+  ui.lease.textContent = (held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'lease: free') + of;
   ui.lease.title = otherMessage;
   ui.leaseButton.textContent = held ? 'Release lease' : 'Take lease';
   ui.leaseButton.setAttribute('aria-label', held ? 'Release operator lease' : 'Take operator lease');
@@ -686,7 +688,7 @@ async function pollLease() {
   if (!net.reachable) return;
   let status;
   try {
-    status = await api.lease();
+    status = await api.lease(state.robot?.name);
   } catch {
     return;  // a server without GET /lease: rely on command answers
   }
@@ -697,7 +699,7 @@ async function pollLease() {
     setLease(true);
     if (typeof expires === 'number' && expires < 15) {
       try {
-        await api.takeLease();
+        await api.takeLease(state.robot?.name);
       } catch (err) {
         setLease(false, describeError(err));
       }
@@ -917,7 +919,8 @@ function selectTab(tab) {
 // Asks before taking the lease from another operator; the server's token is valid for 15 s.
 async function offerTakeover(err) {
   const holder = err.details.holder || 'another operator';
-  ui.takeoverText.textContent = `The operator lease is held by ${holder}. Taking it over stops their control ` +
+  const robot = state.robots.length > 1 && state.robot ? ` of ${state.robot.name}` : '';
+  ui.takeoverText.textContent = `The operator lease${robot} is held by ${holder}. Taking it over stops their control ` +
     'of the robot at once; they are told. Do this only when you have agreed it with them.';
   ui.takeoverDialog.returnValue = '';
   ui.takeoverDialog.showModal();
@@ -929,7 +932,7 @@ async function offerTakeover(err) {
     return;
   }
   try {
-    await api.takeLease(err.details.takeover_token);
+    await api.takeLease(state.robot?.name, err.details.takeover_token);
     setLease(true);
     showStatus(`Lease taken over from ${holder}: you are the operator`, 'ok');
   } catch (e) {
@@ -1033,11 +1036,11 @@ function wireCommands() {
   ui.withdrawButton.addEventListener('click', () => withdraw(1.0));
   ui.leaseButton.addEventListener('click', async () => {
     if (state.leaseHeld) {
-      if (await runCommand('Release lease', () => api.releaseLease())) setLease(false);
+      if (await runCommand('Release lease', () => api.releaseLease(state.robot?.name))) setLease(false);
       return;
     }
     try {
-      await api.takeLease();
+      await api.takeLease(state.robot?.name);
       setLease(true);
       showStatus('Lease taken: you are the operator', 'ok');
     } catch (err) {
@@ -1130,8 +1133,13 @@ async function loadView() {
 
 function selectRobot(name) {
   const robot = state.robots.find((r) => r.name === name) || state.robots[0];
+  // A status line about the last robot (e.g. "Lease taken") would read as if it were about this one.
+  if (state.robot && state.robot !== robot) showStatus(`Showing ${robot.name}`, 'ok');
   state.robot = robot;
   ui.robotKind.textContent = robot.kind ? robot.kind.replace(/_/g, ' ') : '';
+  // The 3D view is titled by what it draws: "Steerable catheter shape", "Serial arm shape".
+  const kind = robot.kind ? robot.kind.replace(/_/g, ' ') : 'robot';
+  $('[data-testid="scene-title"]').textContent = `${kind[0].toUpperCase()}${kind.slice(1)} shape`;
   document.title = `${robot.name.toUpperCase()} · tendril console`;
   joints = buildJointPanel(ui.form, robot.joints, () => updateControls(), {onStep: stepJoint});
   buildModeBar(robot);
@@ -1147,6 +1155,11 @@ function selectRobot(name) {
   trackingPlot?.configure({unit: first?.unit || '', minSpan: first?.unit === 'rad' ? 0.01 : 0.1});
   state.timingSource = null;
   if (timingPlot) chooseTimingSource();
+  // Each robot has its own lease: show the new robot's, not the last one's, until GET says otherwise.
+  if (state.robots.length > 1) {
+    setLease(false);
+    pollLease();
+  }
   updateControls();
   if (window.tendrilConnection) {
     window.tendrilConnection.close();

@@ -3,7 +3,7 @@
 # repo's config, runs tests/e2e/*.e2e.mjs in headless Chromium (playwright-core, no browser
 # download: /usr/bin/chromium or $CHROMIUM), and always stops the server.
 # console.e2e.mjs runs against a tendrild with the catheter in free space (see tests/api/server.sh);
-# holds.e2e.mjs, which needs wall contact, against one that keeps the shipped SIMULATED vessel
+# two_robots.e2e.mjs against one that adds the SIMULATED UR5 arm; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped SIMULATED vessel
 # (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it). One server runs at a time: two sanitized
 # servers with real-time threads beside a software-rendering Chromium starve the browser on two cores.
 # Usage: tests/e2e/run.sh [path/to/tendrild] (default $TENDRILD, else build/server/tendrild).
@@ -32,6 +32,11 @@ run_file() {  # run_file <test file>: node's test runner over one file, the serv
 
 start_tendrild "$binary" || exit 1
 run_file "$here/console.e2e.mjs"
+stop_tendrild
+
+# Two robots in one server: the robot selector, and each robot's own lease.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/ur5_arm.json" start_tendrild "$binary" || exit 1
+run_file "$here/two_robots.e2e.mjs"
 stop_tendrild
 
 TENDRIL_TEST_VESSEL=1 start_tendrild "$binary" || exit 1
