@@ -266,7 +266,7 @@ export class PlanPanel {
     try {
       const branch = await this.ctx.api.vessel(id, Number(this.ui.branch.value || 0));
       this.branchRadius = branch.radius;
-      this.ctx.view()?.setVessel(branch.points, branch.radius);
+      this.ctx.view()?.setVessel(branch.points, branch.radius, {entry: this.ctx.robot()?.vessel_entry, asLoaded: true});
     } catch (err) {
       this.ctx.status(`Cannot load the vessel branch: ${err.message}`, 'error');
     }
@@ -328,13 +328,14 @@ export class PlanPanel {
     this.plan = result;
     const steps = Array.isArray(result?.steps) ? result.steps : [];
     this.errorPlot.setData(steps.map((s) => Number(s.position_error_mm)), steps.map((s) => Number(s.orientation_error_deg)));
-    // The plan lives in its insertion frame (vessel start at the origin, tangent +z); show the vessel
-    // path the planner used in that same frame, so vessel and planned shapes line up.
+    // The plan lives in its insertion frame (vessel start at the origin, tangent +z); the vessel path
+    // the planner used is in that same frame, and the robot's vessel_entry puts both where the robot is.
+    const entry = this.ctx.robot()?.vessel_entry;
     if (Array.isArray(result?.vessel_path) && result.vessel_path.length >= 2) {
       const r = Array.isArray(this.branchRadius) ? this.branchRadius : null;
-      this.ctx.view()?.setVessel(result.vessel_path, r);
+      this.ctx.view()?.setVessel(result.vessel_path, r, {entry});
     }
-    this.ctx.view()?.setPlan(steps.map((s) => s.backbone));
+    this.ctx.view()?.setPlan(steps.map((s) => s.backbone), {entry});
     const sm = result?.summary || {};
     const f = (v, d = 2) => (Number.isFinite(Number(v)) ? Number(v).toFixed(d) : '—');
     const design = result?.design ? ` · design L1 ${f(result.design.L1, 1)} mm, L2 ${f(result.design.L2, 1)} mm` : '';

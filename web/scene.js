@@ -19,6 +19,26 @@ function toVec(p) {
   return Array.isArray(p) ? new THREE.Vector3(p[0], p[1], p[2]) : new THREE.Vector3(p.x, p.y, p.z);
 }
 
+// One world: the robot's frame. A plan and its vessel path come in the planner's insertion frame
+// (vessel start at the origin, tangent +z); the robot's vessel_entry (GET /robots) is where that
+// frame's origin sits, so they are drawn under it. A vessel as loaded (its own frame) is first moved
+// into the insertion frame as the planner moves it: start to the origin, first tangent (over the first
+// 0.5 mm, the planner's default spacing) to +z.
+function placeEntry(object, entry) {
+  if (!entry || !Array.isArray(entry.position)) return;
+  object.position.set(entry.position[0], entry.position[1], entry.position[2]);
+  const o = entry.orientation;
+  if (Array.isArray(o) && o.length === 4) object.quaternion.set(o[0], o[1], o[2], o[3]);
+}
+
+function toInsertionFrame(vecs) {
+  const start = vecs[0].clone();
+  const ahead = vecs.find((v) => v.distanceTo(start) >= 0.5) || vecs[vecs.length - 1];
+  const tangent = ahead.clone().sub(start).normalize();
+  const turn = new THREE.Quaternion().setFromUnitVectors(tangent, new THREE.Vector3(0, 0, 1));
+  return vecs.map((v) => v.clone().sub(start).applyQuaternion(turn));
+}
+
 function applyPose(object, pose) {
   if (!pose) return;
   if (pose.position) object.position.set(pose.position.x || 0, pose.position.y || 0, pose.position.z || 0);
@@ -348,12 +368,15 @@ export class CatheterView {
 
   // Vessel centreline of the selected branch (mm) and, when radii are known, its wall as a
   // translucent tube; null removes it.
-  setVessel(points, radius) {
+  // entry: the robot's vessel_entry (the insertion frame's pose in the robot's frame); asLoaded: the
+  // points are in the vessel file's own frame (else in the insertion frame, as a plan's vessel path).
+  setVessel(points, radius, {entry = null, asLoaded = false} = {}) {
     if (!this.available) return;
     this.clearGroup('vesselGroup');
     if (!points || points.length < 2) return;
     const group = this.ensureGroup('vesselGroup');
-    const vecs = points.map(toVec);
+    placeEntry(group, entry);
+    const vecs = asLoaded && entry ? toInsertionFrame(points.map(toVec)) : points.map(toVec);
     group.add(new THREE.Line(new THREE.BufferGeometry().setFromPoints(vecs),
                              new THREE.LineBasicMaterial({color: 0xd2555a})));
     const r = Array.isArray(radius) && radius.length ? radius.reduce((a, b) => a + b, 0) / radius.length : 0;
@@ -371,12 +394,13 @@ export class CatheterView {
   }
 
   // Planned backbones, one per insertion step; the current step is drawn bright, the others faint.
-  setPlan(backbones) {
+  setPlan(backbones, {entry = null} = {}) {
     if (!this.available) return;
     this.clearGroup('planGroup');
     this.planLines = [];
     if (!backbones || !backbones.length) return;
     const group = this.ensureGroup('planGroup');
+    placeEntry(group, entry);
     for (const points of backbones) {
       if (!Array.isArray(points) || points.length < 2) {
         this.planLines.push(null);

@@ -130,7 +130,9 @@ struct KeyReader {
   }
 };
 
-std::vector<sim::VesselTube> tubes_from(const std::vector<teleop::CenterlinePolyline>& branches) {
+}  // namespace
+
+std::vector<sim::VesselTube> vessel_tubes(const std::vector<teleop::CenterlinePolyline>& branches) {
   std::vector<sim::VesselTube> tubes;
   for (const auto& branch : branches) {
     sim::VesselTube tube;
@@ -142,8 +144,6 @@ std::vector<sim::VesselTube> tubes_from(const std::vector<teleop::CenterlinePoly
   }
   return tubes;
 }
-
-}  // namespace
 
 void append_base64(const std::uint8_t* data, std::size_t size, std::string& out) {
   static constexpr char kAlphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
@@ -210,42 +210,72 @@ ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::fil
       r.number("contrast_attenuation_per_mm", f.contrast_attenuation_per_mm, 0, 10);
   f.anatomy = r.boolean("anatomy", true);
 
+  auto scene = load_scene_vessel(nullptr, imaging, server_file);
+  c.vessels = vessel_tubes(scene.branches);
+  c.vessel_source = std::move(scene.source);
+  return c;
+}
+
+SceneVessel load_scene_vessel(const nlohmann::json& scene, const nlohmann::json& imaging,
+                              const std::filesystem::path& server_file) {
+  SceneVessel out;
+  const std::string file = server_file.string();
+  // The scene's keys, or the older imaging.vessel.
+  const bool in_scene = scene.is_object();
+  if (!scene.is_null() && !in_scene)
+    throw ConfigError(file + ": scene: expected an object, got " + scene.dump());
+  const nlohmann::json& holder = in_scene ? scene : (imaging.is_object() ? imaging : scene);
+  const std::string key = in_scene ? "scene.vessel" : "imaging.vessel";
+  const auto fail = [&](const std::string& expected) {
+    std::string got = holder.contains("vessel") ? holder.at("vessel").dump() : "nothing";
+    if (got.size() > 60) got = got.substr(0, 57) + "...";
+    throw ConfigError(file + ": " + key + ": expected " + expected + ", got " + got);
+  };
+  if (in_scene) {
+    for (const auto& [k, v] : scene.items()) {
+      if (k != "vessel" && k != "robot" && k != "note")
+        throw ConfigError(file + ": scene." + k + ": unknown key; expected vessel, robot or note");
+    }
+    if (scene.contains("robot")) {
+      if (!scene.at("robot").is_string() || scene.at("robot").get<std::string>().empty())
+        throw ConfigError(file + ": scene.robot: expected a robot's name, got " + scene.at("robot").dump());
+      out.robot = scene.at("robot").get<std::string>();
+    }
+  }
   const auto dir = server_file.parent_path();
   std::filesystem::path vessel_file;
   bool generate = false;
-  if (imaging.contains("vessel")) {
-    const auto& v = imaging.at("vessel");
+  if (holder.is_object() && holder.contains("vessel")) {
+    const auto& v = holder.at("vessel");
     if (v.is_boolean() && !v.get<bool>()) {
-      c.vessel_source = "none";
-      return c;
+      out.source = "none";
+      return out;
     }
-    if (!v.is_string() || v.get<std::string>().empty())
-      r.fail("vessel", "a CSV file (x,y,z[,r] mm) or false");
+    if (!v.is_string() || v.get<std::string>().empty()) fail("a CSV file (x,y,z[,r] mm) or false");
     vessel_file = v.get<std::string>();
     if (vessel_file.is_relative()) vessel_file = (dir / vessel_file).lexically_normal();
-    if (!std::filesystem::exists(vessel_file))
-      r.fail("vessel", "an existing file (" + vessel_file.string() + ")");
+    if (!std::filesystem::exists(vessel_file)) fail("an existing file (" + vessel_file.string() + ")");
   } else {
     vessel_file = (dir / "vessels" / "synthetic_ica.csv").lexically_normal();
     generate = !std::filesystem::exists(vessel_file);
   }
   if (generate) {
-    c.vessels = tubes_from({teleop::make_synthetic_ica(1)});
-    c.vessel_source = "synthetic ICA generated at start-up (teleop::make_synthetic_ica, seed 1; " +
-                      vessel_file.string() + " not found)";
-    return c;
+    out.branches = {teleop::make_synthetic_ica(1)};
+    out.source = "synthetic ICA generated at start-up (teleop::make_synthetic_ica, seed 1; " +
+                 vessel_file.string() + " not found)";
+    return out;
   }
   std::ifstream in(vessel_file);
   std::stringstream text;
   text << in.rdbuf();
-  if (!in) r.fail("vessel", "a readable file (" + vessel_file.string() + ")");
+  if (!in) fail("a readable file (" + vessel_file.string() + ")");
   try {
-    c.vessels = tubes_from(teleop::parse_centerline_csv(text.str()));
+    out.branches = teleop::parse_centerline_csv(text.str());
   } catch (const teleop::VesselInputError& e) {
-    throw ConfigError(file + ": imaging.vessel: " + vessel_file.string() + ": " + e.what());
+    throw ConfigError(file + ": " + key + ": " + vessel_file.string() + ": " + e.what());
   }
-  c.vessel_source = vessel_file.string();
-  return c;
+  out.source = vessel_file.string();
+  return out;
 }
 
 struct ImagingWorker::Plane {

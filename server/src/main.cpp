@@ -138,11 +138,31 @@ int main(int argc, char** argv) {
     if (token.empty()) token = config.token;
     if (token.empty()) token = random_token();
 
+    // One world: the scene's vessel is what the robots touch, the fluoroscope images and the 3D view
+    // shows, placed at the vessel entry of the scene's robot.
+    const SceneVessel scene = load_scene_vessel(config.scene, config.imaging, config.file);
     RuntimeOptions ro;
     ro.control_rate_hz = config.control_rate_hz;
     ro.realtime_priority = config.realtime_priority && !no_realtime;
+    ro.scene_vessel = scene.branches;
     const RobotTypes& types = builtin_robot_types();
     RobotRuntime runtime(config.robots, ro, types);
+    std::string scene_robot = scene.robot;
+    if (!scene_robot.empty() && !runtime.has_robot(scene_robot))
+      throw ConfigError(config.file.string() + ": scene.robot: expected one of the server's robots, got \"" +
+                        scene_robot + "\"");
+    for (const auto& rc : config.robots) {
+      if (scene_robot.empty() && runtime.vessel_entry(rc.name)) scene_robot = rc.name;
+    }
+    const auto entry = scene_robot.empty() ? std::nullopt : runtime.vessel_entry(scene_robot);
+    std::vector<tendril::teleop::CenterlinePolyline> placed_vessel;
+    for (const auto& branch : scene.branches) {
+      // Every branch moves with the first (the one entered): a vessel tree stays one rigid body.
+      placed_vessel.push_back(entry
+                                  ? tendril::teleop::transformed(branch, tendril::teleop::placement_at_entry(
+                                                                             scene.branches.front(), *entry))
+                                  : branch);
+    }
     runtime.start();
     // The JSON face of the robots for the front end, with each robot type's part of the API and the
     // schema of each robot file.
@@ -181,6 +201,10 @@ int main(int argc, char** argv) {
     // Simulated bi-plane fluoroscopy: its own threads read the runtime snapshot, never the RT thread.
     std::shared_ptr<ImagingWorker> imaging;
     if (auto ic = parse_imaging_config(config.imaging, config.file); ic.enabled) {
+      ic.vessels = vessel_tubes(placed_vessel);
+      ic.vessel_source =
+          scene.source + (entry ? ", its start at the vessel entry of robot '" + scene_robot + "'"
+                                : std::string(", in its own frame (no robot has a vessel entry)"));
       std::cerr << "tendrild: imaging: SIMULATED bi-plane fluoroscope (/imaging/ap, /imaging/lateral) "
                 << ic.fluoroscope.geometry.width << "x" << ic.fluoroscope.geometry.height << " at " << ic.fps
                 << " fps; vessel: " << ic.vessel_source << std::endl;

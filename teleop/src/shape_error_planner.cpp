@@ -301,10 +301,10 @@ PlanStep ShapeErrorPlanner::solve_step(const VesselCenterline& aligned, double q
 PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel) { return plan(vessel, JobControl{}); }
 
 PathPlan ShapeErrorPlanner::plan(const VesselCenterline& vessel, const JobControl& job) {
-  // Same transform as VesselCenterline::aligned_to_insertion(), kept to map results back.
-  from_aligned_ = Eigen::Quaterniond::FromTwoVectors(vessel.tangents().front(), Eigen::Vector3d::UnitZ())
-                      .toRotationMatrix();
-  aligned_offset_ = -(from_aligned_ * vessel.points().front());
+  // The transform of VesselCenterline::aligned_to_insertion(), kept to map results back.
+  const Eigen::Isometry3d alignment = vessel.insertion_alignment();
+  from_aligned_ = alignment.linear();
+  aligned_offset_ = alignment.translation();
   const VesselCenterline aligned = vessel.transformed(from_aligned_, aligned_offset_);
   const double dq1 = options_.insertion_step;
   if (aligned.length() + 1e-9 < dq1) {

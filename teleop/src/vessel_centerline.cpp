@@ -294,10 +294,30 @@ VesselCenterline VesselCenterline::transformed(const Eigen::Matrix3d& rotation,
   return out;
 }
 
-VesselCenterline VesselCenterline::aligned_to_insertion() const {
-  const Eigen::Matrix3d rotation =
+Eigen::Isometry3d VesselCenterline::insertion_alignment() const {
+  Eigen::Isometry3d alignment = Eigen::Isometry3d::Identity();
+  alignment.linear() =
       Eigen::Quaterniond::FromTwoVectors(tangents_.front(), Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  return transformed(rotation, -(rotation * points_.front()));
+  alignment.translation() = -(alignment.linear() * points_.front());
+  return alignment;
+}
+
+VesselCenterline VesselCenterline::aligned_to_insertion() const {
+  const Eigen::Isometry3d alignment = insertion_alignment();
+  return transformed(alignment.linear(), alignment.translation());
+}
+
+Eigen::Isometry3d placement_at_entry(const CenterlinePolyline& vessel, const Eigen::Isometry3d& entry,
+                                     double ds) {
+  return entry * VesselCenterline::from_polyline(vessel, ds).insertion_alignment();
+}
+
+CenterlinePolyline transformed(const CenterlinePolyline& vessel, const Eigen::Isometry3d& placement) {
+  CenterlinePolyline out;
+  out.radii = vessel.radii;
+  out.points.reserve(vessel.points.size());
+  for (const auto& p : vessel.points) out.points.push_back(placement * p);
+  return out;
 }
 
 CenterlinePolyline make_synthetic_ica(std::uint32_t seed, const SyntheticIcaOptions& options) {

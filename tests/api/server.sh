@@ -63,9 +63,9 @@ start_tendrild() {
   "publish_rate_hz": 50,
   "realtime_priority": true,
   "robots": ["$tendrild_workdir/srmc.json"$extra_robots],
+  "scene": {"vessel": "$repo_root/config/vessels/synthetic_ica.csv"},
   "imaging": {"enabled": true, "width": 512, "height": 512, "fps": 10, "jpeg_quality": 80,
-              "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [0, 0, 50],
-              "vessel": "$repo_root/config/vessels/synthetic_ica.csv"}
+              "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [15, -5, 55]}
 }
 JSON
   local args=(--config "$tendrild_workdir/server.json")

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <string>
 
 namespace tendril::sim {
 
@@ -23,6 +24,17 @@ CatheterVesselContact::CatheterVesselContact(std::vector<Eigen::Vector3d> center
     if (!p.allFinite()) throw std::invalid_argument("vessel contact: a centerline point is not finite");
   if (!(parameters_.catheter_radius > 0) || !(parameters_.lumen_radius > parameters_.catheter_radius))
     throw std::invalid_argument("vessel contact: the lumen must be wider than the catheter");
+  if (!parameters_.lumen_radii.empty()) {
+    if (parameters_.lumen_radii.size() != centerline_.size())
+      throw std::invalid_argument("vessel contact: " + std::to_string(parameters_.lumen_radii.size()) +
+                                  " lumen radii for " + std::to_string(centerline_.size()) +
+                                  " centerline points");
+    for (std::size_t i = 0; i < centerline_.size(); ++i) {
+      if (!(parameters_.lumen_radii[i] > parameters_.catheter_radius))
+        throw std::invalid_argument("vessel contact: the lumen radius at centerline point " +
+                                    std::to_string(i) + " is not wider than the catheter");
+    }
+  }
   if (!(parameters_.wall_stiffness > 0))
     throw std::invalid_argument("vessel contact: wall_stiffness must be > 0");
   if (parameters_.points_per_segment < 2 || parameters_.points_per_segment > 64)
@@ -55,6 +67,14 @@ Eigen::Vector3d CatheterVesselContact::point_on_segment(std::size_t i,
   const double len2 = ab.squaredNorm();
   const double u = len2 > 0 ? std::clamp((p - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
   return a + u * ab;
+}
+
+double CatheterVesselContact::free_at(std::size_t i, const Eigen::Vector3d& nearest) const noexcept {
+  const auto& radii = parameters_.lumen_radii;
+  if (radii.empty()) return parameters_.lumen_radius - parameters_.catheter_radius;
+  const double length = (centerline_[i + 1] - centerline_[i]).norm();
+  const double u = length > 0 ? std::clamp((nearest - centerline_[i]).norm() / length, 0.0, 1.0) : 0.0;
+  return (1.0 - u) * radii[i] + u * radii[i + 1] - parameters_.catheter_radius;
 }
 
 Eigen::Vector3d CatheterVesselContact::nearest_point(const Eigen::Vector3d& p,
@@ -90,11 +110,11 @@ double CatheterVesselContact::distance_to_centerline(const Eigen::Vector3d& p) c
 
 double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* stats) noexcept {
   const std::size_t n = shape_.backbone(q, parameters_.points_per_segment, backbone_);
-  const double free = parameters_.lumen_radius - parameters_.catheter_radius;
   const double k = parameters_.wall_stiffness;
   double e = 0.0;
   for (std::size_t i = 1; i < n; ++i) {  // the base point sits on the insertion axis, outside the model
-    const double d = (nearest_point(backbone_[i], nearest_[i]) - backbone_[i]).norm() - free;
+    const Eigen::Vector3d nearest = nearest_point(backbone_[i], nearest_[i]);
+    const double d = (nearest - backbone_[i]).norm() - free_at(nearest_[i], nearest);
     if (d <= 0) continue;
     e += 0.5 * k * d * d;
     if (stats) {
@@ -109,14 +129,14 @@ double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* st
 ContactForces CatheterVesselContact::evaluate(const Eigen::Vector4d& q) noexcept {
   ContactForces out;
   const std::size_t n = shape_.backbone(q, parameters_.points_per_segment, backbone_);
-  const double free = parameters_.lumen_radius - parameters_.catheter_radius;
   const double k = parameters_.wall_stiffness;
   bool have_bend_rates = false;
   for (std::size_t i = 1; i < n; ++i) {  // the base point sits on the insertion axis, outside the model
     const Eigen::Vector3d& p = backbone_[i];
-    const Eigen::Vector3d outward = p - nearest_point(p, nearest_[i]);
+    const Eigen::Vector3d nearest = nearest_point(p, nearest_[i]);
+    const Eigen::Vector3d outward = p - nearest;
     const double distance = outward.norm();
-    const double d = distance - free;
+    const double d = distance - free_at(nearest_[i], nearest);
     if (d <= 0) continue;    // distance > free > 0 from here on
     if (!have_bend_rates) {  // only in contact: four more backbones
       for (std::size_t j = 0; j < 4; ++j) {

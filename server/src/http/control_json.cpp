@@ -291,6 +291,14 @@ json JsonControlApi::robots() const {
         {"name", d.name},       {"kind", d.kind},           {"description", d.description},
         {"joints", joints},     {"modes", modes},           {"buses", buses},
         {"commands", commands}, {"cartesian", d.cartesian}, {"command_timeout_ms", d.command_timeout_ms}};
+    if (d.vessel_entry) {
+      const Eigen::Vector3d t = d.vessel_entry->translation();
+      const Eigen::Quaterniond q(d.vessel_entry->linear());
+      robot["vessel_entry"] = {
+          {"position", {t.x(), t.y(), t.z()}},
+          {"orientation", {q.x(), q.y(), q.z(), q.w()}},
+          {"frame", "robot base {0} (mm); a plan's insertion frame maps into it by this pose"}};
+    }
     if (auto* ext = extension(d.name)) ext->describe(robot);
     out.push_back(std::move(robot));
   }

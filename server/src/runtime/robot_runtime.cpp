@@ -122,6 +122,9 @@ class Assembly final : public RobotAssembly {
   }
   bool stepped() const override { return im_.options.stepped; }
   double control_period() const override { return im_.period; }
+  const std::vector<teleop::CenterlinePolyline>& scene_vessel() const override {
+    return im_.options.scene_vessel;
+  }
 
  private:
   RobotRuntime::Impl& im_;
@@ -368,6 +371,11 @@ sim::SimulatedCia402Drive* RobotRuntime::simulated_drive(const std::string& robo
     }
   }
   return nullptr;
+}
+
+std::optional<Eigen::Isometry3d> RobotRuntime::vessel_entry(const std::string& robot) const {
+  auto* r = impl_->find(robot);
+  return r ? r->plugin->vessel_entry() : std::nullopt;
 }
 
 RobotPlugin* RobotRuntime::plugin(const std::string& robot) {

@@ -154,6 +154,7 @@ std::vector<RobotDescription> RobotRuntime::robots() const {
                          b->load + b->extra_bits_per_second / b->config.bitrate});
     d.command_timeout_ms = r->config.command_timeout_ms;
     d.cartesian = r->plugin->cartesian();
+    d.vessel_entry = r->plugin->vessel_entry();
     out.push_back(std::move(d));
   }
   return out;
@@ -575,6 +576,12 @@ Status RobotRuntime::load_path(const std::string& robot, PathPlan plan) {
     JointArray a{};
     std::copy(q.begin(), q.end(), a.begin());
     loaded->steps.push_back(a);
+  }
+  // A plan's geometry is in its insertion frame (vessel start at the origin, tangent +z): the robot's
+  // vessel entry puts it where the robot is, in the one world the scene shows.
+  if (const auto entry = r.plugin->vessel_entry()) {
+    for (auto& p : plan.tips) p = *entry * p;
+    for (auto& p : plan.vessel) p = *entry * p;
   }
   if (plan.tips.size() == plan.steps.size()) loaded->tips = std::move(plan.tips);
   // The scene shows at most ~200 points of the vessel.

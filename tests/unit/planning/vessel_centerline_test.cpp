@@ -26,6 +26,27 @@ std::string csv_of(const CenterlinePolyline& line, double scale = 1.0) {
   return out.str();
 }
 
+TEST(VesselCenterline, PlacedAtAnEntryTheStartIsTheEntryAndTheFirstTangentItsZ) {
+  // A vessel starting at (5, -3, 2) heading along +x, then bending.
+  CenterlinePolyline v;
+  for (int i = 0; i <= 40; ++i) v.points.emplace_back(5.0 + i, -3.0 + 0.01 * i * i, 2.0);
+  v.radii.assign(v.points.size(), 2.5);
+  Eigen::Isometry3d entry = Eigen::Isometry3d::Identity();
+  entry.translation() = Eigen::Vector3d(0.0, 0.0, 40.8);  // a catheter's insertion point
+  const auto placement = placement_at_entry(v, entry);
+  const auto placed = transformed(v, placement);
+  EXPECT_NEAR((placed.points.front() - Eigen::Vector3d(0.0, 0.0, 40.8)).norm(), 0.0, 1e-9);
+  const Eigen::Vector3d first_tangent = (placed.points[1] - placed.points[0]).normalized();
+  EXPECT_GT(first_tangent.z(), 0.99) << first_tangent.transpose();
+  EXPECT_EQ(placed.radii, v.radii);
+  // The planner's insertion frame is the same placement with the entry at the origin.
+  const auto resampled = VesselCenterline::from_polyline(v, 0.5);
+  const auto aligned = resampled.aligned_to_insertion();
+  const Eigen::Isometry3d at_origin = placement_at_entry(v, Eigen::Isometry3d::Identity());
+  for (std::size_t i = 0; i < resampled.size(); i += 10)
+    EXPECT_NEAR((at_origin * resampled.points()[i] - aligned.points()[i]).norm(), 0.0, 1e-9) << i;
+}
+
 TEST(VesselCenterline, ParsesHeaderCommentsAndRadius) {
   const std::string csv = "x,y,z,radius\n# a comment\n0,0,0,2.0\n\n0,0,1,2.5\n0,0,2,3.0\n0,0,3,3.0\n";
   const auto branches = parse_centerline_csv(csv);

@@ -37,6 +37,40 @@ TEST(CatheterVesselContact, AStraightCatheterInAStraightTubeTouchesNothing) {
   for (double g : f.generalised) EXPECT_EQ(g, 0.0);
 }
 
+TEST(CatheterVesselContact, APerPointLumenNarrowsWhereTheVesselDoes) {
+  // A straight tube along z, 2.0 mm wide up to z = 50 and narrowing linearly to 0.7 mm at z = 100. The
+  // catheter (radius 0.6) bent in the x-z plane touches where the lumen is narrow and not where it is wide.
+  std::vector<Eigen::Vector3d> line;
+  std::vector<double> radii;
+  for (int i = 0; i <= 100; ++i) {
+    line.emplace_back(0.0, 0.0, static_cast<double>(i));
+    radii.push_back(i <= 50 ? 2.0 : 2.0 - 1.3 * (i - 50) / 50.0);
+  }
+  CatheterVesselContactParameters wide;
+  wide.lumen_radius = 2.0;
+  CatheterVesselContactParameters narrowing = wide;
+  narrowing.lumen_radii = radii;
+  CatheterVesselContact constant(line, shape(), wide);
+  CatheterVesselContact varying(line, shape(), narrowing);
+  // q3 = 0.4 mm bends the tip about 1 mm off the axis (0.088 rad/mm · 0.4 mm · (11 + 18.8) mm): inside
+  // a 2 mm lumen (1.4 mm free) everywhere, not where 0.4 mm is left.
+  const Eigen::Vector4d bent_shallow(5.0, 0.0, 0.4, 0.0);  // base at z = 5, tip at z ≈ 46
+  const Eigen::Vector4d bent_deep(50.0, 0.0, 0.4, 0.0);    // the same shape from z = 50 to ≈ 91
+  ASSERT_EQ(constant.evaluate(bent_shallow).points_in_contact, 0);
+  ASSERT_EQ(constant.evaluate(bent_deep).points_in_contact, 0) << "a constant lumen: no contact anywhere";
+  EXPECT_EQ(varying.evaluate(bent_shallow).points_in_contact, 0) << "where the lumen is still 2 mm";
+  const auto deep = varying.evaluate(bent_deep);
+  EXPECT_GT(deep.points_in_contact, 0) << "where it has narrowed";
+  EXPECT_GT(deep.total_force, 0.0);
+  // Radii that do not match the centerline, or a lumen narrower than the catheter, are refused.
+  auto bad = narrowing;
+  bad.lumen_radii.pop_back();
+  EXPECT_THROW(CatheterVesselContact(line, shape(), bad), std::invalid_argument);
+  bad = narrowing;
+  bad.lumen_radii[70] = 0.5;
+  EXPECT_THROW(CatheterVesselContact(line, shape(), bad), std::invalid_argument);
+}
+
 TEST(CatheterVesselContact, ACurvedWallPushesTheProximalCarriageTowardTheCurve) {
   // The channel bends toward +x 5 mm past the tip; pushing the catheter in makes the wall bend it.
   CatheterVesselContact contact(arc_channel(45.0, 20.0, 2.0), shape(), {});

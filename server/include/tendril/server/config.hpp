@@ -93,6 +93,7 @@ struct ServerConfig {
   std::vector<std::filesystem::path> robot_files;
   std::vector<RobotConfig> robots;
   nlohmann::json imaging;  // the "imaging" object (null if absent); read by parse_imaging_config
+  nlohmann::json scene;    // the "scene" object (null if absent); read by load_scene_vessel
 };
 
 // Parses a robot file's core keys (the robot type's sections are kept in RobotConfig::settings and

@@ -31,6 +31,7 @@
 #include "tendril/server/control_api.hpp"
 #include "tendril/server/robot_service.hpp"
 #include "tendril/server/topic_source.hpp"
+#include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::server {
 
@@ -46,10 +47,24 @@ struct ImagingConfig {
 };
 
 // Reads the "imaging" object of the server file (`imaging` may be null: imaging off). Relative paths
-// resolve against the server file's folder. Without a "vessel" key the vessel is
-// <config>/vessels/synthetic_ica.csv when that file exists, else teleop::make_synthetic_ica(1)
-// generated here; "vessel": false means none. Throws ConfigError naming the file and key.
+// resolve against the server file's folder. The vessel is load_scene_vessel's with no "scene" (tendrild
+// then replaces it with the scene's, placed at the imaged robot's vessel entry). Throws ConfigError
+// naming the file and key.
 ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::filesystem::path& server_file);
+
+// The one vessel of a server's world: contact, imaging, the vessel map and the 3D view all use it.
+struct SceneVessel {
+  std::vector<teleop::CenterlinePolyline> branches;  // in the vessel file's own frame (mm); empty = none
+  std::string source;                                // where it came from, for messages
+  std::string robot;                                 // whose vessel entry places it; empty = the first
+};
+// Reads the server file's "scene": {"vessel": CSV (x,y,z[,r] mm) or false, "robot": name}. Without
+// "scene", the older "imaging.vessel" key; without either, <config>/vessels/synthetic_ica.csv when it
+// exists, else teleop::make_synthetic_ica(1) generated here. Throws ConfigError naming the file and key.
+SceneVessel load_scene_vessel(const nlohmann::json& scene, const nlohmann::json& imaging,
+                              const std::filesystem::path& server_file);
+// Contrast-filled tubes for the fluoroscope from centerline branches (2 mm where a branch has no radii).
+std::vector<sim::VesselTube> vessel_tubes(const std::vector<teleop::CenterlinePolyline>& branches);
 
 // Fills `out` with the imaged robot's backbone (world mm, base to tip); false when unavailable.
 // Called from the imaging threads.

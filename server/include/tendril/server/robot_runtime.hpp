@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -16,6 +17,7 @@
 #include "tendril/server/periodic_thread.hpp"
 #include "tendril/server/robot_service.hpp"
 #include "tendril/server/robot_types.hpp"
+#include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::sim {
 class SimulatedCia402Drive;
@@ -32,6 +34,8 @@ struct RuntimeOptions {
   // Stepped: no threads; the owner calls step() to advance simulated devices, buses and the control
   // loop by one control period in simulated time. Used by tests to make timing deterministic.
   bool stepped = false;
+  // The scene's vessel (ServerConfig "scene"), handed to the robot types (RobotAssembly::scene_vessel).
+  std::vector<teleop::CenterlinePolyline> scene_vessel;
 };
 
 class RobotRuntime final : public RobotService {
@@ -74,6 +78,8 @@ class RobotRuntime final : public RobotService {
   // The robot type's part of the network API for `robot` (made once, owned here); nullptr when unknown.
   RobotApiExtension* api_extension(const std::string& robot);
   std::uint64_t control_ticks() const noexcept;
+  // RobotPlugin::vessel_entry of `robot` (nullopt for an unknown robot or one without).
+  std::optional<Eigen::Isometry3d> vessel_entry(const std::string& robot) const;
   LoopStatistics loop_statistics() const noexcept;
 
   // RobotService

@@ -149,6 +149,9 @@ struct RobotDescription {
   std::vector<std::string> commands;  // the robot type's own commands (besides the CRTK ones)
   int command_timeout_ms = 0;
   bool cartesian = false;  // measured_cp, move_cp, servo_cp, servo_cv are served
+  // Where a vessel's start sits in the robot's frame (RobotPlugin::vessel_entry); plans come in the
+  // insertion frame, which this maps into the robot's.
+  std::optional<Eigen::Isometry3d> vessel_entry;
 };
 
 struct SafetyEventView {

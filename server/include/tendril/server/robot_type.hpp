@@ -29,6 +29,7 @@
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_kinematics.hpp"
 #include "tendril/server/robot_service.hpp"
+#include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::sim {
 struct DriveParameters;
@@ -190,6 +191,9 @@ class RobotAssembly {
   virtual void add_component(std::unique_ptr<hardware::HardwareComponent> component) = 0;
   virtual bool stepped() const = 0;
   virtual double control_period() const = 0;
+  // The server's scene vessel (the server file's "scene"), in the vessel file's own frame; empty when
+  // the server has none. A type that simulates contact places it at its vessel_entry().
+  virtual const std::vector<teleop::CenterlinePolyline>& scene_vessel() const = 0;
 };
 
 struct ModeInfo {
@@ -251,6 +255,11 @@ class RobotPlugin {
   // Starts and stops the type's own threads and devices (e.g. an evdev joystick).
   virtual void start() {}
   virtual void stop() {}
+  // Where a vessel's start sits in the robot's frame {0}, with the vessel's first tangent as its z (a
+  // catheter's insertion point); nullopt for a robot that does not enter vessels. The scene's vessel is
+  // placed there for everyone (teleop::placement_at_entry), and plans made in the insertion frame are
+  // shown in the robot's frame through it.
+  virtual std::optional<Eigen::Isometry3d> vessel_entry() const { return std::nullopt; }
   // The type's part of the network API; `service` reaches the runtime, `post` hands a PluginCommand to
   // this robot's control thread (false: the mailbox is full).
   virtual std::unique_ptr<RobotApiExtension> api(RobotService& service,

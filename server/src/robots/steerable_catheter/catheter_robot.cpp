@@ -171,6 +171,13 @@ std::vector<ModeInfo> SteerableCatheter::modes() const {
           {"telemanipulation", "joint velocities from a joystick while its deadman is held"}};
 }
 
+std::optional<Eigen::Isometry3d> SteerableCatheter::vessel_entry() const {
+  Eigen::Isometry3d entry = Eigen::Isometry3d::Identity();
+  entry.translation() =
+      Eigen::Vector3d(0.0, 0.0, settings_.nominal.proximal.length + settings_.nominal.distal.length);
+  return entry;
+}
+
 void SteerableCatheter::display_positions(std::span<const double> measured, std::span<double> out) const {
   // The drawn bend is the configuration map's θ_L at what reaches the tubes: the drive position less
   // the spring deflection (drive − carriage), divided by the display model's bend gains.

@@ -163,6 +163,9 @@ class SteerableCatheter final : public RobotPlugin {
   CatheterSnapshot snapshot() const noexcept { return published_.load(); }
   CatheterSimulationView simulation_view() const noexcept;
   const std::vector<Eigen::Vector3d>& vessel() const noexcept { return vessel_; }
+  // The insertion point: where the tip is at zero insertion, (0, 0, L1 + L2) with the insertion axis
+  // +z — the origin of the path planner's insertion frame (shape_error_planner.hpp).
+  std::optional<Eigen::Isometry3d> vessel_entry() const override;
   double lumen_radius_mm() const noexcept { return lumen_radius_mm_; }
   bool has_evdev() const noexcept { return evdev_ != nullptr; }
   bool has_analog_joystick() const noexcept { return joystick_receiver_ != nullptr; }

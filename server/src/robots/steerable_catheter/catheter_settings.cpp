@@ -226,7 +226,13 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     if (m.has("vessel")) {
       const Reader v = m.child("vessel");
       VesselTubeSettings tube;
-      if (v.has("centerline")) tube.centerline_file = (rc.directory() / v.string("centerline")).string();
+      if (v.has("centerline")) {
+        if (v.string("centerline") == "scene") {
+          tube.from_scene = true;
+        } else {
+          tube.centerline_file = (rc.directory() / v.string("centerline")).string();
+        }
+      }
       tube.lead_in_mm = v.non_negative_or("lead_in_mm", tube.lead_in_mm);
       tube.bend_radius_mm = v.positive_or("bend_radius_mm", tube.bend_radius_mm);
       tube.turn_deg = v.positive_or("turn_deg", tube.turn_deg);
@@ -238,7 +244,7 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
                    std::to_string(sim.catheter_outer_radius_mm) + " mm)",
                v.raw("lumen_radius_mm"));
       try {
-        (void)vessel_centerline(tube);
+        if (!tube.from_scene) (void)vessel_centerline(tube);
       } catch (const std::exception& e) {
         v.fail("centerline", std::string("a readable centerline file (") + e.what() + ")",
                v.raw("centerline"));

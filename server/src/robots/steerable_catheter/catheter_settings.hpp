@@ -36,7 +36,9 @@ struct SpringDeflectionSensorSettings {
 };
 
 struct VesselTubeSettings {
-  // Either a centerline file (CSV x,y,z in mm, the frame of the catheter base) or an arc channel.
+  // The server's scene vessel ("centerline": "scene", placed at the catheter's insertion point, radii
+  // from its file), a centerline file (CSV x,y,z in mm, the frame of the catheter base) or an arc channel.
+  bool from_scene = false;
   std::string centerline_file;
   double lead_in_mm = 20.0;  // arc channel: straight part along +z from z = 0
   double bend_radius_mm = 25.0;

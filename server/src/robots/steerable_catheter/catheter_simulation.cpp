@@ -48,14 +48,54 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
   p.shape = assembled_shape(s);
   simulation->plant = std::make_unique<sim::SrmcPlant>(drives, p);
   simulation->plant->set_potentiometer_node(simulation->sensor_node.get());
-  if (s.simulation.vessel) {
-    vessel_ = vessel_centerline(*s.simulation.vessel);
-    lumen_radius_mm_ = s.simulation.vessel->lumen_radius_mm;
+  // "centerline": "scene" in a server whose scene has no vessel ("vessel": false, or a runtime built
+  // without a server file): the catheter moves in free space, as the world has no vessel to touch.
+  const bool scene_without_vessel =
+      s.simulation.vessel && s.simulation.vessel->from_scene && assembly.scene_vessel().empty();
+  if (s.simulation.vessel && !scene_without_vessel) {
+    const auto& tube = *s.simulation.vessel;
+    lumen_radius_mm_ = tube.lumen_radius_mm;
     sim::CatheterVesselContactParameters cp;
-    cp.lumen_radius = lumen_radius_mm_;
     cp.catheter_radius = s.simulation.catheter_outer_radius_mm;
     cp.wall_stiffness = s.simulation.wall_stiffness_n_per_mm;
-    simulation->contact = std::make_unique<sim::CatheterVesselContact>(vessel_, assembled_shape(s), cp);
+    const std::string key = file + ": catheter.simulation.vessel.centerline";
+    if (tube.from_scene) {
+      // The server's one vessel, where imaging, the vessel map and plans put it: its start at the
+      // insertion point. The branch the catheter enters is the first in the file.
+      const auto& scene = assembly.scene_vessel();
+      teleop::CenterlinePolyline placed;
+      try {
+        placed =
+            teleop::transformed(scene.front(), teleop::placement_at_entry(scene.front(), *vessel_entry()));
+      } catch (const std::exception& e) {
+        throw ConfigError(key + ": the scene vessel: " + e.what());
+      }
+      // Before the entry the catheter runs straight up the insertion axis (an introducer, as the path
+      // planner's straight extension assumes): that part of the tube is prepended, as wide as the
+      // vessel's start, reaching back past the steerable base at zero insertion.
+      const Eigen::Isometry3d entry = *vessel_entry();
+      const double reach = entry.translation().z() + 1.0;
+      const bool with_radii = placed.radii.size() == placed.points.size();
+      const double start_radius = with_radii ? placed.radii.front() : tube.lumen_radius_mm;
+      vessel_.clear();
+      for (double back = reach; back > 0.25; back -= 0.5) {
+        vessel_.push_back(entry * Eigen::Vector3d(0.0, 0.0, -back));
+        if (with_radii) cp.lumen_radii.push_back(start_radius);
+      }
+      vessel_.insert(vessel_.end(), placed.points.begin(), placed.points.end());
+      if (with_radii) {
+        cp.lumen_radii.insert(cp.lumen_radii.end(), placed.radii.begin(), placed.radii.end());
+        lumen_radius_mm_ = *std::min_element(placed.radii.begin(), placed.radii.end());
+      }
+    } else {
+      vessel_ = vessel_centerline(tube);
+    }
+    cp.lumen_radius = tube.lumen_radius_mm;
+    try {
+      simulation->contact = std::make_unique<sim::CatheterVesselContact>(vessel_, assembled_shape(s), cp);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError(key + ": " + e.what());
+    }
     simulation->plant->set_vessel(simulation->contact.get());
   }
   bus.add_plant(simulation->plant.get());

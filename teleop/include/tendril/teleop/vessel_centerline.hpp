@@ -9,6 +9,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <cstddef>
 #include <cstdint>
 #include <stdexcept>
@@ -88,6 +89,8 @@ class VesselCenterline {
   VesselCenterline transformed(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation) const;
   // Copy moved so that its first point is the origin and its first tangent is +z (insertion frame).
   VesselCenterline aligned_to_insertion() const;
+  // The rigid transform aligned_to_insertion() applies: x ↦ R·(x − p₀), R turning the first tangent to +z.
+  Eigen::Isometry3d insertion_alignment() const;
 
  private:
   VesselCenterline() = default;
@@ -100,6 +103,15 @@ class VesselCenterline {
   std::vector<double> yaw_;
   std::vector<double> pitch_;
 };
+
+// Where a vessel lies in a robot's frame when its start is placed at the robot's vessel entry (a
+// catheter's insertion point, with the insertion direction as z): entry · insertion_alignment(). The
+// path planner's insertion frame is this with the entry at the origin, so a plan's geometry maps into
+// the robot's frame by the entry alone. `ds` resamples the polyline for its first tangent.
+Eigen::Isometry3d placement_at_entry(const CenterlinePolyline& vessel, const Eigen::Isometry3d& entry,
+                                     double ds = 0.5);
+// The polyline moved by `placement` (radii unchanged).
+CenterlinePolyline transformed(const CenterlinePolyline& vessel, const Eigen::Isometry3d& placement);
 
 struct SyntheticIcaOptions {
   double length = 150.0;         // mm of path

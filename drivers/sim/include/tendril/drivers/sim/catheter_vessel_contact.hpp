@@ -1,7 +1,7 @@
 // SIMULATED contact of the steerable catheter with a vessel wall: the vessel is a tube (centerline
-// polyline in the catheter's frame {0}, mm, and a lumen radius); the catheter's backbone comes from
-// its assembled shape model at the actuation that reaches the tubes (insertion, roll, proximal
-// carriage, effective distal actuation). A backbone point whose distance from the centerline plus
+// polyline in the catheter's frame {0}, mm, and a lumen radius, constant or per point); the catheter's
+// backbone comes from its assembled shape model at the actuation that reaches the tubes (insertion, roll,
+// proximal carriage, effective distal actuation). A backbone point whose distance from the centerline plus
 // the catheter radius exceeds the lumen penetrates the wall by d and stores ½·k_wall·d² of elastic
 // energy. The generalised wall forces are Q = −∂E/∂q = −Σ k·d_i·n_iᵀ·∂p_i/∂q (n_i the outward unit
 // normal from the nearest centerline point), i.e. what a compliant wall pushes back with through the
@@ -25,6 +25,10 @@ namespace tendril::sim {
 
 struct CatheterVesselContactParameters {
   double lumen_radius = 1.5875;  // mm: the seed's phantom tubing, ID 3.175 mm
+  // Lumen radius at each centerline point (mm), e.g. a vessel file's r column; empty = lumen_radius
+  // everywhere. Between points it is interpolated along the nearest segment. The wall force keeps the
+  // direction of the normal: the slope of the radius along the vessel is neglected in ∂d/∂p.
+  std::vector<double> lumen_radii;
   double catheter_radius = 0.6;  // mm: 1.2 mm outer tube
   double wall_stiffness = 1.0;   // N/mm per backbone point in contact
   std::size_t points_per_segment = 8;
@@ -67,6 +71,8 @@ class CatheterVesselContact {
   // nearest segment.
   Eigen::Vector3d nearest_point(const Eigen::Vector3d& p, std::size_t& segment) const noexcept;
   Eigen::Vector3d point_on_segment(std::size_t i, const Eigen::Vector3d& p) const noexcept;
+  // Room between the catheter and the wall at `nearest` on segment i: lumen radius − catheter radius.
+  double free_at(std::size_t i, const Eigen::Vector3d& nearest) const noexcept;
 
   std::vector<Eigen::Vector3d> centerline_;
   std::vector<SegmentGroup> groups_;
