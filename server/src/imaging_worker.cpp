@@ -232,9 +232,15 @@ SceneVessel load_scene_vessel(const nlohmann::json& scene, const nlohmann::json&
     throw ConfigError(file + ": " + key + ": expected " + expected + ", got " + got);
   };
   if (in_scene) {
-    for (const auto& [k, v] : scene.items()) {
-      if (k != "vessel" && k != "robot" && k != "note")
-        throw ConfigError(file + ": scene." + k + ": unknown key; expected vessel, robot or note");
+    for (const auto& item : scene.items()) {
+      const std::string& k = item.key();
+      if (k != "vessel" && k != "robot" && k != "note") {
+        std::string message = file;
+        message += ": scene.";
+        message += k;
+        message += ": unknown key; expected vessel, robot or note";
+        throw ConfigError(message);
+      }
     }
     if (scene.contains("robot")) {
       if (!scene.at("robot").is_string() || scene.at("robot").get<std::string>().empty())

@@ -5,6 +5,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace tendril::sim {
 
@@ -17,7 +18,7 @@ constexpr double kBendStep = 1e-2;
 CatheterVesselContact::CatheterVesselContact(std::vector<Eigen::Vector3d> centerline,
                                              const teleop::ModalCatheterParameters& shape,
                                              CatheterVesselContactParameters parameters)
-    : centerline_(std::move(centerline)), shape_(shape), parameters_(parameters) {
+    : centerline_(std::move(centerline)), shape_(shape), parameters_(std::move(parameters)) {
   if (centerline_.size() < 2)
     throw std::invalid_argument("vessel contact: the centerline needs at least 2 points");
   for (const auto& p : centerline_)

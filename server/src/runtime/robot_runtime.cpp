@@ -144,10 +144,12 @@ const std::string& RobotUnit::mode_name(ModeId id) const {
   return id < modes.size() ? modes[id].name : unknown;
 }
 
-RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options, const RobotTypes& types)
+RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions options_in,
+                           const RobotTypes& types)
     : impl_(std::make_unique<Impl>()) {
   auto& im = *impl_;
-  im.options = options;
+  im.options = std::move(options_in);  // it carries the scene vessel
+  const RuntimeOptions& options = im.options;
   if (!(options.control_rate_hz > 0 && options.control_rate_hz <= 10'000))
     throw ConfigError("control_rate_hz: expected a rate in (0, 10000] Hz, got " +
                       std::to_string(options.control_rate_hz));

@@ -248,4 +248,42 @@ TEST(ImagingConfigTest, VesselComesFromTheConfiguredCsvOrIsGenerated) {
 }
 
 }  // namespace
+TEST(SceneVesselTest, TheSceneNamesTheVesselAndMistakesNameTheKey) {
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("tendril-scene-test-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream csv(dir / "a.csv");
+    csv << "x,y,z,r\n";
+    for (int i = 0; i <= 40; ++i) csv << "0,0," << i << ",2.5\n";
+    std::ofstream other(dir / "b.csv");
+    other << "x,y,z\n";
+    for (int i = 0; i <= 20; ++i) other << i << ",0,0\n";
+  }
+  const auto server = dir / "server.json";
+  // The scene's vessel wins over an older imaging.vessel.
+  auto scene =
+      load_scene_vessel(json{{"vessel", "a.csv"}, {"robot", "srmc"}}, json{{"vessel", "b.csv"}}, server);
+  ASSERT_EQ(scene.branches.size(), 1u);
+  EXPECT_EQ(scene.branches[0].points.size(), 41u);
+  EXPECT_EQ(scene.robot, "srmc");
+  // Without a scene, imaging.vessel is the scene's vessel.
+  EXPECT_EQ(load_scene_vessel(nullptr, json{{"vessel", "b.csv"}}, server).branches[0].points.size(), 21u);
+  EXPECT_TRUE(load_scene_vessel(json{{"vessel", false}}, nullptr, server).branches.empty());
+  auto error_of = [&](const json& s) {
+    try {
+      load_scene_vessel(s, nullptr, server);
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_NE(error_of({{"vesel", "a.csv"}}).find("scene.vesel: unknown key"), std::string::npos);
+  EXPECT_NE(error_of({{"vessel", "missing.csv"}}).find("scene.vessel: expected an existing file"),
+            std::string::npos);
+  EXPECT_NE(error_of({{"robot", 3}}).find("scene.robot"), std::string::npos);
+  EXPECT_NE(error_of(json::array()).find("scene: expected an object"), std::string::npos);
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace tendril::server

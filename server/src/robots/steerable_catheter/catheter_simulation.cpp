@@ -78,8 +78,9 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
       const bool with_radii = placed.radii.size() == placed.points.size();
       const double start_radius = with_radii ? placed.radii.front() : tube.lumen_radius_mm;
       vessel_.clear();
-      for (double back = reach; back > 0.25; back -= 0.5) {
-        vessel_.push_back(entry * Eigen::Vector3d(0.0, 0.0, -back));
+      const auto introducer_points = static_cast<int>(std::ceil(reach / 0.5));
+      for (int i = introducer_points; i > 0; --i) {
+        vessel_.push_back(entry * Eigen::Vector3d(0.0, 0.0, -0.5 * i));
         if (with_radii) cp.lumen_radii.push_back(start_radius);
       }
       vessel_.insert(vessel_.end(), placed.points.begin(), placed.points.end());
