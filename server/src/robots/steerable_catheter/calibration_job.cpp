@@ -10,7 +10,7 @@
 
 #include "steerable_catheter/calibration_request.hpp"
 #include "steerable_catheter/catheter_settings.hpp"
-#include "tendril/calibration/side_view_outline.hpp"
+#include "tendril/teleop/perception/side_view_outline.hpp"
 #include "tendril/teleop/shape_calibration.hpp"
 
 namespace tendril::server {
@@ -86,7 +86,7 @@ json run(const RobotConfig& robot, CalibrationRequest request, const teleop::Job
         std::string(request.from_images ? "images[" : "outlines[") + std::to_string(i) + "]";
     try {
       if (request.from_images) {
-        const auto outline = calibration::extract_side_view_outline(p.image, request.image_options);
+        const auto outline = teleop::perception::extract_side_view_outline(p.image, request.image_options);
         p.outline = outline.points;
         info["threshold"] = outline.threshold;
         info["catheter_pixels"] = outline.catheter_pixels;

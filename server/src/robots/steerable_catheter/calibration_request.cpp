@@ -95,8 +95,8 @@ std::optional<ApiResult> read_pictures(const json& r, CalibrationRequest& out) {
     if (!r["entry"].is_string())
       return bad_request("entry: expected \"bottom\", \"top\", \"left\" or \"right\"");
     try {
-      io.entry = calibration::parse_image_edge(r["entry"].get<std::string>());
-    } catch (const calibration::SideViewImageError& e) {
+      io.entry = teleop::perception::parse_image_edge(r["entry"].get<std::string>());
+    } catch (const teleop::perception::SideViewImageError& e) {
       return bad_request(e.what());
     }
   }

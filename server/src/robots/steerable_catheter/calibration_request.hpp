@@ -13,9 +13,9 @@
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
-#include "tendril/calibration/side_view_outline.hpp"
 #include "tendril/server/control_api.hpp"
 #include "tendril/teleop/modal_catheter_kinematics.hpp"
+#include "tendril/teleop/perception/side_view_outline.hpp"
 #include "tendril/teleop/shape_calibration.hpp"
 
 namespace tendril::server {
@@ -36,7 +36,7 @@ struct CalibrationRequest {
   };
   std::vector<Picture> pictures;
   bool from_images = false;
-  calibration::SideViewImageOptions image_options;
+  teleop::perception::SideViewImageOptions image_options;
   teleop::TangentExtractionOptions tangent_options;
   std::filesystem::path save_as;  // empty: do not write
 };

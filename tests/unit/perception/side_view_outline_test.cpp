@@ -1,7 +1,7 @@
 // Side-view photographs to backbone points, and the whole image calibration of seed 000 §4.5.2:
 // images of a segment with a known shape matrix, stepped by dq = 0.1 mm up to ≈ 80° of bend,
 // thresholded, thinned, smoothed, θ(s) by forward differences, then the Kronecker least squares.
-#include "tendril/calibration/side_view_outline.hpp"
+#include "tendril/teleop/perception/side_view_outline.hpp"
 
 #include <gtest/gtest.h>
 
@@ -16,7 +16,7 @@
 #include "tendril/drivers/sim/simulated_side_view_camera.hpp"
 #include "tendril/teleop/shape_calibration.hpp"
 
-namespace tendril::calibration {
+namespace tendril::teleop::perception {
 namespace {
 
 using teleop::CatheterSegment;
@@ -197,4 +197,4 @@ TEST(ImageCalibration, PicturesOfAKnownSegmentFitBackToItsShapeMatrix) {
 }
 
 }  // namespace
-}  // namespace tendril::calibration
+}  // namespace tendril::teleop::perception

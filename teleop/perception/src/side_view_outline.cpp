@@ -1,4 +1,4 @@
-#include "tendril/calibration/side_view_outline.hpp"
+#include "tendril/teleop/perception/side_view_outline.hpp"
 
 #include <algorithm>
 #include <array>
@@ -12,7 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-namespace tendril::calibration {
+namespace tendril::teleop::perception {
 
 namespace {
 
@@ -260,4 +260,4 @@ SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_
   return out;
 }
 
-}  // namespace tendril::calibration
+}  // namespace tendril::teleop::perception

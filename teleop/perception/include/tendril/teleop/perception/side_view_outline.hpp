@@ -19,7 +19,7 @@
 
 #include <Eigen/Core>
 
-namespace tendril::calibration {
+namespace tendril::teleop::perception {
 
 enum class ImageEdge { kBottom, kTop, kLeft, kRight };
 
@@ -55,4 +55,4 @@ class SideViewImageError : public std::invalid_argument {
 SideViewOutline extract_side_view_outline(std::span<const std::uint8_t> encoded_image,
                                           const SideViewImageOptions& options);
 
-}  // namespace tendril::calibration
+}  // namespace tendril::teleop::perception

@@ -1,7 +1,7 @@
 // Kept apart from the OpenCV code: the request reader (and its fuzz target) needs only this.
-#include "tendril/calibration/side_view_outline.hpp"
+#include "tendril/teleop/perception/side_view_outline.hpp"
 
-namespace tendril::calibration {
+namespace tendril::teleop::perception {
 
 ImageEdge parse_image_edge(const std::string& name) {
   if (name == "bottom") return ImageEdge::kBottom;
@@ -14,4 +14,4 @@ ImageEdge parse_image_edge(const std::string& name) {
       name + "\"");
 }
 
-}  // namespace tendril::calibration
+}  // namespace tendril::teleop::perception
