@@ -161,6 +161,43 @@ TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
   const double tip_bend_at_10 = std::numbers::pi / 2 - angle(fitted, 22.0, 10.0);
   EXPECT_NEAR(json_api(runtime)->robots()[0]["configuration"]["upper"][2].get<double>(),
               0.063 * tip_bend_at_10 - 0.049, 1e-3);
+  // The 3D view, the fluoroscope and the API draw the model the robot uses: the calibrated (not
+  // constant-curvature) shape through the loss lines, at what reaches the tubes.
+  {
+    auto api = json_api(runtime);
+    runtime.start();
+    for (int i = 0; i < 20; ++i) runtime.step();
+    ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
+    for (int i = 0; i < 3000 && !api->operating_state("srmc").body["drives_ready"].get<bool>(); ++i) runtime.step();
+    ASSERT_EQ(api->move_jp("srmc", {{"goal", {10.0, 0.0, 4.0, 0.0}}}).status, 202);
+    for (int i = 0; i < 4000; ++i) runtime.step();
+    const auto state = api->operating_state("srmc").body;
+    const auto q = api->measured_js("srmc").body["position"];
+    const auto settings = parse_catheter_settings(calibrated);
+    const teleop::ModalCatheterKinematics model(assembled_shape(settings));
+    const double d0 = state["spring_deflection_mm"][0].get<double>();
+    const double d1 = state["spring_deflection_mm"][1].get<double>();
+    const double c3 = q[2].get<double>() - d0;
+    const double coupling = 0.6 * std::cos(-0.76);  // proximal_outer_radius · cos δ2 (srmc.json)
+    const double c4 = q[3].get<double>() - d1 +
+                      coupling * (std::numbers::pi / 2 - model.tip_angle(teleop::CatheterSegment::kProximal, c3));
+    std::vector<Eigen::Vector3d> expected(model.backbone_point_count(20));
+    expected.resize(model.backbone(Eigen::Vector4d(q[0].get<double>(), q[1].get<double>(), c3, c4), 20, expected));
+    const auto drawn = api->shape("srmc").body["points"];
+    ASSERT_EQ(drawn.size(), expected.size());
+    double worst = 0.0;
+    for (std::size_t i = 0; i < expected.size(); ++i) {
+      const Eigen::Vector3d p(drawn[i][0].get<double>(), drawn[i][1].get<double>(), drawn[i][2].get<double>());
+      worst = std::max(worst, (p - expected[i]).norm());
+    }
+    EXPECT_LT(worst, 1e-6) << "the drawn backbone is the calibrated model's";
+    // And that differs from constant curvature with the same tip: the middle of the proximal segment.
+    const Eigen::Vector3d base = expected.front(), mid = expected[10], end = expected[20];
+    const double chord_offset = ((mid - base).cross(end - base)).norm() / (end - base).norm();
+    EXPECT_GT(q[2].get<double>(), 3.9) << "the bend drive reached its goal";
+    EXPECT_GT(chord_offset, 0.1) << "the segment is bent";
+    runtime.stop();
+  }
   // The same name again is refused before any work, and nothing is replaced.
   const auto again =
       refusal({{"segment", "proximal"}, {"samples", samples}, {"save_as", "srmc-calibrated.json"}});

@@ -1,7 +1,10 @@
 #include "steerable_catheter/catheter_robot.hpp"
 
 #include "tendril/server/config.hpp"
+#include <algorithm>
+
 #include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/modal_catheter_kinematics.hpp"
 
 namespace tendril::server {
 namespace {
@@ -33,6 +36,35 @@ class ConstantCurvatureCatheterModel final : public RobotKinematics {
   std::size_t points_per_segment_;
 };
 
+// The model the robot itself uses once a calibration replaced constant curvature: the assembled modal
+// shape θ(s, q) = Ψ(s)ᵀAη(q) through the loss lines, as the SIMULATED plant bends. Its q is what
+// reaches the tubes: [insertion, roll, proximal carriage, distal actuation with the coupling]
+// (SteerableCatheter::display_positions).
+class ModalCatheterModel final : public RobotKinematics {
+ public:
+  ModalCatheterModel(const teleop::ModalCatheterParameters& p, std::size_t points)
+      : model_(p), points_per_segment_(points) {}
+  std::string frame() const override { return "world"; }
+  std::vector<Eigen::Vector3d> shape(std::span<const double> q) const override {
+    std::vector<Eigen::Vector3d> out(model_.backbone_point_count(points_per_segment_));
+    out.resize(model_.backbone(to_vector(q), points_per_segment_, out));
+    return out;
+  }
+  Pose tip(std::span<const double> q) const override {
+    const auto t = model_.tip_pose(to_vector(q));
+    return Pose{t.position, t.orientation()};
+  }
+
+ private:
+  static teleop::ModalCatheterKinematics::JointVector to_vector(std::span<const double> q) {
+    teleop::ModalCatheterKinematics::JointVector v;
+    for (int i = 0; i < 4; ++i) v[i] = q[static_cast<std::size_t>(i)];
+    return v;
+  }
+  teleop::ModalCatheterKinematics model_;
+  std::size_t points_per_segment_;
+};
+
 [[noreturn]] void fail(const std::string& file, const std::string& key, const std::string& expected,
                        const nlohmann::json& got) {
   throw ConfigError(file + ": kinematics." + key + ": expected " + expected + ", got " + got.dump());
@@ -54,6 +86,12 @@ std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, cons
 }
 
 }  // namespace
+
+std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(const teleop::ModalCatheterParameters& assembled,
+                                                                   const nlohmann::json& kinematics) {
+  const auto points = kinematics.value("display_points_per_segment", 20);
+  return std::make_unique<ModalCatheterModel>(assembled, static_cast<std::size_t>(std::clamp(points, 2, 500)));
+}
 
 std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& k, std::size_t joint_count,
                                                              const std::string& file) {

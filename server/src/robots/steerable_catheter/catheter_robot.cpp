@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 
 #include "steerable_catheter/catheter_simulation.hpp"
 #include "steerable_catheter/planning_service.hpp"
@@ -67,6 +68,12 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
     if (g != it->end() && g->is_array() && g->size() == 2)
       for (std::size_t i = 0; i < 2; ++i)
         if ((*g)[i].is_number() && (*g)[i].get<double>() != 0) display_gains_[i] = (*g)[i].get<double>();
+  }
+  if (settings_.calibrated_shape) {
+    // Draw the model the robot uses: with a calibrated shape matrix that is no longer constant curvature.
+    modal_display_.emplace(assembled_shape(settings_));
+    display_ = make_modal_catheter_display_model(assembled_shape(settings_),
+                                                 rc.settings.value("kinematics", nlohmann::json::object()));
   }
   try {
     map_ = std::make_unique<teleop::CatheterConfigurationMap>(settings_.nominal, settings_.rates);
@@ -183,6 +190,20 @@ void SteerableCatheter::display_positions(std::span<const double> measured, std:
   // the spring deflection (drive − carriage), divided by the display model's bend gains.
   const auto s = published_.load();
   const std::array<double, 2> d = s.deflection_fresh ? s.spring_deflection : std::array<double, 2>{};
+  if (modal_display_) {
+    // The calibrated model's own actuation: the carriages, the distal one shifted by the coupling of
+    // eq. 4.15 as the plant shifts it (drivers/sim/srmc_plant.cpp).
+    const auto& r = settings_.rates;
+    const double coupling = r.coupling_enabled ? r.proximal_outer_radius * std::cos(r.plane_offset) : 0.0;
+    const double proximal = measured[2] - d[0];
+    const double proximal_bend =
+        std::numbers::pi / 2.0 - modal_display_->tip_angle(teleop::CatheterSegment::kProximal, proximal);
+    out[0] = measured[0];
+    out[1] = measured[1];
+    out[2] = proximal;
+    out[3] = measured[3] - d[1] + coupling * proximal_bend;
+    return;
+  }
   const auto psi =
       map_->configuration(Eigen::Vector4d(measured[0], measured[1], measured[2] - d[0], measured[3] - d[1]));
   out[0] = measured[0];

@@ -12,6 +12,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -24,6 +25,7 @@
 #include "tendril/drivers/input/evdev_joystick.hpp"
 #include "tendril/server/robot_type.hpp"
 #include "tendril/teleop/catheter_configuration.hpp"
+#include "tendril/teleop/modal_catheter_kinematics.hpp"
 #include "tendril/teleop/quintic_interpolator.hpp"
 
 namespace tendril::sim {
@@ -181,6 +183,8 @@ class SteerableCatheter final : public RobotPlugin {
   CatheterSettings settings_;
   std::unique_ptr<RobotKinematics> display_;
   std::array<double, 2> display_gains_{1.0, 1.0};
+  // With a calibrated shape: the assembled model the display draws (display_ wraps the same shape).
+  std::optional<teleop::ModalCatheterKinematics> modal_display_;
   std::unique_ptr<teleop::CatheterConfigurationMap> map_;
   std::unique_ptr<teleop::ConfigurationSpaceController> configuration_;  // control thread
   Eigen::Vector4d psi_max_velocity_, psi_max_acceleration_;              // its quintic's bounds in ψ
@@ -202,6 +206,9 @@ class SteerableCatheter final : public RobotPlugin {
 };
 
 // The display model of the robot file's "kinematics" (constant curvature; catheter_display_model.cpp).
+// The calibrated model's display (the assembled modal shape the plant bends with; catheter_display_model.cpp).
+std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(const teleop::ModalCatheterParameters& assembled,
+                                                                   const nlohmann::json& kinematics);
 std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& kinematics,
                                                              std::size_t joints, const std::string& file);
 

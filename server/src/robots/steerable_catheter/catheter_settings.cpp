@@ -100,6 +100,7 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
     if (m.has("proximal_shape_matrix"))
       s.nominal.proximal.shape_matrix = shape_matrix(m, "proximal_shape_matrix");
     if (m.has("distal_shape_matrix")) s.nominal.distal.shape_matrix = shape_matrix(m, "distal_shape_matrix");
+    s.calibrated_shape = m.has("proximal_shape_matrix") || m.has("distal_shape_matrix");
     try {
       (void)teleop::ModalCatheterKinematics(s.nominal);
     } catch (const std::invalid_argument& e) {

@@ -61,6 +61,7 @@ struct CatheterSettings {
   // Tip-only model of the two bending segments (constant curvature k = nominal_bend_gain, or the
   // calibrated <segment>_shape_matrix) and the assembled-catheter loss lines.
   teleop::ModalCatheterParameters nominal;
+  bool calibrated_shape = false;  // a <segment>_shape_matrix replaced constant curvature
   teleop::ConfigurationRateParameters rates;
   SpringDeflectionSensorSettings deflection;
   teleop::ActiveComplianceParameters compliance;
