@@ -31,6 +31,8 @@ export class CatheterPanel {
     this.commandable = true;   // false while the page shows stale data or is disconnected
     this.viewer = false;       // a viewer session commands nothing
     this.pad = {x: 0, y: 0};
+    this.padPointer = false;   // a pointer drags the pad
+    this.dragFrom = null;      // where a pointer pressed the deadman (its drag steers the bend)
     this.sending = false;
     this.lastError = '';
     this.timer = null;
@@ -94,27 +96,54 @@ export class CatheterPanel {
     this.el.fromCurrent.addEventListener('click', () => this.clearTouched());
     this.el.move.addEventListener('click', () => this.moveConfiguration());
 
-    // Deadman: held by pointer (button), Space key, or a gamepad shoulder button.
+    // Deadman: held by pointer (button), Space key, or a gamepad shoulder button. With a single mouse
+    // the button is also the stick: hold it and drag, and the drag steers the bend (x proximal, up
+    // distal) as the pad would; let go and both spring back.
     const d = this.el.deadman;
     d.addEventListener('pointerdown', (ev) => {
       ev.preventDefault();
       d.setPointerCapture?.(ev.pointerId);
       this.deadmanPointer = true;
+      this.dragFrom = {x: ev.clientX, y: ev.clientY, steering: false};
       this.refresh();
     });
+    d.addEventListener('pointermove', (ev) => {
+      const from = this.dragFrom;
+      if (!this.deadmanPointer || !from || this.padPointer) return;  // a second finger on the pad wins
+      const dx = ev.clientX - from.x;
+      const dy = ev.clientY - from.y;
+      if (!from.steering && Math.hypot(dx, dy) < 4) return;  // a hand holding still is not a drag
+      from.steering = true;
+      const reach = this.el.pad.getBoundingClientRect().width * 0.45 || 50;  // the knob's travel
+      this.pad = {x: clamp1(dx / reach), y: clamp1(-dy / reach)};
+      this.drawKnob();
+    });
     for (const type of ['pointerup', 'pointercancel', 'lostpointercapture']) {
-      d.addEventListener(type, () => { this.deadmanPointer = false; this.refresh(); });
+      d.addEventListener(type, () => {
+        if (this.dragFrom?.steering && !this.padPointer) this.pad = {x: 0, y: 0};
+        this.dragFrom = null;
+        this.deadmanPointer = false;
+        this.drawKnob();
+        this.refresh();
+      });
     }
+    // Space is the deadman wherever it does not type: on a slider, a button, the pad or the page (a
+    // slider with focus used to swallow it, and the deadman stopped working without a word). Its
+    // default action is prevented, so it neither scrolls nor presses the focused button. In a text or
+    // number field or a list it stays a key for that field.
+    const typesSpace = (t) => !!t && (t.isContentEditable || t.tagName === 'TEXTAREA' || t.tagName === 'SELECT' ||
+        (t.tagName === 'INPUT' && !['range', 'button', 'submit', 'reset', 'checkbox', 'radio', 'color', 'file'].includes(t.type)));
     document.addEventListener('keydown', (ev) => {
-      if (ev.code !== 'Space' || ev.repeat || this.root.hidden) return;
-      const t = ev.target;
-      if (t && (t.tagName === 'INPUT' || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA' || t.isContentEditable)) return;
+      if (ev.code !== 'Space' || this.root.hidden || typesSpace(ev.target)) return;
       ev.preventDefault();
+      if (ev.repeat) return;
       this.deadmanKey = true;
       this.refresh();
     });
     document.addEventListener('keyup', (ev) => {
       if (ev.code !== 'Space') return;
+      // The release is never missed, whatever has focus now; a button that had it is not pressed.
+      if (this.deadmanKey) ev.preventDefault();
       this.deadmanKey = false;
       this.refresh();
     });
@@ -136,11 +165,12 @@ export class CatheterPanel {
     };
     pad.addEventListener('pointerdown', (ev) => {
       pad.setPointerCapture?.(ev.pointerId);
+      this.padPointer = true;
       fromEvent(ev);
     });
     pad.addEventListener('pointermove', (ev) => { if (ev.buttons) fromEvent(ev); });
     for (const type of ['pointerup', 'pointercancel']) {
-      pad.addEventListener(type, () => { this.pad = {x: 0, y: 0}; this.drawKnob(); });
+      pad.addEventListener(type, () => { this.padPointer = false; this.pad = {x: 0, y: 0}; this.drawKnob(); });
     }
     pad.addEventListener('keydown', (ev) => {
       const step = 0.25;

@@ -1,0 +1,176 @@
+// Browser tests of the console as a cockpit (issue 12, the remaining console items), against a fresh
+// tendrild with the catheter in free space (tests/e2e/run.sh starts one for this file): the Space
+// deadman whatever control has focus and the mouse deadman that steers, the E-STOP badge as soon as
+// the e-stop is known, imaging at the centre that scales with the screen, joystick speed presets, the
+// procedure timer and inserted length, last-image hold and zoom, and enlargeable panels.
+// Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh sets them); CHROMIUM (default /usr/bin/chromium).
+import {test, before, after} from 'node:test';
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import path from 'node:path';
+import {fileURLToPath} from 'node:url';
+import {chromium} from 'playwright-core';
+
+const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
+const TOKEN = process.env.TENDRIL_TOKEN || '';
+if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
+const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
+const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
+const tid = (id) => `[data-testid="${id}"]`;
+const CHROMIUM_ARGS = ['--headless=new', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader'];
+
+let browser;
+let page;
+const pageErrors = [];
+
+before(async () => {
+  fs.mkdirSync(ARTIFACTS, {recursive: true});
+  browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true, args: CHROMIUM_ARGS});
+  page = await (await browser.newContext({viewport: {width: 1280, height: 800}})).newPage();
+  page.on('pageerror', (err) => pageErrors.push(err.message));
+});
+
+after(async () => {
+  try {
+    await api('POST', '/estop/reset', {});
+  } catch {
+    // the server may already be gone
+  }
+  await browser?.close();
+});
+
+// The REST API as another client (Bearer, its own name): reads, and the e-stop pressed elsewhere.
+async function api(method, urlPath, body) {
+  const r = await fetch(`${BASE_URL}/api/v1${urlPath}`, {
+    method, headers: {Authorization: `Bearer ${TOKEN}`, 'X-Tendril-Client': 'e2e-cockpit-probe', 'Content-Type': 'application/json'},
+    body: body ? JSON.stringify(body) : undefined,
+  });
+  return r.json();
+}
+const measuredJs = async () => (await api('GET', '/robots/srmc/measured_js')).position;
+const serverState = () => api('GET', '/robots/srmc/operating_state');
+
+// Polls the server until `predicate(value)` holds for `read()`; fails with the last value.
+async function untilServer(read, predicate, what, timeoutMs = 20000) {
+  const until = Date.now() + timeoutMs;
+  for (;;) {
+    const value = await read();
+    if (predicate(value)) return value;
+    if (Date.now() > until) assert.fail(`${what}: last ${JSON.stringify(value)}`);
+    await new Promise((r) => setTimeout(r, 100));
+  }
+}
+
+async function waitHolding() {
+  await untilServer(serverState, (os) => !os.is_busy, 'the robot holds');
+}
+
+async function enable() {
+  await page.waitForFunction(() => !document.querySelector('[data-testid="enable-button"]').disabled, null, WAIT);
+  await page.click(tid('enable-button'));
+  await untilServer(serverState, (os) => os.state === 'ENABLED', 'enabled');
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED', null, WAIT);
+}
+
+// Switches mode from the mode bar (repeated, bounded, while the page may be STALE for a moment).
+async function switchMode(mode) {
+  for (let attempt = 0; attempt < 5; ++attempt) {
+    await waitHolding();
+    await page.waitForFunction((m) => !document.querySelector(`[data-testid="mode-${m}"]`).disabled, mode, WAIT);
+    await page.click(tid(`mode-${mode}`));
+    try {
+      await page.waitForFunction((m) => document.querySelector(`[data-testid="mode-${m}"]`).getAttribute('aria-pressed') === 'true',
+                                 mode, {timeout: 5000});
+      return;
+    } catch {
+      // refused while settling, or not yet streamed: look again
+    }
+  }
+  assert.fail(`mode ${mode} not reached: ${await page.locator(tid('command-status')).textContent()}`);
+}
+
+const deadmanPressed = () => page.locator(tid('deadman-button')).getAttribute('aria-pressed');
+
+test('the console loads; lease and enable', async () => {
+  await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
+  await page.waitForFunction(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live',
+                             null, {timeout: 60000});
+  await page.click(tid('lease-button'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="lease-status"]').classList.contains('held'), null, WAIT);
+  await enable();
+});
+
+// Issue 12: "The Space deadman stops working silently once a slider has focus; with a mouse one cannot
+// hold the on-screen deadman and drag the stick."
+test('Space is the deadman on a focused slider or button (no scroll, no click); a mouse holds the deadman and steers by dragging it', async () => {
+  await switchMode('telemanipulation');
+  await page.click(tid('tab-catheter'));
+  // A focused speed slider: Space holds the deadman and the arrow keys set the insertion speed.
+  const q0 = await measuredJs();
+  const scroll0 = await page.evaluate(() => [window.scrollY, document.querySelector('#panel-catheter').scrollTop]);
+  await page.focus(tid('stick-insertion'));
+  await page.keyboard.down('Space');
+  await page.waitForFunction(() => document.querySelector('[data-testid="deadman-button"]').getAttribute('aria-pressed') === 'true',
+                             null, {timeout: 2000});
+  for (let i = 0; i < 6; ++i) await page.keyboard.press('ArrowRight');
+  await untilServer(measuredJs, (q) => q[0] - q0[0] > 0.3, 'insertion moves with Space held on the focused slider');
+  await page.keyboard.up('Space');
+  assert.equal(await deadmanPressed(), 'false', 'released with the key');
+  await page.locator(tid('stick-insertion')).blur();  // the speed springs back to 0
+  await waitHolding();
+  const scroll1 = await page.evaluate(() => [window.scrollY, document.querySelector('#panel-catheter').scrollTop]);
+  assert.deepEqual(scroll1, scroll0, 'Space did not scroll');
+
+  // A focused button: Space holds the deadman and does not press the button.
+  await page.evaluate(() => {
+    window.__clicks = 0;
+    document.querySelector('[data-testid="cfg-from-current-button"]').addEventListener('click', () => window.__clicks++);
+  });
+  await page.focus(tid('cfg-from-current-button'));
+  await page.keyboard.down('Space');
+  await page.waitForFunction(() => document.querySelector('[data-testid="deadman-button"]').getAttribute('aria-pressed') === 'true',
+                             null, {timeout: 2000});
+  await page.keyboard.up('Space');
+  assert.equal(await deadmanPressed(), 'false');
+  assert.equal(await page.evaluate(() => window.__clicks), 0, 'Space on a focused button held the deadman and clicked nothing');
+  // In a number field Space stays a key of the field: no deadman.
+  await page.focus(tid('cfg-roll-num'));
+  await page.keyboard.down('Space');
+  await page.waitForTimeout(200);
+  assert.equal(await deadmanPressed(), 'false', 'no deadman while typing in a number field');
+  await page.keyboard.up('Space');
+  await page.locator(tid('cfg-roll-num')).blur();
+
+  // One mouse: press the deadman and drag up: the distal bend moves; let go and it stops.
+  await waitHolding();
+  const q1 = await measuredJs();
+  const box = await page.locator(tid('deadman-button')).boundingBox();
+  const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
+  await page.mouse.move(x, y);
+  await page.mouse.down();
+  await page.mouse.move(x, y - 80, {steps: 8});
+  await page.waitForFunction(() => /moving from console/.test(document.querySelector('[data-testid="joystick-status"]').textContent),
+                             null, WAIT);
+  assert.equal(await deadmanPressed(), 'true');
+  await untilServer(measuredJs, (q) => q[3] - q1[3] > 0.2, 'the distal bend moves while the mouse holds the deadman and drags up');
+  const knob = await page.locator(tid('stick-pad')).getAttribute('aria-valuetext');
+  assert.match(knob, /distal 1\.00/, `the pad shows the drag: ${knob}`);
+  await page.screenshot({path: path.join(ARTIFACTS, 'c01-mouse-deadman-drag.png')});
+  await page.mouse.up();
+  assert.equal(await deadmanPressed(), 'false');
+  assert.match(await page.locator(tid('stick-pad')).getAttribute('aria-valuetext'), /proximal 0\.00, distal 0\.00/, 'the stick springs back');
+  await waitHolding();
+  const q2 = await measuredJs();
+  await page.waitForTimeout(500);
+  const q3 = await measuredJs();
+  assert.ok(Math.abs(q3[3] - q2[3]) < 0.01, `stopped after the release: ${q2[3]} -> ${q3[3]}`);
+  // Back to straight in joint mode for the tests after this one.
+  await switchMode('joint');
+  const back = await page.evaluate(async () => (await fetch('/api/v1/robots/srmc/move_jp', {
+    method: 'POST', headers: {'Content-Type': 'application/json'}, credentials: 'same-origin', body: JSON.stringify({goal: [10, 0, 0, 0]}),
+  })).status);
+  assert.equal(back, 202);
+  await untilServer(measuredJs, (q) => Math.abs(q[0] - 10) < 0.05 && Math.abs(q[3]) < 0.05, 'back at the start pose');
+  await waitHolding();
+  await page.click(tid('tab-joints'));
+});
