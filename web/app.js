@@ -83,6 +83,7 @@ const state = {
   streamAgeMs: Infinity,  // age of the joint values shown
   latencyMs: [],        // stream latency (arrival - server stamp) of the last second's joint messages
   role: null,           // 'operator' | 'viewer', from the stream's serverInfo
+  estopSentMs: -Infinity,  // browser wall clock when this page last sent the e-stop
   events: [],           // newest first
   lastFaultCause: '',
   offline: false,       // neither stream nor REST answered lately
@@ -170,8 +171,11 @@ async function runCommand(label, fn) {
 }
 
 // ---------------------------------------------------------------- operating state
-function applyOperatingState(os) {
+// readAtMs: when the state was read (browser wall clock): a state read before this page's e-stop was
+// sent, arriving after its answer, is older than what the page knows and does not undo the E-STOP.
+function applyOperatingState(os, readAtMs = NaN) {
   if (!os || typeof os.state !== 'string') return;
+  if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs) return;
   state.operating = os;
   const estop = !!os.estop;
   const label = estop ? 'E-STOP' : os.state;
@@ -583,13 +587,21 @@ function updateStale(force) {
   refreshConnectionIndicator();
 }
 
+// The operating state is shown as it arrives, not at the next animation frame: it is small, it changes
+// only with the state, and an E-STOP must not wait for a page whose frames lag (a software-rendered
+// 4K page drew a frame every 0.6-0.8 s, and the badge said PAUSED that long after the latch).
+function takeOperatingState() {
+  if (!topics) return;
+  const os = latest.take(topics.operating);
+  if (os) applyOperatingState(os.msg, os.stampMs - clock.offsetMs);
+}
+
 // One animation frame: the newest message of each topic, decoded once.
 function renderFrame() {
   requestAnimationFrame(renderFrame);
   if (!topics) return;
   const start = performance.now();
-  const os = latest.take(topics.operating);
-  if (os) applyOperatingState(os.msg);
+  takeOperatingState();
   const js = latest.take(topics.joints);
   // Never older than what is shown (a late stream message after a fresher REST answer is dropped).
   if (js && !(js.stampMs < shown.joints)) {
@@ -655,7 +667,8 @@ async function poll() {
     joints?.updateSetpoint(sp);
     plotJointState(sp?.name, sp?.position, 0);
   }));
-  jobs.push(api.operatingState(robot).then(applyOperatingState));
+  const askedMs = wallNowMs();
+  jobs.push(api.operatingState(robot).then((os) => applyOperatingState(os, askedMs)));
   if (pollTick % 4 === 0) {
     jobs.push(api.shape(robot).then(applyShape));
     jobs.push(api.measuredCp(robot).then(applyTipPose));
@@ -773,6 +786,7 @@ function connectWebSocket(robotName) {
         return;
       }
       latest.put(topic, bytes, stampNs);
+      if (topic === t.operating) takeOperatingState();
       if (topic === t.joints) {
         state.lastWsJointMs = Date.now();
         const stampMs = latest.stampOf(topic);
@@ -888,8 +902,12 @@ async function pollMetrics() {
 // ---------------------------------------------------------------- commands
 async function estop() {
   // Sent first, before anything else on the page reacts: this is the one command that must not wait.
+  state.estopSentMs = wallNowMs();
   try {
-    await api.estop();
+    const answer = await api.estop();
+    // The server's answer says the e-stop is latched: shown at once, not when the stream or the next
+    // animation frame brings it (a page whose frames lag showed PAUSED for seconds after the latch).
+    if (answer?.estop === true && state.operating) applyOperatingState({...state.operating, estop: true});
     showStatus('E-STOP sent: every robot is stopping', 'ok');
   } catch (err) {
     showStatus(`E-STOP FAILED: ${describeError(err)}. Use the hardware stop.`, 'error');

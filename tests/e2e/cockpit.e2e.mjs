@@ -174,3 +174,75 @@ test('Space is the deadman on a focused slider or button (no scroll, no click); 
   await waitHolding();
   await page.click(tid('tab-joints'));
 });
+
+// Holds the page's animation frames (as a software-rendered 4K page nearly does: a frame every
+// 0.6-0.8 s was measured) until the returned function is called.
+async function holdFrames() {
+  await page.evaluate(() => {
+    const native = window.requestAnimationFrame.bind(window);
+    const held = [];
+    window.requestAnimationFrame = (cb) => { held.push(cb); return 0; };
+    window.__releaseFrames = () => {
+      window.requestAnimationFrame = native;
+      for (const cb of held.splice(0)) native(cb);
+    };
+  });
+  return () => page.evaluate(() => window.__releaseFrames());
+}
+
+// Reset from the console (the reset needs the lease, which the page holds).
+async function resetEstop() {
+  await page.waitForFunction(() => !document.querySelector('[data-testid="estop-reset-button"]').disabled, null, WAIT);
+  await page.click(tid('estop-reset-button'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.estop === 'false' &&
+                                   document.querySelector('[data-testid="state-badge"]').dataset.state === 'DISABLED', null, WAIT);
+}
+
+// Issue 12: "The e-stop badge showed PAUSED 1.5 s after the server had latched the e-stop."
+test('the badge shows E-STOP as soon as the e-stop is known, however late the page draws its frames', async () => {
+  // From PAUSED, as in the issue.
+  await page.waitForFunction(() => !document.querySelector('[data-testid="pause-button"]').disabled, null, WAIT);
+  await page.click(tid('pause-button'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'PAUSED', null, WAIT);
+  // This page's E-STOP: the server's answer is enough.
+  await page.evaluate(() => {
+    const native = window.fetch;
+    window.__estopAnsweredAt = NaN;
+    window.fetch = async (...args) => {
+      const r = await native(...args);
+      if (String(args[0]).endsWith('/estop')) window.__estopAnsweredAt = performance.now();
+      return r;
+    };
+    const badge = document.querySelector('[data-testid="state-badge"]');
+    window.__estopShownAt = NaN;
+    new MutationObserver(() => {
+      if (badge.dataset.estop === 'true' && Number.isNaN(window.__estopShownAt)) window.__estopShownAt = performance.now();
+    }).observe(badge, {attributes: true, subtree: true, childList: true, characterData: true});
+  });
+  let release = await holdFrames();
+  try {
+    await page.click(tid('estop-button'));
+    await page.waitForFunction(() => {
+      const badge = document.querySelector('[data-testid="state-badge"]');
+      return badge.dataset.estop === 'true' && /E-STOP/.test(badge.textContent) &&
+          document.querySelector('[data-testid="banner"]').dataset.level === 'estop';
+    }, null, {timeout: 5000, polling: 50});
+    const [answered, shown] = await page.evaluate(() => [window.__estopAnsweredAt, window.__estopShownAt]);
+    console.log(`E-STOP shown ${(shown - answered).toFixed(1)} ms after the server's answer (frames held)`);
+  } finally {
+    await release();
+  }
+  await resetEstop();
+  // The e-stop pressed elsewhere (another client): the stream's operating state says it.
+  release = await holdFrames();
+  try {
+    const answer = await api('POST', '/estop', {});
+    assert.equal(answer.estop, true, JSON.stringify(answer));
+    await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.estop === 'true',
+                               null, {timeout: 5000, polling: 50});
+  } finally {
+    await release();
+  }
+  await resetEstop();
+  await enable();
+});
