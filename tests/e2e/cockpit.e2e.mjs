@@ -246,3 +246,51 @@ test('the badge shows E-STOP as soon as the e-stop is known, however late the pa
   await resetEstop();
   await enable();
 });
+
+// The size at which an <img> with object-fit: contain shows its picture, and the boxes of the panels.
+async function imagingLayout(p) {
+  return p.evaluate(() => {
+    const box = (sel) => {
+      const r = document.querySelector(sel).getBoundingClientRect();
+      return {left: r.left, right: r.right, top: r.top, bottom: r.bottom, area: r.width * r.height};
+    };
+    const pictures = ['ap', 'lateral'].map((k) => {
+      const img = document.querySelector(`[data-testid="image-${k}-frame"]`);
+      const r = img.getBoundingClientRect();
+      const scale = Math.min(r.width / img.naturalWidth, r.height / img.naturalHeight);
+      return {natural: img.naturalWidth, width: img.naturalWidth * scale, height: img.naturalHeight * scale};
+    });
+    return {pictures, view: box('.view-panel'), images: box('.images-panel'), plots: box('.plots-panel'), side: box('.side-panel')};
+  });
+}
+
+// Issue 12: "at 3840×2160 the fluoroscopy stays 512 px in a small box while the 3D view takes the screen".
+test('imaging is at the centre and scales with the screen (1280x720 and 3840x2160)', async () => {
+  for (const [width, height, minPicture] of [[1280, 720, 180], [3840, 2160, 800]]) {
+    const ctx = await browser.newContext({viewport: {width, height}});
+    try {
+      const p = await ctx.newPage();
+      await p.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
+      // Generous: a 4K page rendered in software on two busy cores is slow to start.
+      for (const k of ['ap', 'lateral']) {
+        await p.waitForFunction((key) => document.querySelector(`[data-testid="image-${key}-frame"]`).naturalWidth > 0 &&
+                                          !document.querySelector(`[data-testid="image-${key}-frame"]`).hidden, k, {timeout: 90000});
+      }
+      const l = await imagingLayout(p);
+      await p.screenshot({path: path.join(ARTIFACTS, `c03-imaging-${width}x${height}.png`)});
+      for (const [i, pic] of l.pictures.entries()) {
+        assert.ok(pic.width >= minPicture, `${width}x${height}: picture ${i} shown ${pic.width.toFixed(0)} px wide (frame ${pic.natural} px), want >= ${minPicture}`);
+      }
+      // At the centre: between the 3D view and the side panel.
+      assert.ok(l.view.right <= l.images.left && l.images.right <= l.side.left,
+                `${width}x${height}: imaging between the 3D view and the side panel ${JSON.stringify(l)}`);
+      if (width >= 3840) {
+        assert.ok(l.images.area > l.view.area && l.images.area > l.plots.area, `imaging is the largest panel ${JSON.stringify(l)}`);
+        assert.ok(l.pictures[0].width >= 1.5 * l.pictures[0].natural, 'the frame is scaled up with the screen');
+      }
+      console.log(`${width}x${height}: pictures ${l.pictures.map((q) => `${q.width.toFixed(0)}x${q.height.toFixed(0)}`).join(', ')}`);
+    } finally {
+      await ctx.close();
+    }
+  }
+});
