@@ -1,6 +1,7 @@
 // Steerable-catheter panel: spring-deflection gauges and wall force, configuration sliders in degrees
 // (move_configuration), and the operator's joystick: an on-screen pad plus sliders and the browser
-// Gamepad API, both publishing {axes: [insertion, roll, proximal, distal], deadman} at 30 Hz, and only
+// Gamepad API, both publishing {axes: [insertion, roll, proximal, distal], deadman} at 30 Hz (scaled by
+// the speed preset), and only
 // while the operator-presence (deadman) control is held. Releasing it, leaving the page or losing
 // focus sends deadman:false at once and stops sending.
 const DEG = Math.PI / 180;
@@ -52,7 +53,10 @@ export class CatheterPanel {
       move: q('cfg-move-button'),
       fromCurrent: q('cfg-from-current-button'),
       preview: q('cfg-preview'),
+      speedButtons: [...root.querySelectorAll('[data-speed]')],
+      speedReadout: q('speed-readout'),
     };
+    this.speed = 0.5;          // the joystick's speed preset (fraction of full-stick speed)
     this.sliders = ['theta-proximal', 'theta-distal', 'insertion', 'roll'].map((name) => ({
       name,
       range: root.querySelector(`#cfg-${name}`),
@@ -80,6 +84,9 @@ export class CatheterPanel {
       s.index = i;
     });
     this.limit = robot.spring_deflection_limit_mm;
+    this.joints = robot.joints;
+    this.fullSpeed = robot.telemanipulation_max_speed;
+    this.renderSpeed();
     this.clearTouched();
   }
 
@@ -94,6 +101,7 @@ export class CatheterPanel {
       s.number.addEventListener('input', () => { s.range.value = s.number.value; touch(); });
     }
     this.el.fromCurrent.addEventListener('click', () => this.clearTouched());
+    for (const b of this.el.speedButtons) b.addEventListener('click', () => this.setSpeed(Number(b.dataset.speed)));
     this.el.move.addEventListener('click', () => this.moveConfiguration());
 
     // Deadman: held by pointer (button), Space key, or a gamepad shoulder button. With a single mouse
@@ -222,9 +230,35 @@ export class CatheterPanel {
 
   axes(gamepadAxes) {
     const screen = [Number(this.el.insertion.value), Number(this.el.roll.value), this.pad.x, this.pad.y];
-    // The on-screen controls win when touched; otherwise the gamepad.
+    // The on-screen controls win when touched; otherwise the gamepad. The speed preset scales what is
+    // sent: the server moves a joint at axis × its full-stick speed (telemanipulation_max_speed).
     const touched = screen.some((v) => v !== 0);
-    return (touched || !gamepadAxes ? screen : gamepadAxes).map(clamp1);
+    return (touched || !gamepadAxes ? screen : gamepadAxes).map((v) => clamp1(v) * this.speed);
+  }
+
+  // Speed preset: the fraction of the full-stick speed the joystick commands (slow ¼, normal ½, fast 1).
+  setSpeed(fraction) {
+    this.speed = fraction;
+    for (const b of this.el.speedButtons) b.setAttribute('aria-pressed', String(Number(b.dataset.speed) === fraction));
+    this.renderSpeed();
+  }
+
+  // The top speed of each joint at full stick with the preset, in the joint's units (rad/s as °/s).
+  renderSpeed() {
+    const full = this.fullSpeed;
+    const joints = this.joints || [];
+    if (!Array.isArray(full) || full.length !== joints.length) {
+      this.el.speedReadout.textContent = `${Math.round(this.speed * 100)} % of full speed`;
+      return;
+    }
+    const parts = joints.map((j, i) => {
+      const v = full[i] * this.speed;
+      const text = j.unit === 'rad' ? `${fmt(v / DEG, 0)}°/s` : `${fmt(v, v < 1 ? 2 : 1)} ${j.unit}/s`;
+      return `${j.name.replace(/_/g, ' ')} ${text}`;
+    });
+    this.el.speedReadout.textContent = `full stick: ${parts.join(', ')}`;
+    this.el.speedReadout.title = `${Math.round(this.speed * 100)} % of the full-stick speed the server allows ` +
+        `(telemanipulation_max_speed, within each joint's max_velocity)`;
   }
 
   // 30 Hz: publish while the deadman is held; one deadman:false when it is let go.

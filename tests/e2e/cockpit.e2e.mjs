@@ -294,3 +294,73 @@ test('imaging is at the centre and scales with the screen (1280x720 and 3840x216
     }
   }
 });
+
+// The fastest a joint moved over ~250 ms windows (server time stamps) during `ms`: on a loaded machine
+// the page may turn STALE for a moment, and then the deadman counts as released, so an average over the
+// whole time would measure the interruptions rather than the commanded speed.
+async function peakVelocity(joint, ms = 2000) {
+  const samples = [];
+  const until = Date.now() + ms;
+  while (Date.now() < until) {
+    samples.push(await api('GET', '/robots/srmc/measured_js'));
+    await new Promise((r) => setTimeout(r, 250));
+  }
+  let peak = 0;
+  for (let i = 1; i < samples.length; ++i) {
+    const dt = samples[i].timestamp - samples[i - 1].timestamp;
+    if (dt > 0.1) peak = Math.max(peak, (samples[i].position[joint] - samples[i - 1].position[joint]) / dt);
+  }
+  return peak;
+}
+
+// Issue 12 (the cockpit): speed presets. The server moves a joint at axis × its full-stick speed
+// (GET /robots: telemanipulation_max_speed), so a preset scales the axes the console sends; move_jp
+// has no speed field, so step moves and Move keep the server's own profile.
+test('joystick speed presets: slow sends a quarter of the stick and the bend moves a quarter as fast as with fast', async () => {
+  const robots = await api('GET', '/robots');
+  const fullDistal = robots[0].telemanipulation_max_speed[3];
+  assert.ok(fullDistal > 0, `the server says the full-stick speed: ${JSON.stringify(robots[0].telemanipulation_max_speed)}`);
+  await switchMode('telemanipulation');
+  await page.click(tid('tab-catheter'));
+  assert.equal(await page.locator(tid('speed-normal')).getAttribute('aria-pressed'), 'true', 'normal by default');
+  const seen = {};
+  for (const [preset, fraction] of [['slow', 0.25], ['fast', 1]]) {
+    await page.click(tid(`speed-${preset}`));
+    assert.equal(await page.locator(tid(`speed-${preset}`)).getAttribute('aria-pressed'), 'true');
+    const readout = await page.locator(tid('speed-readout')).textContent();
+    const shown = Number(/distal bend ([\d.]+) mm\/s/.exec(readout)?.[1]);
+    assert.ok(Math.abs(shown - fullDistal * fraction) < 0.01, `the readout says the preset's top speed: ${readout}`);
+    await waitHolding();
+    // Full stick up (distal) with the mouse on the deadman (about 0.5 mm slow, then 2 mm fast: within
+    // the bend's 5 mm).
+    const box = await page.locator(tid('deadman-button')).boundingBox();
+    const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
+    await page.mouse.move(x, y);
+    await page.mouse.down();
+    await page.mouse.move(x, y - 80, {steps: 8});
+    try {
+      const os = await untilServer(serverState, (s) => Math.abs((s.joystick?.axes?.[3] ?? 0) - fraction) < 0.01,
+                                   `the server receives the distal axis at ${fraction}`);
+      seen[preset] = {axes: os.joystick.axes, velocity: await peakVelocity(3)};
+    } finally {
+      await page.mouse.up();
+    }
+    await waitHolding();
+  }
+  console.log(`presets: ${JSON.stringify(seen)}`);
+  // The bend moves a quarter as fast with slow as with fast (what the drive reaches of the commanded
+  // speed is the server's; the ratio is the preset's).
+  const ratio = seen.slow.velocity / seen.fast.velocity;
+  assert.ok(seen.fast.velocity > 0.05 && ratio > 0.15 && ratio < 0.35,
+            `slow/fast distal bend speed ${ratio.toFixed(2)} (${seen.slow.velocity.toFixed(3)} / ${seen.fast.velocity.toFixed(3)} mm/s), want 0.25`);
+  await page.click(tid('speed-normal'));
+  await waitHolding();
+  await switchMode('joint');
+  const back = await page.evaluate(async () => (await fetch('/api/v1/robots/srmc/move_jp', {
+    method: 'POST', headers: {'Content-Type': 'application/json'}, credentials: 'same-origin', body: JSON.stringify({goal: [10, 0, 0, 0]}),
+  })).status);
+  assert.equal(back, 202);
+  await untilServer(measuredJs, (q) => Math.abs(q[3]) < 0.05, 'back at the start pose');
+  await waitHolding();
+  await page.click(tid('tab-joints'));
+});
