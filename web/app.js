@@ -9,6 +9,7 @@ import {buildJointPanel} from './joints.js';
 import {ImagePanel} from './images.js';
 import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
 import {PlanPanel} from './plan.js';
+import {ProcedurePanel} from './procedure.js';
 import {TimePlot} from './plot.js';
 
 const api = new Api();
@@ -122,6 +123,7 @@ let plan = null;        // PlanPanel
 let catheter = null;    // CatheterPanel, for robots with a configuration space
 let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
+const procedure = new ProcedurePanel($('[data-testid="procedure"]'));
 const images = {
   ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP'),
   lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral'),
@@ -177,6 +179,7 @@ function applyOperatingState(os, readAtMs = NaN) {
   if (!os || typeof os.state !== 'string') return;
   if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs) return;
   state.operating = os;
+  procedure.onState(os);
   const estop = !!os.estop;
   const label = estop ? 'E-STOP' : os.state;
   ui.badgeValue.textContent = label;
@@ -434,6 +437,7 @@ api.onNetwork = (answered) => (answered ? net.answered() : net.failed());
 function applyJointState(js, withSetpoint) {
   if (!joints || !js) return;
   joints.updateMeasured(js);
+  procedure.onJoints(js);
   if (withSetpoint && Array.isArray(js.setpoint)) joints.updateSetpoint({name: js.name, position: js.setpoint});
   plotJointState(js.name, js.position, 1);
   if (withSetpoint) plotJointState(js.name, js.setpoint, 0);
@@ -1152,6 +1156,7 @@ function selectRobot(name) {
   ui.robotKind.textContent = robot.kind ? robot.kind.replace(/_/g, ' ') : '';
   document.title = `${robot.name.toUpperCase()} · tendril console`;
   joints = buildJointPanel(ui.form, robot.joints, () => updateControls(), {onStep: stepJoint});
+  procedure.setRobot(robot);
   buildModeBar(robot);
   ui.catheterTab.hidden = !robot.configuration;
   if (robot.configuration) {

@@ -364,3 +364,52 @@ test('joystick speed presets: slow sends a quarter of the stick and the bend mov
   await waitHolding();
   await page.click(tid('tab-joints'));
 });
+
+const procedureShown = () => page.evaluate(() => {
+  const q = (id) => document.querySelector(`[data-testid="${id}"]`);
+  return {running: q('procedure').dataset.running, elapsedMs: Number(q('procedure-timer').dataset.elapsedMs),
+          timer: q('procedure-timer').textContent, inserted: Number(q('inserted-length').dataset.value),
+          deepest: Number(q('inserted-max').dataset.value), measured: Number(q('joint-measured-insertion').textContent)};
+});
+
+async function stepInsertion(sign, expectMm) {
+  const button = sign > 0 ? 'joint-step-plus-insertion' : 'joint-step-minus-insertion';
+  await waitHolding();
+  await page.waitForFunction((id) => !document.querySelector(`[data-testid="${id}"]`).disabled, button, WAIT);
+  await page.click(tid(button));
+  await untilServer(measuredJs, (q) => Math.abs(q[0] - expectMm) < 0.05, `insertion at ${expectMm} mm`);
+  await waitHolding();
+  await page.waitForFunction((mm) => Math.abs(Number(document.querySelector('[data-testid="inserted-length"]').dataset.value) - mm) < 0.05,
+                             expectMm, WAIT);
+}
+
+// Issue 12 (the cockpit): a procedure timer and an inserted-length counter in the header.
+test('the header shows the procedure time since the first Enable and the inserted length with the deepest so far', async () => {
+  const a = await procedureShown();
+  assert.equal(a.running, 'true', `the first Enable started the timer: ${JSON.stringify(a)}`);
+  assert.match(a.timer, /^\d\d:\d\d$/);
+  assert.ok(Math.abs(a.inserted - a.measured) < 0.05, `inserted length is the insertion joint's measured value: ${JSON.stringify(a)}`);
+  await page.waitForFunction((t) => Number(document.querySelector('[data-testid="procedure-timer"]').dataset.elapsedMs) > t + 1000,
+                             a.elapsedMs, WAIT);
+  // A new procedure: Stop, then Start from 0; the deepest insertion starts again from where the robot is.
+  await page.click(tid('procedure-timer-button'));
+  await page.click(tid('procedure-timer-button'));
+  const b = await procedureShown();
+  assert.equal(b.running, 'true');
+  assert.ok(b.elapsedMs < 3000, `restarted from 0: ${JSON.stringify(b)}`);
+  const start = (await measuredJs())[0];
+  assert.ok(Math.abs(b.deepest - start) < 0.05, `deepest restarts at the current insertion: ${JSON.stringify(b)} vs ${start}`);
+  // In 1 mm and back: the inserted length follows, the deepest keeps the 1 mm.
+  await stepInsertion(+1, start + 1);
+  await stepInsertion(-1, start);
+  const c = await procedureShown();
+  assert.ok(Math.abs(c.inserted - start) < 0.05 && Math.abs(c.deepest - (start + 1)) < 0.05, `after in and out: ${JSON.stringify(c)}`);
+  await page.locator(tid('procedure')).screenshot({path: path.join(ARTIFACTS, 'c05-procedure.png')});
+  // Stop freezes the time.
+  await page.click(tid('procedure-timer-button'));
+  const d = await procedureShown();
+  await page.waitForTimeout(1200);
+  const e = await procedureShown();
+  assert.equal(d.running, 'false');
+  assert.equal(e.elapsedMs, d.elapsedMs, 'stopped: the time stands still');
+});
