@@ -125,8 +125,8 @@ let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
 const procedure = new ProcedurePanel($('[data-testid="procedure"]'));
 const images = {
-  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP'),
-  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral'),
+  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP', {ageMs: (stamp) => clock.ageMs(stamp)}),
+  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral', {ageMs: (stamp) => clock.ageMs(stamp)}),
 };
 
 // ---------------------------------------------------------------- token handling
@@ -648,7 +648,7 @@ function renderFrame() {
     const m = latest.take(topics[key]);
     lastTaken.set(topics[key], start);
     if (m && key === 'map') view?.setPointCloud(m.msg);
-    else if (m) images[key].frame(m.msg);
+    else if (m) images[key].frame(m.msg, m.stampMs);
   }
   if (start - lastAgeUpdate >= 100) updateAges();
 }

@@ -413,3 +413,53 @@ test('the header shows the procedure time since the first Enable and the inserte
   assert.equal(d.running, 'false');
   assert.equal(e.elapsedMs, d.elapsedMs, 'stopped: the time stands still');
 });
+
+const imageShown = (key) => page.evaluate((k) => {
+  const root = document.querySelector(`[data-testid="image-${k}"]`);
+  const img = document.querySelector(`[data-testid="image-${k}-frame"]`);
+  const label = document.querySelector(`[data-testid="image-${k}-hold"]`);
+  const r = img.getBoundingClientRect();
+  return {frames: Number(root.dataset.frames), shownFrame: Number(root.dataset.shownFrame), src: img.src.length,
+          zoom: Number(root.dataset.zoom), width: r.width, hold: root.dataset.hold, label: label.hidden ? null : label.textContent,
+          labelAgeMs: Number(label.dataset.ageMs)};
+}, key);
+
+// Issue 12 (the cockpit): last-image hold and zoom on the AP and lateral panels.
+test('last-image hold freezes a frame under a HOLD label with its age; zoom by buttons and wheel, per panel', async () => {
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="image-ap"]').dataset.frames) >= 2, null, WAIT);
+  await page.click(tid('image-ap-hold-button'));
+  const held = await imageShown('ap');
+  assert.equal(held.hold, 'true');
+  // New frames keep arriving; the one shown stays, and its age grows.
+  await page.waitForFunction((n) => Number(document.querySelector('[data-testid="image-ap"]').dataset.frames) >= n + 3, held.frames, WAIT);
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="image-ap-hold"]').dataset.ageMs) > 1000, null, WAIT);
+  const later = await imageShown('ap');
+  assert.equal(later.shownFrame, held.shownFrame, `the held frame stays on screen: ${JSON.stringify({held, later})}`);
+  assert.match(later.label, /^HOLD · \d+\.\d s old$/, later.label);
+  const lateral = await imageShown('lateral');
+  assert.equal(lateral.label, null, 'the other plane is not held');
+  await page.locator('.images-panel').screenshot({path: path.join(ARTIFACTS, 'c06-image-hold.png')});
+  await page.click(tid('image-ap-hold-button'));
+  await page.waitForFunction((n) => Number(document.querySelector('[data-testid="image-ap"]').dataset.shownFrame) > n, held.shownFrame, WAIT);
+  assert.equal((await imageShown('ap')).label, null, 'live again: no HOLD label');
+
+  // Zoom: + doubles the AP frame on screen; the lateral stays whole; a wheel over the lateral zooms it.
+  const before = await imageShown('ap');
+  await page.click(tid('image-ap-zoom-in'));
+  const zoomed = await imageShown('ap');
+  assert.equal(zoomed.zoom, 2);
+  assert.ok(Math.abs(zoomed.width / before.width - 2) < 0.05, `the frame is shown twice as large: ${before.width} -> ${zoomed.width}`);
+  assert.equal((await imageShown('lateral')).zoom, 1, 'zoom is per panel');
+  // The zoom stays as new frames arrive.
+  await page.waitForFunction((n) => Number(document.querySelector('[data-testid="image-ap"]').dataset.shownFrame) >= n + 2, zoomed.shownFrame, WAIT);
+  assert.equal((await imageShown('ap')).zoom, 2);
+  const box = await page.locator(tid('image-lateral-frame')).boundingBox();
+  await page.mouse.move(box.x + box.width * 0.6, box.y + box.height * 0.4);
+  await page.mouse.wheel(0, -100);
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="image-lateral"]').dataset.zoom) > 1, null, WAIT);
+  await page.locator('.images-panel').screenshot({path: path.join(ARTIFACTS, 'c06-image-zoom.png')});
+  await page.click(tid('image-ap-zoom-reset'));
+  await page.click(tid('image-lateral-zoom-reset'));
+  assert.equal((await imageShown('ap')).zoom, 1);
+  assert.equal((await imageShown('lateral')).zoom, 1);
+});
