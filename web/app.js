@@ -10,6 +10,7 @@ import {ImagePanel} from './images.js';
 import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
 import {PlanPanel} from './plan.js';
 import {ProcedurePanel} from './procedure.js';
+import {wireEnlarge} from './layout.js';
 import {TimePlot} from './plot.js';
 
 const api = new Api();
@@ -1191,6 +1192,7 @@ async function start() {
     onPathLoaded: () => updateModeBar(),
   });
   wireCommands();
+  wireEnlarge($('main.layout'));
   renderEvents();
   setLease(false);
   setConnection('offline', 'connecting…');

@@ -137,6 +137,9 @@ export class ImagePanel {
     button('zoom-reset', '1×', `Whole ${this.label} image (no zoom)`, 'zoom-reset').addEventListener('click', () => this.setZoom(1, {x: 0, y: 0}));
     this.holdButton.addEventListener('click', () => this.setHeld(!this.held));
     this.status.insertAdjacentElement('afterend', tools);
+    // The imaging's enlarge button (index.html) stays last in the head.
+    const enlarge = this.status.parentElement.querySelector('.enlarge-btn');
+    if (enlarge) tools.appendChild(enlarge);
     this.holdLabel = document.createElement('div');
     this.holdLabel.className = 'image-hold';
     this.holdLabel.dataset.testid = `${id}-hold`;

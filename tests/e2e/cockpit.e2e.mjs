@@ -463,3 +463,48 @@ test('last-image hold freezes a frame under a HOLD label with its age; zoom by b
   assert.equal((await imageShown('ap')).zoom, 1);
   assert.equal((await imageShown('lateral')).zoom, 1);
 });
+
+const panelBoxes = () => page.evaluate(() => Object.fromEntries(['view', 'images', 'plots', 'side'].map((k) => {
+  const el = document.querySelector(k === 'side' ? '.side-panel' : `.layout > [data-panel="${k}"]`);
+  const r = el.getBoundingClientRect();
+  return [k, {left: Math.round(r.left), top: Math.round(r.top), right: Math.round(r.right), bottom: Math.round(r.bottom),
+              shown: getComputedStyle(el).display !== 'none'}];
+})));
+
+// Issue 12 (the cockpit): "The layout should let a person enlarge the panel they need (images, 3D, plots)."
+test('each of the 3D view, the imaging and the plots enlarges to the main area and back; Escape stays the E-STOP', async () => {
+  const normal = await panelBoxes();
+  const main = {left: Math.min(normal.view.left, normal.plots.left), top: Math.min(normal.view.top, normal.images.top),
+                right: Math.max(normal.images.right, normal.plots.right), bottom: Math.max(normal.plots.bottom, normal.images.bottom)};
+  const picture = () => page.evaluate(() => {
+    const img = document.querySelector('[data-testid="image-ap-frame"]');
+    const r = img.getBoundingClientRect();
+    return Math.min(r.width / img.naturalWidth, r.height / img.naturalHeight) * img.naturalWidth;
+  });
+  const picture0 = await picture();
+  for (const name of ['images', 'view', 'plots']) {
+    await page.click(tid(`enlarge-${name}`));
+    assert.equal(await page.locator(tid(`enlarge-${name}`)).getAttribute('aria-pressed'), 'true');
+    const big = await panelBoxes();
+    for (const other of ['view', 'images', 'plots'].filter((k) => k !== name)) assert.equal(big[other].shown, false, `${other} hidden`);
+    for (const edge of ['left', 'top', 'right', 'bottom']) {
+      assert.ok(Math.abs(big[name][edge] - main[edge]) <= 2, `${name} enlarged to the main area (${edge}): ${JSON.stringify({main, got: big[name]})}`);
+    }
+    assert.deepEqual(big.side, normal.side, 'the side panel stays where it was');
+    if (name === 'images') {
+      const enlarged = await picture();
+      assert.ok(enlarged > 1.3 * picture0, `the frames are shown larger: ${picture0.toFixed(0)} -> ${enlarged.toFixed(0)} px`);
+      console.log(`imaging enlarged at 1280x800: AP frame ${picture0.toFixed(0)} -> ${enlarged.toFixed(0)} px`);
+      await page.screenshot({path: path.join(ARTIFACTS, 'c07-enlarged-images.png')});
+      // Escape is the E-STOP here too, and leaves the layout as it is.
+      await page.keyboard.press('Escape');
+      await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.estop === 'true', null, WAIT);
+      assert.equal(await page.locator('main.layout').getAttribute('data-enlarged'), 'images', 'Escape did not restore the layout');
+      await resetEstop();
+    }
+    await page.click(tid(`enlarge-${name}`));
+    assert.equal(await page.locator(tid(`enlarge-${name}`)).getAttribute('aria-pressed'), 'false');
+    assert.deepEqual(await panelBoxes(), normal, `restored after ${name}`);
+  }
+  assert.deepEqual(pageErrors, [], 'no uncaught errors in the page');
+});
