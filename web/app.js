@@ -175,10 +175,11 @@ async function runCommand(label, fn) {
 
 // ---------------------------------------------------------------- operating state
 // readAtMs: when the state was read (browser wall clock): a state read before this page's e-stop was
-// sent, arriving after its answer, is older than what the page knows and does not undo the E-STOP.
+// sent, arriving just after its answer, is older than what the page knows and does not undo the E-STOP
+// (only in the first 2 s: a reset after that is a deliberate act, and is never held back).
 function applyOperatingState(os, readAtMs = NaN) {
   if (!os || typeof os.state !== 'string') return;
-  if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs) return;
+  if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs && wallNowMs() - state.estopSentMs < 2000) return;
   state.operating = os;
   procedure.onState(os);
   const estop = !!os.estop;
@@ -598,7 +599,8 @@ function updateStale(force) {
 function takeOperatingState() {
   if (!topics) return;
   const os = latest.take(topics.operating);
-  if (os) applyOperatingState(os.msg, os.stampMs - clock.offsetMs);
+  // The stream's stamp is on the server's clock: compared with the browser's only once they are compared.
+  if (os) applyOperatingState(os.msg, clock.known ? os.stampMs - clock.offsetMs : NaN);
 }
 
 // One animation frame: the newest message of each topic, decoded once.
