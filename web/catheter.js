@@ -138,9 +138,10 @@ export class CatheterPanel {
     // Space is the deadman wherever it does not type: on a slider, a button, the pad or the page (a
     // slider with focus used to swallow it, and the deadman stopped working without a word). Its
     // default action is prevented, so it neither scrolls nor presses the focused button. In a text or
-    // number field or a list it stays a key for that field.
+    // number field or a list it stays a key for that field; on a focused E-STOP it presses the E-STOP.
     const typesSpace = (t) => !!t && (t.isContentEditable || t.tagName === 'TEXTAREA' || t.tagName === 'SELECT' ||
-        (t.tagName === 'INPUT' && !['range', 'button', 'submit', 'reset', 'checkbox', 'radio', 'color', 'file'].includes(t.type)));
+        (t.tagName === 'INPUT' && !['range', 'button', 'submit', 'reset', 'checkbox', 'radio', 'color', 'file'].includes(t.type)) ||
+        !!t.closest?.('.estop'));
     document.addEventListener('keydown', (ev) => {
       if (ev.code !== 'Space' || this.root.hidden || typesSpace(ev.target)) return;
       ev.preventDefault();

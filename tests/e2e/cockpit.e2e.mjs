@@ -244,6 +244,14 @@ test('the badge shows E-STOP as soon as the e-stop is known, however late the pa
     await release();
   }
   await resetEstop();
+  // Space on a focused E-STOP presses it, even where Space is the joystick's deadman.
+  await page.click(tid('tab-catheter'));
+  await page.focus(tid('estop-button'));
+  await page.keyboard.press('Space');
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.estop === 'true', null, WAIT);
+  assert.equal(await deadmanPressed(), 'false', 'Space on the E-STOP is not the deadman');
+  await resetEstop();
+  await page.click(tid('tab-joints'));
   await enable();
 });
 
