@@ -10,7 +10,7 @@ import {ImagePanel} from './images.js';
 import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
 import {PlanPanel} from './plan.js';
 import {ProcedurePanel} from './procedure.js';
-import {wireEnlarge} from './layout.js';
+import {arrangeImaging, wireEnlarge} from './layout.js';
 import {TimePlot} from './plot.js';
 
 const api = new Api();
@@ -1195,6 +1195,7 @@ async function start() {
   });
   wireCommands();
   wireEnlarge($('main.layout'));
+  arrangeImaging($('.images-panel'));
   renderEvents();
   setLease(false);
   setConnection('offline', 'connecting…');

@@ -427,8 +427,10 @@ const imageShown = (key) => page.evaluate((k) => {
   const img = document.querySelector(`[data-testid="image-${k}-frame"]`);
   const label = document.querySelector(`[data-testid="image-${k}-hold"]`);
   const r = img.getBoundingClientRect();
+  // width: on screen (with the zoom's transform); boxWidth: its layout box, read in the same instant.
   return {frames: Number(root.dataset.frames), shownFrame: Number(root.dataset.shownFrame), src: img.src.length,
-          zoom: Number(root.dataset.zoom), width: r.width, hold: root.dataset.hold, label: label.hidden ? null : label.textContent,
+          zoom: Number(root.dataset.zoom), width: r.width, boxWidth: img.offsetWidth, hold: root.dataset.hold,
+          label: label.hidden ? null : label.textContent,
           labelAgeMs: Number(label.dataset.ageMs)};
 }, key);
 
@@ -452,11 +454,10 @@ test('last-image hold freezes a frame under a HOLD label with its age; zoom by b
   assert.equal((await imageShown('ap')).label, null, 'live again: no HOLD label');
 
   // Zoom: + doubles the AP frame on screen; the lateral stays whole; a wheel over the lateral zooms it.
-  const before = await imageShown('ap');
   await page.click(tid('image-ap-zoom-in'));
   const zoomed = await imageShown('ap');
   assert.equal(zoomed.zoom, 2);
-  assert.ok(Math.abs(zoomed.width / before.width - 2) < 0.05, `the frame is shown twice as large: ${before.width} -> ${zoomed.width}`);
+  assert.ok(Math.abs(zoomed.width / zoomed.boxWidth - 2) < 0.05, `the frame is shown twice as large: ${zoomed.boxWidth} -> ${zoomed.width}`);
   assert.equal((await imageShown('lateral')).zoom, 1, 'zoom is per panel');
   // The zoom stays as new frames arrive.
   await page.waitForFunction((n) => Number(document.querySelector('[data-testid="image-ap"]').dataset.shownFrame) >= n + 2, zoomed.shownFrame, WAIT);
