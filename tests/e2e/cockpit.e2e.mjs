@@ -274,7 +274,9 @@ async function imagingLayout(p) {
 
 // Issue 12: "at 3840×2160 the fluoroscopy stays 512 px in a small box while the 3D view takes the screen".
 test('imaging is at the centre and scales with the screen (1280x720 and 3840x2160)', async () => {
-  for (const [width, height, minPicture] of [[1280, 720, 180], [3840, 2160, 800]]) {
+  // Before: 130-165 px at 1280x720, 512 px at 3840x2160; now about 196 and 850 (the bounds leave room
+  // for a banner that grows by a line or two when the page turns STALE).
+  for (const [width, height, minPicture] of [[1280, 720, 180], [3840, 2160, 720]]) {
     const ctx = await browser.newContext({viewport: {width, height}});
     try {
       const p = await ctx.newPage();
@@ -294,7 +296,7 @@ test('imaging is at the centre and scales with the screen (1280x720 and 3840x216
                 `${width}x${height}: imaging between the 3D view and the side panel ${JSON.stringify(l)}`);
       if (width >= 3840) {
         assert.ok(l.images.area > l.view.area && l.images.area > l.plots.area, `imaging is the largest panel ${JSON.stringify(l)}`);
-        assert.ok(l.pictures[0].width >= 1.5 * l.pictures[0].natural, 'the frame is scaled up with the screen');
+        assert.ok(l.pictures[0].width >= 1.4 * l.pictures[0].natural, 'the frame is scaled up with the screen');
       }
       console.log(`${width}x${height}: pictures ${l.pictures.map((q) => `${q.width.toFixed(0)}x${q.height.toFixed(0)}`).join(', ')}`);
     } finally {
