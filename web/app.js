@@ -174,9 +174,9 @@ async function runCommand(label, fn) {
 }
 
 // ---------------------------------------------------------------- operating state
-// readAtMs: when the state was read (browser wall clock): a state read before this page's e-stop was
-// sent, arriving just after its answer, is older than what the page knows and does not undo the E-STOP
-// (only in the first 2 s: a reset after that is a deliberate act, and is never held back).
+// readAtMs: when a polled state was asked for (browser wall clock): one asked before this page's e-stop
+// was sent, arriving just after its answer, is older than what the page knows and does not undo the
+// E-STOP (only in the first 2 s: a reset after that is a deliberate act, and is never held back).
 function applyOperatingState(os, readAtMs = NaN) {
   if (!os || typeof os.state !== 'string') return;
   if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs && wallNowMs() - state.estopSentMs < 2000) return;
@@ -599,8 +599,10 @@ function updateStale(force) {
 function takeOperatingState() {
   if (!topics) return;
   const os = latest.take(topics.operating);
-  // The stream's stamp is on the server's clock: compared with the browser's only once they are compared.
-  if (os) applyOperatingState(os.msg, clock.known ? os.stampMs - clock.offsetMs : NaN);
+  // Not held back by its stamp: the stream is in order, and an estimate of the server's clock once held
+  // back a reset (the topic sends a state once, so the page kept showing E-STOP). A state published
+  // before the latch and sent after the answer shows for at most one publish period.
+  if (os) applyOperatingState(os.msg);
 }
 
 // One animation frame: the newest message of each topic, decoded once.
