@@ -9,6 +9,8 @@ import {buildJointPanel} from './joints.js';
 import {ImagePanel} from './images.js';
 import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
 import {PlanPanel} from './plan.js';
+import {ProcedurePanel} from './procedure.js';
+import {arrangeImaging, wireEnlarge} from './layout.js';
 import {TimePlot} from './plot.js';
 
 const api = new Api();
@@ -83,6 +85,7 @@ const state = {
   streamAgeMs: Infinity,  // age of the joint values shown
   latencyMs: [],        // stream latency (arrival - server stamp) of the last second's joint messages
   role: null,           // 'operator' | 'viewer', from the stream's serverInfo
+  estopSentMs: -Infinity,  // browser wall clock when this page last sent the e-stop
   events: [],           // newest first
   lastFaultCause: '',
   offline: false,       // neither stream nor REST answered lately
@@ -121,9 +124,10 @@ let plan = null;        // PlanPanel
 let catheter = null;    // CatheterPanel, for robots with a configuration space
 let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
+const procedure = new ProcedurePanel($('[data-testid="procedure"]'));
 const images = {
-  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP'),
-  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral'),
+  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP', {ageMs: (stamp) => clock.ageMs(stamp)}),
+  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral', {ageMs: (stamp) => clock.ageMs(stamp)}),
 };
 
 // ---------------------------------------------------------------- token handling
@@ -170,9 +174,14 @@ async function runCommand(label, fn) {
 }
 
 // ---------------------------------------------------------------- operating state
-function applyOperatingState(os) {
+// readAtMs: when a polled state was asked for (browser wall clock): one asked before this page's e-stop
+// was sent, arriving just after its answer, is older than what the page knows and does not undo the
+// E-STOP (only in the first 2 s: a reset after that is a deliberate act, and is never held back).
+function applyOperatingState(os, readAtMs = NaN) {
   if (!os || typeof os.state !== 'string') return;
+  if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs && wallNowMs() - state.estopSentMs < 2000) return;
   state.operating = os;
+  procedure.onState(os);
   const estop = !!os.estop;
   const label = estop ? 'E-STOP' : os.state;
   ui.badgeValue.textContent = label;
@@ -432,6 +441,7 @@ api.onNetwork = (answered) => (answered ? net.answered() : net.failed());
 function applyJointState(js, withSetpoint) {
   if (!joints || !js) return;
   joints.updateMeasured(js);
+  procedure.onJoints(js);
   if (withSetpoint && Array.isArray(js.setpoint)) joints.updateSetpoint({name: js.name, position: js.setpoint});
   plotJointState(js.name, js.position, 1);
   if (withSetpoint) plotJointState(js.name, js.setpoint, 0);
@@ -585,13 +595,24 @@ function updateStale(force) {
   refreshConnectionIndicator();
 }
 
+// The operating state is shown as it arrives, not at the next animation frame: it is small, it changes
+// only with the state, and an E-STOP must not wait for a page whose frames lag (a software-rendered
+// 4K page drew a frame every 0.6-0.8 s, and the badge said PAUSED that long after the latch).
+function takeOperatingState() {
+  if (!topics) return;
+  const os = latest.take(topics.operating);
+  // Not held back by its stamp: the stream is in order, and an estimate of the server's clock once held
+  // back a reset (the topic sends a state once, so the page kept showing E-STOP). A state published
+  // before the latch and sent after the answer shows for at most one publish period.
+  if (os) applyOperatingState(os.msg);
+}
+
 // One animation frame: the newest message of each topic, decoded once.
 function renderFrame() {
   requestAnimationFrame(renderFrame);
   if (!topics) return;
   const start = performance.now();
-  const os = latest.take(topics.operating);
-  if (os) applyOperatingState(os.msg);
+  takeOperatingState();
   const js = latest.take(topics.joints);
   // Never older than what is shown (a late stream message after a fresher REST answer is dropped).
   if (js && !(js.stampMs < shown.joints)) {
@@ -634,7 +655,7 @@ function renderFrame() {
     const m = latest.take(topics[key]);
     lastTaken.set(topics[key], start);
     if (m && key === 'map') view?.setPointCloud(m.msg);
-    else if (m) images[key].frame(m.msg);
+    else if (m) images[key].frame(m.msg, m.stampMs);
   }
   if (start - lastAgeUpdate >= 100) updateAges();
 }
@@ -657,7 +678,8 @@ async function poll() {
     joints?.updateSetpoint(sp);
     plotJointState(sp?.name, sp?.position, 0);
   }));
-  jobs.push(api.operatingState(robot).then(applyOperatingState));
+  const askedMs = wallNowMs();
+  jobs.push(api.operatingState(robot).then((os) => applyOperatingState(os, askedMs)));
   if (pollTick % 4 === 0) {
     jobs.push(api.shape(robot).then(applyShape));
     jobs.push(api.measuredCp(robot).then(applyTipPose));
@@ -775,6 +797,7 @@ function connectWebSocket(robotName) {
         return;
       }
       latest.put(topic, bytes, stampNs);
+      if (topic === t.operating) takeOperatingState();
       if (topic === t.joints) {
         state.lastWsJointMs = Date.now();
         const stampMs = latest.stampOf(topic);
@@ -890,8 +913,12 @@ async function pollMetrics() {
 // ---------------------------------------------------------------- commands
 async function estop() {
   // Sent first, before anything else on the page reacts: this is the one command that must not wait.
+  state.estopSentMs = wallNowMs();
   try {
-    await api.estop();
+    const answer = await api.estop();
+    // The server's answer says the e-stop is latched: shown at once, not when the stream or the next
+    // animation frame brings it (a page whose frames lag showed PAUSED for seconds after the latch).
+    if (answer?.estop === true && state.operating) applyOperatingState({...state.operating, estop: true});
     showStatus('E-STOP sent: every robot is stopping', 'ok');
   } catch (err) {
     showStatus(`E-STOP FAILED: ${describeError(err)}. Use the hardware stop.`, 'error');
@@ -1142,6 +1169,7 @@ function selectRobot(name) {
   $('[data-testid="scene-title"]').textContent = `${kind[0].toUpperCase()}${kind.slice(1)} shape`;
   document.title = `${robot.name.toUpperCase()} · tendril console`;
   joints = buildJointPanel(ui.form, robot.joints, () => updateControls(), {onStep: stepJoint});
+  procedure.setRobot(robot);
   buildModeBar(robot);
   ui.catheterTab.hidden = !robot.configuration;
   if (robot.configuration) {
@@ -1181,6 +1209,8 @@ async function start() {
     onPathLoaded: () => updateModeBar(),
   });
   wireCommands();
+  wireEnlarge($('main.layout'));
+  arrangeImaging($('.images-panel'));
   renderEvents();
   setLease(false);
   setConnection('offline', 'connecting…');

@@ -1,6 +1,7 @@
 // Steerable-catheter panel: spring-deflection gauges and wall force, configuration sliders in degrees
 // (move_configuration), and the operator's joystick: an on-screen pad plus sliders and the browser
-// Gamepad API, both publishing {axes: [insertion, roll, proximal, distal], deadman} at 30 Hz, and only
+// Gamepad API, both publishing {axes: [insertion, roll, proximal, distal], deadman} at 30 Hz (scaled by
+// the speed preset), and only
 // while the operator-presence (deadman) control is held. Releasing it, leaving the page or losing
 // focus sends deadman:false at once and stops sending.
 const DEG = Math.PI / 180;
@@ -31,6 +32,8 @@ export class CatheterPanel {
     this.commandable = true;   // false while the page shows stale data or is disconnected
     this.viewer = false;       // a viewer session commands nothing
     this.pad = {x: 0, y: 0};
+    this.padPointer = false;   // a pointer drags the pad
+    this.dragFrom = null;      // where a pointer pressed the deadman (its drag steers the bend)
     this.sending = false;
     this.lastError = '';
     this.timer = null;
@@ -50,7 +53,10 @@ export class CatheterPanel {
       move: q('cfg-move-button'),
       fromCurrent: q('cfg-from-current-button'),
       preview: q('cfg-preview'),
+      speedButtons: [...root.querySelectorAll('[data-speed]')],
+      speedReadout: q('speed-readout'),
     };
+    this.speed = 0.5;          // the joystick's speed preset (fraction of full-stick speed)
     this.sliders = ['theta-proximal', 'theta-distal', 'insertion', 'roll'].map((name) => ({
       name,
       range: root.querySelector(`#cfg-${name}`),
@@ -78,6 +84,9 @@ export class CatheterPanel {
       s.index = i;
     });
     this.limit = robot.spring_deflection_limit_mm;
+    this.joints = robot.joints;
+    this.fullSpeed = robot.telemanipulation_max_speed;
+    this.renderSpeed();
     this.clearTouched();
   }
 
@@ -92,29 +101,58 @@ export class CatheterPanel {
       s.number.addEventListener('input', () => { s.range.value = s.number.value; touch(); });
     }
     this.el.fromCurrent.addEventListener('click', () => this.clearTouched());
+    for (const b of this.el.speedButtons) b.addEventListener('click', () => this.setSpeed(Number(b.dataset.speed)));
     this.el.move.addEventListener('click', () => this.moveConfiguration());
 
-    // Deadman: held by pointer (button), Space key, or a gamepad shoulder button.
+    // Deadman: held by pointer (button), Space key, or a gamepad shoulder button. With a single mouse
+    // the button is also the stick: hold it and drag, and the drag steers the bend (x proximal, up
+    // distal) as the pad would; let go and both spring back.
     const d = this.el.deadman;
     d.addEventListener('pointerdown', (ev) => {
       ev.preventDefault();
       d.setPointerCapture?.(ev.pointerId);
       this.deadmanPointer = true;
+      this.dragFrom = {x: ev.clientX, y: ev.clientY, steering: false};
       this.refresh();
     });
+    d.addEventListener('pointermove', (ev) => {
+      const from = this.dragFrom;
+      if (!this.deadmanPointer || !from || this.padPointer) return;  // a second finger on the pad wins
+      const dx = ev.clientX - from.x;
+      const dy = ev.clientY - from.y;
+      if (!from.steering && Math.hypot(dx, dy) < 4) return;  // a hand holding still is not a drag
+      from.steering = true;
+      const reach = this.el.pad.getBoundingClientRect().width * 0.45 || 50;  // the knob's travel
+      this.pad = {x: clamp1(dx / reach), y: clamp1(-dy / reach)};
+      this.drawKnob();
+    });
     for (const type of ['pointerup', 'pointercancel', 'lostpointercapture']) {
-      d.addEventListener(type, () => { this.deadmanPointer = false; this.refresh(); });
+      d.addEventListener(type, () => {
+        if (this.dragFrom?.steering && !this.padPointer) this.pad = {x: 0, y: 0};
+        this.dragFrom = null;
+        this.deadmanPointer = false;
+        this.drawKnob();
+        this.refresh();
+      });
     }
+    // Space is the deadman wherever it does not type: on a slider, a button, the pad or the page (a
+    // slider with focus used to swallow it, and the deadman stopped working without a word). Its
+    // default action is prevented, so it neither scrolls nor presses the focused button. In a text or
+    // number field or a list it stays a key for that field; on a focused E-STOP it presses the E-STOP.
+    const typesSpace = (t) => !!t && (t.isContentEditable || t.tagName === 'TEXTAREA' || t.tagName === 'SELECT' ||
+        (t.tagName === 'INPUT' && !['range', 'button', 'submit', 'reset', 'checkbox', 'radio', 'color', 'file'].includes(t.type)) ||
+        !!t.closest?.('.estop'));
     document.addEventListener('keydown', (ev) => {
-      if (ev.code !== 'Space' || ev.repeat || this.root.hidden) return;
-      const t = ev.target;
-      if (t && (t.tagName === 'INPUT' || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA' || t.isContentEditable)) return;
+      if (ev.code !== 'Space' || this.root.hidden || typesSpace(ev.target)) return;
       ev.preventDefault();
+      if (ev.repeat) return;
       this.deadmanKey = true;
       this.refresh();
     });
     document.addEventListener('keyup', (ev) => {
       if (ev.code !== 'Space') return;
+      // The release is never missed, whatever has focus now; a button that had it is not pressed.
+      if (this.deadmanKey) ev.preventDefault();
       this.deadmanKey = false;
       this.refresh();
     });
@@ -136,11 +174,12 @@ export class CatheterPanel {
     };
     pad.addEventListener('pointerdown', (ev) => {
       pad.setPointerCapture?.(ev.pointerId);
+      this.padPointer = true;
       fromEvent(ev);
     });
     pad.addEventListener('pointermove', (ev) => { if (ev.buttons) fromEvent(ev); });
     for (const type of ['pointerup', 'pointercancel']) {
-      pad.addEventListener(type, () => { this.pad = {x: 0, y: 0}; this.drawKnob(); });
+      pad.addEventListener(type, () => { this.padPointer = false; this.pad = {x: 0, y: 0}; this.drawKnob(); });
     }
     pad.addEventListener('keydown', (ev) => {
       const step = 0.25;
@@ -192,9 +231,35 @@ export class CatheterPanel {
 
   axes(gamepadAxes) {
     const screen = [Number(this.el.insertion.value), Number(this.el.roll.value), this.pad.x, this.pad.y];
-    // The on-screen controls win when touched; otherwise the gamepad.
+    // The on-screen controls win when touched; otherwise the gamepad. The speed preset scales what is
+    // sent: the server moves a joint at axis × its full-stick speed (telemanipulation_max_speed).
     const touched = screen.some((v) => v !== 0);
-    return (touched || !gamepadAxes ? screen : gamepadAxes).map(clamp1);
+    return (touched || !gamepadAxes ? screen : gamepadAxes).map((v) => clamp1(v) * this.speed);
+  }
+
+  // Speed preset: the fraction of the full-stick speed the joystick commands (slow ¼, normal ½, fast 1).
+  setSpeed(fraction) {
+    this.speed = fraction;
+    for (const b of this.el.speedButtons) b.setAttribute('aria-pressed', String(Number(b.dataset.speed) === fraction));
+    this.renderSpeed();
+  }
+
+  // The top speed of each joint at full stick with the preset, in the joint's units (rad/s as °/s).
+  renderSpeed() {
+    const full = this.fullSpeed;
+    const joints = this.joints || [];
+    if (!Array.isArray(full) || full.length !== joints.length) {
+      this.el.speedReadout.textContent = `${Math.round(this.speed * 100)} % of full speed`;
+      return;
+    }
+    const parts = joints.map((j, i) => {
+      const v = full[i] * this.speed;
+      const text = j.unit === 'rad' ? `${fmt(v / DEG, 0)}°/s` : `${fmt(v, v < 1 ? 2 : 1)} ${j.unit}/s`;
+      return `${j.name.replace(/_/g, ' ')} ${text}`;
+    });
+    this.el.speedReadout.textContent = `full stick: ${parts.join(', ')}`;
+    this.el.speedReadout.title = `${Math.round(this.speed * 100)} % of the full-stick speed the server allows ` +
+        `(telemanipulation_max_speed, within each joint's max_velocity)`;
   }
 
   // 30 Hz: publish while the deadman is held; one deadman:false when it is let go.

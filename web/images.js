@@ -2,18 +2,38 @@
 // foxglove.CompressedImage topic ({"timestamp","frame_id","format":"jpeg|png","data":"<base64>"}),
 // and says plainly why it shows nothing: no connection to the stream, topic not advertised by the
 // server, or frames stopped arriving. Nothing is drawn that did not come from the server.
+// Per panel, as on a fluoroscopy monitor: last-image hold (the shown frame is frozen, labelled HOLD
+// with its age, while new frames keep arriving underneath) and zoom (wheel about the pointer, the
+// + / − / 1× buttons, drag to pan when zoomed).
 
 const STALE_MS = 2000;
+const MAX_ZOOM = 8;
+
+// Server time of a frame in ms: its own timestamp ({sec, nsec}), else the stream's stamp.
+function frameStampMs(msg, streamStampMs) {
+  const t = msg?.timestamp;
+  if (t && Number.isFinite(t.sec)) return t.sec * 1000 + (Number(t.nsec) || 0) / 1e6;
+  return streamStampMs;
+}
 
 export class ImagePanel {
   // root: element with [data-role=image], [data-role=status] and [data-role=placeholder] inside.
-  constructor(root, topic, label) {
+  // ageMs(serverStampMs): age of a server time stamp on the browser's clock (live.js ServerClock).
+  constructor(root, topic, label, {ageMs = (stamp) => Date.now() - stamp} = {}) {
     this.root = root;
     this.topic = topic;
     this.label = label;
+    this.ageMs = ageMs;
     this.img = root.querySelector('[data-role="image"]');
     this.status = root.querySelector('[data-role="status"]');
     this.placeholder = root.querySelector('[data-role="placeholder"]');
+    this.box = this.img.parentElement;
+    this.held = false;
+    this.shownStampMs = NaN;   // server time of the frame on screen
+    this.shownFrame = 0;       // its number among the frames received
+    this.zoom = 1;
+    this.pan = {x: 0, y: 0};   // px, of the zoomed frame's centre from the box's centre
+    this.buildTools(root.dataset.testid || `image-${label.toLowerCase()}`);
     this.frames = 0;
     this.lastFrameMs = 0;
     this.frameTimes = [];
@@ -35,14 +55,20 @@ export class ImagePanel {
     this.render();
   }
 
-  frame(msg) {
+  frame(msg, streamStampMs = NaN) {
     if (!msg || typeof msg.data !== 'string' || !msg.data) return;
     const format = String(msg.format || 'jpeg').toLowerCase().replace(/^image\//, '');
     const mime = format === 'png' ? 'image/png' : format === 'webp' ? 'image/webp' : 'image/jpeg';
-    // A data URL decodes off the main thread in the browser; only the newest frame is kept.
-    this.img.src = `data:${mime};base64,${msg.data}`;
     const now = performance.now();
     this.frames++;
+    // A data URL decodes off the main thread in the browser; only the newest frame is kept. While held
+    // the frame on screen stays (and keeps its own age); the newest is counted, not shown.
+    if (!this.held || !this.img.src) {
+      this.img.src = `data:${mime};base64,${msg.data}`;
+      this.shownStampMs = frameStampMs(msg, streamStampMs);
+      this.shownFrame = this.frames;
+      this.root.dataset.shownFrame = String(this.frames);
+    }
     this.lastFrameMs = now;
     this.frameTimes.push(now);
     while (this.frameTimes.length && this.frameTimes[0] < now - 2000) this.frameTimes.shift();
@@ -74,7 +100,9 @@ export class ImagePanel {
       const size = this.img.naturalWidth ? ` · ${this.img.naturalWidth}×${this.img.naturalHeight}` : '';
       text = `live · ${fps.toFixed(0)} fps${size}`;
     }
+    if (this.held) text = `HOLD · ${text}`;
     this.root.dataset.state = state;
+    this.renderHold();
     // The head line is short (the panel may be narrow); the placeholder carries the whole sentence.
     const short = {offline: 'no stream', absent: 'not available', waiting: 'waiting…', stale: 'stale'}[state];
     this.status.textContent = short ?? text;
@@ -82,5 +110,98 @@ export class ImagePanel {
     this.placeholder.textContent = state === 'live' || state === 'stale' ? '' : text;
     this.placeholder.hidden = state === 'live' || state === 'stale';
     this.img.hidden = !(state === 'live' || state === 'stale');
+  }
+
+  // Hold, zoom and the HOLD label, built here so both panels get the same tools and test ids.
+  buildTools(id) {
+    const tools = document.createElement('span');
+    tools.className = 'image-tools';
+    tools.setAttribute('role', 'group');
+    tools.setAttribute('aria-label', `${this.label} image tools`);
+    const button = (role, text, label, testid) => {
+      const b = document.createElement('button');
+      b.type = 'button';
+      b.className = 'img-btn';
+      b.dataset.role = role;
+      b.dataset.testid = `${id}-${testid}`;
+      b.textContent = text;
+      b.setAttribute('aria-label', label);
+      b.title = label;
+      tools.appendChild(b);
+      return b;
+    };
+    this.holdButton = button('hold', 'Hold', `Hold the last ${this.label} image (freeze it)`, 'hold-button');
+    this.holdButton.setAttribute('aria-pressed', 'false');
+    button('zoom-out', '−', `Zoom out the ${this.label} image`, 'zoom-out').addEventListener('click', () => this.zoomBy(0.5));
+    button('zoom-in', '+', `Zoom in the ${this.label} image`, 'zoom-in').addEventListener('click', () => this.zoomBy(2));
+    button('zoom-reset', '1×', `Whole ${this.label} image (no zoom)`, 'zoom-reset').addEventListener('click', () => this.setZoom(1, {x: 0, y: 0}));
+    this.holdButton.addEventListener('click', () => this.setHeld(!this.held));
+    this.status.insertAdjacentElement('afterend', tools);
+    // The imaging's enlarge button (index.html) stays last in the head.
+    const enlarge = this.status.parentElement.querySelector('.enlarge-btn');
+    if (enlarge) tools.appendChild(enlarge);
+    this.holdLabel = document.createElement('div');
+    this.holdLabel.className = 'image-hold';
+    this.holdLabel.dataset.testid = `${id}-hold`;
+    this.holdLabel.setAttribute('role', 'status');
+    this.holdLabel.hidden = true;
+    this.box.appendChild(this.holdLabel);
+    // Wheel zooms about the pointer; a drag pans while zoomed.
+    this.box.addEventListener('wheel', (ev) => {
+      if (this.img.hidden) return;
+      ev.preventDefault();
+      this.zoomBy(ev.deltaY < 0 ? 1.25 : 0.8, ev);
+    }, {passive: false});
+    let drag = null;
+    this.box.addEventListener('pointerdown', (ev) => {
+      if (this.zoom <= 1) return;
+      drag = {x: ev.clientX - this.pan.x, y: ev.clientY - this.pan.y};
+      this.box.setPointerCapture?.(ev.pointerId);
+    });
+    this.box.addEventListener('pointermove', (ev) => {
+      if (drag) this.setZoom(this.zoom, {x: ev.clientX - drag.x, y: ev.clientY - drag.y});
+    });
+    for (const type of ['pointerup', 'pointercancel']) this.box.addEventListener(type, () => { drag = null; });
+    this.setZoom(1, {x: 0, y: 0});
+  }
+
+  setHeld(held) {
+    this.held = held;
+    this.holdButton.setAttribute('aria-pressed', String(held));
+    this.holdButton.textContent = held ? 'Live' : 'Hold';
+    this.holdButton.setAttribute('aria-label', held ? `Back to the live ${this.label} image` : `Hold the last ${this.label} image (freeze it)`);
+    this.root.dataset.hold = String(held);
+    this.render();
+  }
+
+  renderHold() {
+    const show = this.held && !this.img.hidden;
+    this.holdLabel.hidden = !show;
+    if (!show) return;
+    const age = this.ageMs(this.shownStampMs);
+    const ageText = Number.isFinite(age) ? (age < 60000 ? `${(age / 1000).toFixed(1)} s` : `${(age / 60000).toFixed(0)} min`) : 'age unknown';
+    this.holdLabel.textContent = `HOLD · ${ageText} old`;
+    this.holdLabel.dataset.ageMs = Number.isFinite(age) ? age.toFixed(0) : '';
+    this.holdLabel.title = `Last-image hold: this ${this.label} frame is ${ageText} old; ${this.frames - this.shownFrame} newer frames not shown. Live shows them again.`;
+  }
+
+  // Zoom by `factor`, keeping the point under the pointer (or the box's centre) where it is.
+  zoomBy(factor, at = null) {
+    const z = Math.min(MAX_ZOOM, Math.max(1, this.zoom * factor));
+    const r = this.box.getBoundingClientRect();
+    const p = at ? {x: at.clientX - r.left - r.width / 2, y: at.clientY - r.top - r.height / 2} : {x: 0, y: 0};
+    const k = z / this.zoom;
+    this.setZoom(z, {x: p.x - k * (p.x - this.pan.x), y: p.y - k * (p.y - this.pan.y)});
+  }
+
+  setZoom(zoom, pan) {
+    const r = this.box.getBoundingClientRect();
+    // The zoomed frame always covers the box's centre: pan at most half the extra size.
+    const lim = {x: ((zoom - 1) * r.width) / 2, y: ((zoom - 1) * r.height) / 2};
+    this.zoom = zoom;
+    this.pan = {x: Math.max(-lim.x, Math.min(lim.x, pan.x)), y: Math.max(-lim.y, Math.min(lim.y, pan.y))};
+    this.img.style.transform = zoom === 1 ? '' : `translate(${this.pan.x}px, ${this.pan.y}px) scale(${zoom})`;
+    this.root.dataset.zoom = zoom.toFixed(2).replace(/\.?0+$/, '');
+    this.box.classList.toggle('zoomed', zoom > 1);
   }
 }

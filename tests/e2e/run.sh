@@ -3,8 +3,9 @@
 # repo's config, runs tests/e2e/*.e2e.mjs in headless Chromium (playwright-core, no browser
 # download: /usr/bin/chromium or $CHROMIUM), and always stops the server.
 # console.e2e.mjs runs against a tendrild with the catheter in free space (see tests/api/server.sh);
-# two_robots.e2e.mjs against one that adds the SIMULATED UR5 arm; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped SIMULATED vessel
-# (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it). One server runs at a time: two sanitized
+# cockpit.e2e.mjs against a fresh one of the same kind; two_robots.e2e.mjs against one that adds the
+# SIMULATED UR5 arm; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped
+# SIMULATED vessel (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it). One server runs at a time: two sanitized
 # servers with real-time threads beside a software-rendering Chromium starve the browser on two cores.
 # Usage: tests/e2e/run.sh [path/to/tendrild] (default $TENDRILD, else build/server/tendrild).
 # Screenshots: tests/e2e/artifacts/ (git-ignored).
@@ -32,6 +33,12 @@ run_file() {  # run_file <test file>: node's test runner over one file, the serv
 
 start_tendrild "$binary" || exit 1
 run_file "$here/console.e2e.mjs"
+stop_tendrild
+
+# The cockpit tests (cockpit.e2e.mjs) begin from a fresh server: nothing of the console tests' lease,
+# e-stops or moves.
+start_tendrild "$binary" || exit 1
+run_file "$here/cockpit.e2e.mjs"
 stop_tendrild
 
 # Two robots in one server: the robot selector, and each robot's own lease.
