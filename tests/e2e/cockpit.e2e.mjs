@@ -343,17 +343,23 @@ test('joystick speed presets: slow sends a quarter of the stick and the bend mov
     await waitHolding();
     // Full stick up (distal) with the mouse on the deadman (about 0.5 mm slow, then 2 mm fast: within
     // the bend's 5 mm).
-    const box = await page.locator(tid('deadman-button')).boundingBox();
-    const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
-    await page.mouse.move(x, y);
-    await page.mouse.down();
-    await page.mouse.move(x, y - 80, {steps: 8});
-    try {
-      const os = await untilServer(serverState, (s) => Math.abs((s.joystick?.axes?.[3] ?? 0) - fraction) < 0.01,
-                                   `the server receives the distal axis at ${fraction}`);
-      seen[preset] = {axes: os.joystick.axes, velocity: await peakVelocity(3)};
-    } finally {
-      await page.mouse.up();
+    // The button is found again for each try: a layout shift between reading its box and pressing
+    // (a banner line as the page turns STALE on a loaded machine) made one suite run miss it.
+    const axisAt = (st) => Math.abs((st.joystick?.axes?.[3] ?? 0) - fraction) < 0.01;
+    let os = null;
+    for (let attempt = 0; attempt < 3 && !os; ++attempt) {
+      const box = await page.locator(tid('deadman-button')).boundingBox();
+      const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
+      await page.mouse.move(x, y);
+      await page.mouse.down();
+      await page.mouse.move(x, y - 80, {steps: 8});
+      try {
+        os = await untilServer(serverState, axisAt, `the server receives the distal axis at ${fraction}`, 6000)
+            .catch((err) => (attempt === 2 ? Promise.reject(err) : null));
+        if (os) seen[preset] = {axes: os.joystick.axes, velocity: await peakVelocity(3), attempts: attempt + 1};
+      } finally {
+        await page.mouse.up();
+      }
     }
     await waitHolding();
   }
