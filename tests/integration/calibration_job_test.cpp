@@ -168,7 +168,8 @@ TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
     runtime.start();
     for (int i = 0; i < 20; ++i) runtime.step();
     ASSERT_EQ(api->state_command("srmc", {{"command", "enable"}}).status, 200);
-    for (int i = 0; i < 3000 && !api->operating_state("srmc").body["drives_ready"].get<bool>(); ++i) runtime.step();
+    for (int i = 0; i < 3000 && !api->operating_state("srmc").body["drives_ready"].get<bool>(); ++i)
+      runtime.step();
     ASSERT_EQ(api->move_jp("srmc", {{"goal", {10.0, 0.0, 4.0, 0.0}}}).status, 202);
     for (int i = 0; i < 4000; ++i) runtime.step();
     const auto state = api->operating_state("srmc").body;
@@ -179,15 +180,18 @@ TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
     const double d1 = state["spring_deflection_mm"][1].get<double>();
     const double c3 = q[2].get<double>() - d0;
     const double coupling = 0.6 * std::cos(-0.76);  // proximal_outer_radius · cos δ2 (srmc.json)
-    const double c4 = q[3].get<double>() - d1 +
-                      coupling * (std::numbers::pi / 2 - model.tip_angle(teleop::CatheterSegment::kProximal, c3));
+    const double c4 =
+        q[3].get<double>() - d1 +
+        coupling * (std::numbers::pi / 2 - model.tip_angle(teleop::CatheterSegment::kProximal, c3));
     std::vector<Eigen::Vector3d> expected(model.backbone_point_count(20));
-    expected.resize(model.backbone(Eigen::Vector4d(q[0].get<double>(), q[1].get<double>(), c3, c4), 20, expected));
+    expected.resize(
+        model.backbone(Eigen::Vector4d(q[0].get<double>(), q[1].get<double>(), c3, c4), 20, expected));
     const auto drawn = api->shape("srmc").body["points"];
     ASSERT_EQ(drawn.size(), expected.size());
     double worst = 0.0;
     for (std::size_t i = 0; i < expected.size(); ++i) {
-      const Eigen::Vector3d p(drawn[i][0].get<double>(), drawn[i][1].get<double>(), drawn[i][2].get<double>());
+      const Eigen::Vector3d p(drawn[i][0].get<double>(), drawn[i][1].get<double>(),
+                              drawn[i][2].get<double>());
       worst = std::max(worst, (p - expected[i]).norm());
     }
     EXPECT_LT(worst, 1e-6) << "the drawn backbone is the calibrated model's";

@@ -1,7 +1,7 @@
 #include "steerable_catheter/catheter_robot.hpp"
 
-#include "tendril/server/config.hpp"
 #include <algorithm>
+#include "tendril/server/config.hpp"
 
 #include "tendril/teleop/catheter_kinematics.hpp"
 #include "tendril/teleop/modal_catheter_kinematics.hpp"
@@ -87,10 +87,11 @@ std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, cons
 
 }  // namespace
 
-std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(const teleop::ModalCatheterParameters& assembled,
-                                                                   const nlohmann::json& kinematics) {
+std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(
+    const teleop::ModalCatheterParameters& assembled, const nlohmann::json& kinematics) {
   const auto points = kinematics.value("display_points_per_segment", 20);
-  return std::make_unique<ModalCatheterModel>(assembled, static_cast<std::size_t>(std::clamp(points, 2, 500)));
+  return std::make_unique<ModalCatheterModel>(assembled,
+                                              static_cast<std::size_t>(std::clamp(points, 2, 500)));
 }
 
 std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& k, std::size_t joint_count,

@@ -206,9 +206,10 @@ class SteerableCatheter final : public RobotPlugin {
 };
 
 // The display model of the robot file's "kinematics" (constant curvature; catheter_display_model.cpp).
-// The calibrated model's display (the assembled modal shape the plant bends with; catheter_display_model.cpp).
-std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(const teleop::ModalCatheterParameters& assembled,
-                                                                   const nlohmann::json& kinematics);
+// The calibrated model's display (the assembled modal shape the plant bends with;
+// catheter_display_model.cpp).
+std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(
+    const teleop::ModalCatheterParameters& assembled, const nlohmann::json& kinematics);
 std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& kinematics,
                                                              std::size_t joints, const std::string& file);
 
