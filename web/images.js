@@ -4,9 +4,12 @@
 // server, or frames stopped arriving. Nothing is drawn that did not come from the server.
 // Per panel, as on a fluoroscopy monitor: last-image hold (the shown frame is frozen, labelled HOLD
 // with its age, while new frames keep arriving underneath) and zoom (wheel about the pointer, the
-// + / − / 1× buttons, drag to pan when zoomed).
+// + / − / 1× buttons, drag to pan when zoomed). Over the image, the message's own overlay (the server
+// projects them with the plane's geometry): the robot's model backbone and the plan's path, drawn
+// with the frame they came with (held with it, zoomed with it); the Overlay button hides them.
 
 const STALE_MS = 2000;
+const SVG_NS = 'http://www.w3.org/2000/svg';
 const MAX_ZOOM = 8;
 
 // Server time of a frame in ms: its own timestamp ({sec, nsec}), else the stream's stamp.
@@ -65,6 +68,7 @@ export class ImagePanel {
     // the frame on screen stays (and keeps its own age); the newest is counted, not shown.
     if (!this.held || !this.img.src) {
       this.img.src = `data:${mime};base64,${msg.data}`;
+      this.setOverlay(msg.overlay);
       this.shownStampMs = frameStampMs(msg, streamStampMs);
       this.shownFrame = this.frames;
       this.root.dataset.shownFrame = String(this.frames);
@@ -110,6 +114,7 @@ export class ImagePanel {
     this.placeholder.textContent = state === 'live' || state === 'stale' ? '' : text;
     this.placeholder.hidden = state === 'live' || state === 'stale';
     this.img.hidden = !(state === 'live' || state === 'stale');
+    if (this.overlay) this.overlay.style.visibility = this.img.hidden ? 'hidden' : '';
   }
 
   // Hold, zoom and the HOLD label, built here so both panels get the same tools and test ids.
@@ -135,6 +140,35 @@ export class ImagePanel {
     button('zoom-out', '−', `Zoom out the ${this.label} image`, 'zoom-out').addEventListener('click', () => this.zoomBy(0.5));
     button('zoom-in', '+', `Zoom in the ${this.label} image`, 'zoom-in').addEventListener('click', () => this.zoomBy(2));
     button('zoom-reset', '1×', `Whole ${this.label} image (no zoom)`, 'zoom-reset').addEventListener('click', () => this.setZoom(1, {x: 0, y: 0}));
+    this.overlayButton = button('overlay', 'Overlay', `Hide the model catheter and the plan drawn over the ${this.label} image`, 'overlay-button');
+    this.overlayButton.setAttribute('aria-pressed', 'true');
+    this.overlayButton.addEventListener('click', () => {
+      const on = this.overlayButton.getAttribute('aria-pressed') !== 'true';
+      this.overlayButton.setAttribute('aria-pressed', String(on));
+      this.overlayButton.setAttribute('aria-label', `${on ? 'Hide' : 'Show'} the model catheter and the plan drawn over the ${this.label} image`);
+      this.overlay.style.display = on ? '' : 'none';
+    });
+    // The overlay lies exactly on the image: same box, same letterboxing (viewBox in the frame's pixels,
+    // "meet" = object-fit: contain), same zoom transform.
+    this.overlay = document.createElementNS(SVG_NS, 'svg');
+    this.overlay.setAttribute('class', 'image-overlay');
+    this.overlay.setAttribute('preserveAspectRatio', 'xMidYMid meet');
+    this.overlay.setAttribute('aria-hidden', 'true');
+    this.overlay.dataset.testid = `${id}-overlay`;
+    this.overlayLines = {};
+    for (const [name, cls] of [['plan', 'overlay-plan'], ['catheter', 'overlay-catheter']]) {
+      const line = document.createElementNS(SVG_NS, 'polyline');
+      line.setAttribute('class', cls);
+      line.setAttribute('fill', 'none');
+      line.setAttribute('vector-effect', 'non-scaling-stroke');
+      line.dataset.testid = `${id}-overlay-${name}`;
+      this.overlay.appendChild(line);
+      this.overlayLines[name] = line;
+    }
+    this.img.insertAdjacentElement('afterend', this.overlay);
+    this.img.addEventListener('load', () => {
+      if (this.img.naturalWidth) this.overlay.setAttribute('viewBox', `0 0 ${this.img.naturalWidth} ${this.img.naturalHeight}`);
+    });
     this.holdButton.addEventListener('click', () => this.setHeld(!this.held));
     this.status.insertAdjacentElement('afterend', tools);
     // The imaging's enlarge button (index.html) stays last in the head.
@@ -163,6 +197,15 @@ export class ImagePanel {
     });
     for (const type of ['pointerup', 'pointercancel']) this.box.addEventListener(type, () => { drag = null; });
     this.setZoom(1, {x: 0, y: 0});
+  }
+
+  // The overlay of the frame on screen: polylines in its pixels (absent fields draw nothing).
+  setOverlay(overlay) {
+    for (const [name, line] of Object.entries(this.overlayLines)) {
+      const points = Array.isArray(overlay?.[name]) ? overlay[name].filter((p) => Array.isArray(p) && p.length >= 2) : [];
+      line.setAttribute('points', points.map((p) => `${Number(p[0])},${Number(p[1])}`).join(' '));
+      line.dataset.points = String(points.length);
+    }
   }
 
   setHeld(held) {
@@ -201,6 +244,7 @@ export class ImagePanel {
     this.zoom = zoom;
     this.pan = {x: Math.max(-lim.x, Math.min(lim.x, pan.x)), y: Math.max(-lim.y, Math.min(lim.y, pan.y))};
     this.img.style.transform = zoom === 1 ? '' : `translate(${this.pan.x}px, ${this.pan.y}px) scale(${zoom})`;
+    if (this.overlay) this.overlay.style.transform = this.img.style.transform;
     this.root.dataset.zoom = zoom.toFixed(2).replace(/\.?0+$/, '');
     this.box.classList.toggle('zoomed', zoom > 1);
   }

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -41,14 +42,21 @@ const nlohmann::json kTimeSchema = {
       {"nsec", {{"type", "integer"}, {"minimum", 0}, {"maximum", 999999999}}}}}};
 
 std::string compressed_image_schema() {
-  return nlohmann::json{{"title", "foxglove.CompressedImage"},
-                        {"description", "A compressed image"},
-                        {"type", "object"},
-                        {"properties",
-                         {{"timestamp", kTimeSchema},
-                          {"frame_id", {{"type", "string"}}},
-                          {"data", {{"type", "string"}, {"contentEncoding", "base64"}}},
-                          {"format", {{"type", "string"}}}}}}
+  return nlohmann::json{
+      {"title", "foxglove.CompressedImage"},
+      {"description", "A compressed image"},
+      {"type", "object"},
+      {"properties",
+       {{"timestamp", kTimeSchema},
+        {"frame_id", {{"type", "string"}}},
+        {"data", {{"type", "string"}, {"contentEncoding", "base64"}}},
+        {"format", {{"type", "string"}}},
+        {"overlay",
+         {{"type", "object"},
+          {"description",
+           "tendril: the imaged robot's model backbone and the plan's path projected onto this "
+           "frame, [[column, row], …] in pixels (row 0 at the top)"},
+          {"properties", {{"catheter", {{"type", "array"}}}, {"plan", {{"type", "array"}}}}}}}}}}
       .dump();
 }
 
@@ -129,6 +137,23 @@ struct KeyReader {
     return j.at(key).get<bool>();
   }
 };
+
+// Points projected onto the plane's detector as [[column, row], …] (pixels, one decimal); points at
+// or behind the source are left out.
+void append_projected(const sim::SimulatedFluoroscope& fluoroscope,
+                      const std::vector<Eigen::Vector3d>& points, std::string& out) {
+  out += '[';
+  bool first = true;
+  char buf[64];
+  for (const auto& p : points) {
+    const auto d = fluoroscope.project(p);
+    if (!d.in_front || !std::isfinite(d.column) || !std::isfinite(d.row)) continue;
+    std::snprintf(buf, sizeof buf, "%s[%.1f,%.1f]", first ? "" : ",", d.column, d.row);
+    out += buf;
+    first = false;
+  }
+  out += ']';
+}
 
 }  // namespace
 
@@ -298,6 +323,7 @@ struct ImagingWorker::Plane {
   sim::SimulatedFluoroscope fluoroscope;  // the plane's thread only
   std::vector<std::uint8_t> jpeg;
   std::vector<Eigen::Vector3d> backbone;
+  std::vector<Eigen::Vector3d> plan;
 
   mutable std::mutex slot_mutex;  // the latest-value slot the front end reads
   std::shared_ptr<const std::string> payload;
@@ -431,6 +457,14 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
     shape_ok = false;  // counted below; the frame shows no instrument rather than a stale one
   }
   if (!shape_ok) p.backbone.clear();
+  p.plan.clear();
+  if (read_plan_) {
+    try {
+      if (!read_plan_(p.plan)) p.plan.clear();
+    } catch (const std::exception&) {
+      p.plan.clear();  // no plan drawn rather than a stale one
+    }
+  }
   const auto t0 = SteadyClock::now();
   p.fluoroscope.render(p.backbone);
   const auto t1 = SteadyClock::now();
@@ -441,7 +475,11 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   append_timestamp(capture_ns, *message);
   *message += ",\"frame_id\":\"" + p.frame_id + "\",\"format\":\"jpeg\",\"data\":\"";
   append_base64(p.jpeg.data(), p.jpeg.size(), *message);
-  *message += "\"}";
+  *message += "\",\"overlay\":{\"catheter\":";
+  append_projected(p.fluoroscope, p.backbone, *message);
+  *message += ",\"plan\":";
+  append_projected(p.fluoroscope, p.plan, *message);
+  *message += "}}";
   const auto t2 = SteadyClock::now();
   {
     std::lock_guard lock(p.slot_mutex);

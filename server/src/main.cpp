@@ -209,7 +209,15 @@ int main(int argc, char** argv) {
                 << ic.fluoroscope.geometry.width << "x" << ic.fluoroscope.geometry.height << " at " << ic.fps
                 << " fps; vessel: " << ic.vessel_source << std::endl;
       auto backbone = backbone_from(runtime, ic.robot);
+      const std::string imaged = ic.robot.empty() ? config.robots.front().name : ic.robot;
       imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
+      // Drawn over the images: the loaded plan's planned tips (in the world frame since load_path).
+      imaging->set_plan_reader([&runtime, imaged](std::vector<Eigen::Vector3d>& out) {
+        const auto path = runtime.path_following(imaged);
+        if (!path || !path->loaded) return false;
+        out = path->tips;
+        return !out.empty();
+      });
       ho.topic_sources.push_back(imaging);
       imaging->start();
     }

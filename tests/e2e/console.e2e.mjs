@@ -686,6 +686,9 @@ test('imaging panels show the frames of both planes of the simulated fluoroscope
     await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}"]`).dataset.frames) >= 3 &&
                                       document.querySelector(`[data-testid="image-${k}-frame"]`).naturalWidth > 0, key, WAIT);
     assert.equal(await page.locator(tid(`image-${key}`)).getAttribute('data-state'), 'live');
+    // The model catheter drawn over the frame, with the frame's own projection (server side).
+    await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}-overlay-catheter"]`)?.dataset.points) > 10,
+                               key, WAIT);
   }
   await page.locator('.images-panel').screenshot({path: path.join(ARTIFACTS, '10-imaging.png')});
 });
@@ -746,6 +749,11 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
 
   await page.click(tid('plan-load-button'));
   await page.waitForFunction(() => /loaded/.test(document.querySelector('[data-testid="path-status"]').textContent), null, WAIT);
+  // Loaded into path following, the plan's path is drawn over both fluoroscopy planes.
+  for (const key of ['ap', 'lateral']) {
+    await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}-overlay-plan"]`)?.dataset.points) >= 2,
+                               key, WAIT);
+  }
   await page.waitForSelector(tid('mode-path_following'), WAIT);
   if (await badgeState() !== 'ENABLED') await enableFromConsole();
   await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').title.includes('busy false'),

@@ -4,6 +4,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -75,6 +76,45 @@ TEST(Base64, MatchesRfc4648Vectors) {
     append_base64(reinterpret_cast<const std::uint8_t*>(plain.data()), plain.size(), out);
     EXPECT_EQ(out, "x" + encoded);
   }
+}
+
+TEST(ImagingWorker, TheOverlayLiesOnTheImagedCatheterAndCarriesThePlan) {
+  ImagingWorker worker(straight_catheter(), small_config());
+  // A plan 10 mm beside the catheter: drawn in the overlay, not in the image.
+  worker.set_plan_reader([](std::vector<Eigen::Vector3d>& out) {
+    for (int i = 0; i <= 20; ++i) out.emplace_back(10.0, 10.0, 40.0 + i);
+    return true;
+  });
+  worker.capture_once();
+  for (const char* topic : {"/imaging/ap", "/imaging/lateral"}) {
+    const auto message = worker.latest(topic, 0);
+    ASSERT_TRUE(message) << topic;
+    const json body = json::parse(*message->payload);
+    const auto& catheter = body["overlay"]["catheter"];
+    const auto& plan = body["overlay"]["plan"];
+    ASSERT_EQ(catheter.size(), 21u) << topic;
+    ASSERT_EQ(plan.size(), 21u) << topic;
+    const auto jpeg = base64_decode(body["data"].get<std::string>());
+    const cv::Mat image = cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE);
+    ASSERT_FALSE(image.empty());
+    // Mean brightness under each polyline: the catheter is radio-opaque (dark), the plan's place is not.
+    const auto mean_under = [&](const json& points) {
+      double sum = 0.0;
+      for (const auto& p : points) {
+        const int c = static_cast<int>(std::lround(p[0].get<double>()));
+        const int r = static_cast<int>(std::lround(p[1].get<double>()));
+        EXPECT_TRUE(c >= 0 && c < image.cols && r >= 0 && r < image.rows) << topic << " " << p.dump();
+        sum += image.at<std::uint8_t>(std::clamp(r, 0, image.rows - 1), std::clamp(c, 0, image.cols - 1));
+      }
+      return sum / static_cast<double>(points.size());
+    };
+    EXPECT_LT(mean_under(catheter) + 20.0, mean_under(plan))
+        << topic << ": the overlay lies on the imaged catheter";
+  }
+  // Without a plan the field is there and empty.
+  ImagingWorker plain(straight_catheter(), small_config());
+  plain.capture_once();
+  EXPECT_TRUE(json::parse(*plain.latest("/imaging/ap", 0)->payload)["overlay"]["plan"].empty());
 }
 
 TEST(ImagingWorker, PublishesCompressedImagesWithCaptureTimestamp) {

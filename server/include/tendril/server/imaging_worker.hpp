@@ -7,6 +7,10 @@
 // into a latest-value slot that the front end shares with every subscriber:
 //   /imaging/ap, /imaging/lateral  foxglove.CompressedImage (JSON, data base64), frame_id imaging_ap|lateral
 //   /maps/vessel                   foxglove.PointCloud of the vessel wall (float32 x,y,z), frame "world"
+// Each image message also carries "overlay": {"catheter": [[column, row], …], "plan": [[column, row], …]},
+// the imaged robot's model backbone and the plan's path projected with the plane's own geometry
+// (pixels of the frame, row 0 at the top), so a console draws them over the image without knowing
+// the projection (foxglove.CompressedImage readers ignore the extra field).
 // The message's timestamp is the capture time: the wall-clock instant the exposure started, i.e. when
 // the backbone was sampled. The WebSocket message header carries the log time: when the encoded
 // frame was ready to send (their difference is the render + encode time).
@@ -82,6 +86,10 @@ class ImagingWorker final : public TopicSource {
   ImagingWorker(const ImagingWorker&) = delete;
   ImagingWorker& operator=(const ImagingWorker&) = delete;
 
+  // What is drawn over the images besides the imaged robot's backbone: the plan's path (world mm, e.g.
+  // the planned tip of each step of the loaded path; false or empty = none). Call before start().
+  void set_plan_reader(BackboneReader read_plan) { read_plan_ = std::move(read_plan); }
+
   void start();
   void stop();  // joins the threads; safe to call twice
 
@@ -102,6 +110,7 @@ class ImagingWorker final : public TopicSource {
   void announce();
 
   BackboneReader read_backbone_;
+  BackboneReader read_plan_;
   ImagingConfig config_;
   std::array<std::unique_ptr<Plane>, 2> planes_;
   std::shared_ptr<const std::string> vessel_cloud_;
