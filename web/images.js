@@ -140,7 +140,7 @@ export class ImagePanel {
     button('zoom-out', '−', `Zoom out the ${this.label} image`, 'zoom-out').addEventListener('click', () => this.zoomBy(0.5));
     button('zoom-in', '+', `Zoom in the ${this.label} image`, 'zoom-in').addEventListener('click', () => this.zoomBy(2));
     button('zoom-reset', '1×', `Whole ${this.label} image (no zoom)`, 'zoom-reset').addEventListener('click', () => this.setZoom(1, {x: 0, y: 0}));
-    this.overlayButton = button('overlay', 'Overlay', `Hide the model catheter and the plan drawn over the ${this.label} image`, 'overlay-button');
+    this.overlayButton = button('overlay', '◎', `Hide the model catheter and the plan drawn over the ${this.label} image`, 'overlay-button');
     this.overlayButton.setAttribute('aria-pressed', 'true');
     this.overlayButton.addEventListener('click', () => {
       const on = this.overlayButton.getAttribute('aria-pressed') !== 'true';
@@ -156,8 +156,16 @@ export class ImagePanel {
     this.overlay.setAttribute('aria-hidden', 'true');
     this.overlay.dataset.testid = `${id}-overlay`;
     this.overlayLines = {};
+    // Drawn only over the frame itself, not over the letterbox around it (a catheter base outside the
+    // field of view projects there).
+    const clip = document.createElementNS(SVG_NS, 'clipPath');
+    clip.id = `${id}-overlay-clip`;
+    this.overlayClip = document.createElementNS(SVG_NS, 'rect');
+    clip.appendChild(this.overlayClip);
+    this.overlay.appendChild(clip);
     for (const [name, cls] of [['plan', 'overlay-plan'], ['catheter', 'overlay-catheter']]) {
       const line = document.createElementNS(SVG_NS, 'polyline');
+      line.setAttribute('clip-path', `url(#${clip.id})`);
       line.setAttribute('class', cls);
       line.setAttribute('fill', 'none');
       line.setAttribute('vector-effect', 'non-scaling-stroke');
@@ -167,7 +175,10 @@ export class ImagePanel {
     }
     this.img.insertAdjacentElement('afterend', this.overlay);
     this.img.addEventListener('load', () => {
-      if (this.img.naturalWidth) this.overlay.setAttribute('viewBox', `0 0 ${this.img.naturalWidth} ${this.img.naturalHeight}`);
+      if (!this.img.naturalWidth) return;
+      this.overlay.setAttribute('viewBox', `0 0 ${this.img.naturalWidth} ${this.img.naturalHeight}`);
+      this.overlayClip.setAttribute('width', String(this.img.naturalWidth));
+      this.overlayClip.setAttribute('height', String(this.img.naturalHeight));
     });
     this.holdButton.addEventListener('click', () => this.setHeld(!this.held));
     this.status.insertAdjacentElement('afterend', tools);
