@@ -163,7 +163,7 @@ export class ImagePanel {
     this.overlayClip = document.createElementNS(SVG_NS, 'rect');
     clip.appendChild(this.overlayClip);
     this.overlay.appendChild(clip);
-    for (const [name, cls] of [['plan', 'overlay-plan'], ['catheter', 'overlay-catheter']]) {
+    for (const [name, cls] of [['plan', 'overlay-plan'], ['robot', 'overlay-robot']]) {
       const line = document.createElementNS(SVG_NS, 'polyline');
       line.setAttribute('clip-path', `url(#${clip.id})`);
       line.setAttribute('class', cls);

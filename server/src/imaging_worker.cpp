@@ -56,7 +56,7 @@ std::string compressed_image_schema() {
           {"description",
            "tendril: the imaged robot's model backbone and the plan's path projected onto this "
            "frame, [[column, row], …] in pixels (row 0 at the top)"},
-          {"properties", {{"catheter", {{"type", "array"}}}, {"plan", {{"type", "array"}}}}}}}}}}
+          {"properties", {{"robot", {{"type", "array"}}}, {"plan", {{"type", "array"}}}}}}}}}}
       .dump();
 }
 
@@ -475,7 +475,7 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   append_timestamp(capture_ns, *message);
   *message += ",\"frame_id\":\"" + p.frame_id + "\",\"format\":\"jpeg\",\"data\":\"";
   append_base64(p.jpeg.data(), p.jpeg.size(), *message);
-  *message += "\",\"overlay\":{\"catheter\":";
+  *message += "\",\"overlay\":{\"robot\":";
   append_projected(p.fluoroscope, p.backbone, *message);
   *message += ",\"plan\":";
   append_projected(p.fluoroscope, p.plan, *message);

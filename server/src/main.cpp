@@ -155,13 +155,11 @@ int main(int argc, char** argv) {
       if (scene_robot.empty() && runtime.vessel_entry(rc.name)) scene_robot = rc.name;
     }
     const auto entry = scene_robot.empty() ? std::nullopt : runtime.vessel_entry(scene_robot);
-    std::vector<tendril::teleop::CenterlinePolyline> placed_vessel;
-    for (const auto& branch : scene.branches) {
-      // Every branch moves with the first (the one entered): a vessel tree stays one rigid body.
-      placed_vessel.push_back(entry
-                                  ? tendril::teleop::transformed(branch, tendril::teleop::placement_at_entry(
-                                                                             scene.branches.front(), *entry))
-                                  : branch);
+    // Every branch moves with the first (the one entered): a vessel tree stays one rigid body.
+    std::vector<tendril::teleop::CenterlinePolyline> placed_vessel = scene.branches;
+    if (entry && !scene.branches.empty()) {
+      const auto placement = tendril::teleop::placement_at_entry(scene.branches.front(), *entry);
+      for (auto& branch : placed_vessel) branch = tendril::teleop::transformed(branch, placement);
     }
     runtime.start();
     // The JSON face of the robots for the front end, with each robot type's part of the API and the

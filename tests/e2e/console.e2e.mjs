@@ -687,7 +687,7 @@ test('imaging panels show the frames of both planes of the simulated fluoroscope
                                       document.querySelector(`[data-testid="image-${k}-frame"]`).naturalWidth > 0, key, WAIT);
     assert.equal(await page.locator(tid(`image-${key}`)).getAttribute('data-state'), 'live');
     // The model catheter drawn over the frame, with the frame's own projection (server side).
-    await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}-overlay-catheter"]`)?.dataset.points) > 10,
+    await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}-overlay-robot"]`)?.dataset.points) > 10,
                                key, WAIT);
   }
   await page.locator('.images-panel').screenshot({path: path.join(ARTIFACTS, '10-imaging.png')});

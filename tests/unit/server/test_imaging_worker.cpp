@@ -90,7 +90,7 @@ TEST(ImagingWorker, TheOverlayLiesOnTheImagedCatheterAndCarriesThePlan) {
     const auto message = worker.latest(topic, 0);
     ASSERT_TRUE(message) << topic;
     const json body = json::parse(*message->payload);
-    const auto& catheter = body["overlay"]["catheter"];
+    const auto& catheter = body["overlay"]["robot"];
     const auto& plan = body["overlay"]["plan"];
     ASSERT_EQ(catheter.size(), 21u) << topic;
     ASSERT_EQ(plan.size(), 21u) << topic;

@@ -7,7 +7,7 @@
 // into a latest-value slot that the front end shares with every subscriber:
 //   /imaging/ap, /imaging/lateral  foxglove.CompressedImage (JSON, data base64), frame_id imaging_ap|lateral
 //   /maps/vessel                   foxglove.PointCloud of the vessel wall (float32 x,y,z), frame "world"
-// Each image message also carries "overlay": {"catheter": [[column, row], …], "plan": [[column, row], …]},
+// Each image message also carries "overlay": {"robot": [[column, row], …], "plan": [[column, row], …]},
 // the imaged robot's model backbone and the plan's path projected with the plane's own geometry
 // (pixels of the frame, row 0 at the top), so a console draws them over the image without knowing
 // the projection (foxglove.CompressedImage readers ignore the extra field).

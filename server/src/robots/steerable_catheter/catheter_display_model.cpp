@@ -9,8 +9,8 @@
 namespace tendril::server {
 namespace {
 
-// The SRMC with the constant-curvature shape placeholder (seed 000 §4.6 gap note); the modal model
-// replaces it when the catheter-control work lands.
+// The SRMC drawn with constant curvature (seed 000 §4.6 gap note) while its shape is the nominal
+// tip-only model; a calibrated shape matrix is drawn by ModalCatheterModel below.
 class ConstantCurvatureCatheterModel final : public RobotKinematics {
  public:
   ConstantCurvatureCatheterModel(const teleop::CatheterParameters& p, std::size_t points)
