@@ -368,8 +368,9 @@ function addEvents(list) {
   if (!changed) return;
   state.events.sort((a, b) => (b.time || 0) - (a.time || 0));
   state.events.length = Math.min(state.events.length, 200);
-  // The cause shown in the banner: the newest event that is not a plain state transition.
-  const cause = state.events.find((e) => e.kind !== 'transition') || state.events[0];
+  // The cause shown in the banner: the newest event that is not a plain state transition (nor a
+  // warning, such as images that stopped coming, which causes no state change).
+  const cause = state.events.find((e) => e.kind !== 'transition' && e.kind !== 'warning') || state.events[0];
   if (cause) state.lastFaultCause = `${cause.kind ? cause.kind + ': ' : ''}${cause.message || ''}`;
   renderEvents();
   updateBanner();

@@ -94,6 +94,8 @@ const char* to_string(EventKind kind) noexcept {
       return "estop_reset";
     case EventKind::kRecovery:
       return "recovery";
+    case EventKind::kWarning:
+      return "warning";
   }
   return "unknown";
 }

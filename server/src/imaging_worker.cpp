@@ -155,7 +155,66 @@ void append_projected(const sim::SimulatedFluoroscope& fluoroscope,
   out += ']';
 }
 
+PlaneSourceConfig parse_plane_source(const nlohmann::json& j, const std::string& key,
+                                     const std::filesystem::path& server_file) {
+  const std::string file = server_file.string();
+  const auto fail = [&](const std::string& what) { throw ConfigError(file + ": " + key + what); };
+  if (!j.is_object())
+    fail(": expected an object such as {\"kind\": \"files\", \"path\": \"frames/\", \"fps\": 10}");
+  PlaneSourceConfig c;
+  for (const auto& item : j.items()) {
+    const std::string& k = item.key();
+    if (k != "kind" && k != "path" && k != "fps" && k != "loop" && k != "note")
+      fail("." + k + ": unknown key; expected kind, path, fps, loop or note");
+  }
+  const std::string kind =
+      j.contains("kind") && j.at("kind").is_string() ? j.at("kind").get<std::string>() : "";
+  if (kind == "simulated") {
+    c.kind = ImageSourceKind::kSimulated;
+  } else if (kind == "video") {
+    c.kind = ImageSourceKind::kVideo;
+  } else if (kind == "files") {
+    c.kind = ImageSourceKind::kFiles;
+  } else {
+    fail(".kind: expected \"simulated\", \"video\" or \"files\", got " +
+         (j.contains("kind") ? j.at("kind").dump() : std::string("nothing")));
+  }
+  if (c.kind != ImageSourceKind::kSimulated) {
+    if (!j.contains("path") || !j.at("path").is_string() || j.at("path").get<std::string>().empty())
+      fail(".path: expected a device (/dev/videoN), a file or a folder");
+    c.path = j.at("path").get<std::string>();
+    if (c.path.is_relative()) c.path = (server_file.parent_path() / c.path).lexically_normal();
+  } else if (j.contains("path")) {
+    fail(".path: a simulated plane takes no path");
+  }
+  c.fps = c.kind == ImageSourceKind::kFiles ? 10.0 : 0.0;
+  if (j.contains("fps")) {
+    const auto& v = j.at("fps");
+    const double lo = c.kind == ImageSourceKind::kFiles ? 0.1 : 0.0;
+    if (!v.is_number() || !std::isfinite(v.get<double>()) || v.get<double>() < lo || v.get<double>() > 1000.0)
+      fail(".fps: expected a number from " + std::to_string(lo) + " to 1000, got " + v.dump());
+    c.fps = v.get<double>();
+  }
+  if (j.contains("loop")) {
+    if (!j.at("loop").is_boolean()) fail(".loop: expected true or false, got " + j.at("loop").dump());
+    c.loop = j.at("loop").get<bool>();
+  }
+  return c;
+}
+
 }  // namespace
+
+const char* source_kind_name(ImageSourceKind kind) noexcept {
+  switch (kind) {
+    case ImageSourceKind::kSimulated:
+      return "simulated";
+    case ImageSourceKind::kVideo:
+      return "video";
+    case ImageSourceKind::kFiles:
+      return "files";
+  }
+  return "unknown";
+}
 
 std::vector<sim::VesselTube> vessel_tubes(const std::vector<teleop::CenterlinePolyline>& branches) {
   std::vector<sim::VesselTube> tubes;
@@ -234,6 +293,24 @@ ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::fil
   f.contrast_attenuation_per_mm =
       r.number("contrast_attenuation_per_mm", f.contrast_attenuation_per_mm, 0, 10);
   f.anatomy = r.boolean("anatomy", true);
+
+  c.stale_after_s = r.number("stale_after_s", 1.0, 0.05, 60.0);
+  if (imaging.contains("sources")) {
+    const auto& sources = imaging.at("sources");
+    if (!sources.is_object()) r.fail("sources", "an object {\"ap\": {…}, \"lateral\": {…}}");
+    for (const auto& item : sources.items()) {
+      const std::string& plane = item.key();
+      const std::size_t index = plane == "ap" ? 0 : plane == "lateral" ? 1 : 2;
+      if (index == 2) {
+        std::string message = file;
+        message += ": imaging.sources.";
+        message += plane;
+        message += ": unknown plane; expected ap or lateral";
+        throw ConfigError(message);
+      }
+      c.sources[index] = parse_plane_source(item.value(), "imaging.sources." + plane, server_file);
+    }
+  }
 
   auto scene = load_scene_vessel(nullptr, imaging, server_file);
   c.vessels = vessel_tubes(scene.branches);
@@ -315,12 +392,17 @@ struct ImagingWorker::Plane {
       : view(v),
         topic(std::string("/imaging/") + sim::view_name(v)),
         frame_id(std::string("imaging_") + sim::view_name(v)),
+        label(v == sim::FluoroView::kAp ? "AP" : "lateral"),
         fluoroscope(v, options, vessels) {}
 
   const sim::FluoroView view;
   const std::string topic;
   const std::string frame_id;
-  sim::SimulatedFluoroscope fluoroscope;  // the plane's thread only
+  const char* label;
+  // Renders the simulated plane; for every plane, its geometry projects the overlay.
+  sim::SimulatedFluoroscope fluoroscope;         // the plane's thread only
+  std::unique_ptr<imaging::ImageSource> source;  // null: simulated
+  imaging::GreyImage frame;                      // the source's last frame (the plane's thread only)
   std::vector<std::uint8_t> jpeg;
   std::vector<Eigen::Vector3d> backbone;
   std::vector<Eigen::Vector3d> plan;
@@ -334,8 +416,16 @@ struct ImagingWorker::Plane {
 
   mutable std::mutex stats_mutex;
   std::array<double, kTimingWindow> render_s{}, encode_s{};
-  std::uint64_t frames = 0, skipped = 0, shape_errors = 0;
+  std::uint64_t frames = 0, skipped = 0, shape_errors = 0, dropped = 0, stale_episodes = 0;
   std::size_t jpeg_bytes = 0;
+  // The watchdog's view (stats_mutex): when the last frame came, or when watching began.
+  SteadyClock::time_point last_frame{};
+  bool watching = false;  // wanted, and frames can still come (a replay has not ended)
+  bool stale = false;
+  bool ended = false;
+  std::uint64_t drops_unreported = 0;
+  SteadyClock::time_point last_drop_warning{};
+  std::string last_drop_reason;
 };
 
 BackboneReader backbone_from(const RobotService& service, std::string robot) {
@@ -358,8 +448,25 @@ ImagingWorker::ImagingWorker(BackboneReader read_backbone, ImagingConfig config)
   if (!(config_.fps > 0)) throw sim::FluoroscopeError("imaging: fps must be greater than 0");
   if (config_.jpeg_quality < 1 || config_.jpeg_quality > 100)
     throw sim::FluoroscopeError("imaging: jpeg_quality must be 1..100");
+  if (!(config_.stale_after_s > 0))
+    throw sim::FluoroscopeError("imaging: stale_after_s must be greater than 0");
   planes_[0] = std::make_unique<Plane>(sim::FluoroView::kAp, config_.fluoroscope, config_.vessels);
   planes_[1] = std::make_unique<Plane>(sim::FluoroView::kLateral, config_.fluoroscope, config_.vessels);
+  const auto& g = config_.fluoroscope.geometry;
+  for (std::size_t i = 0; i < planes_.size(); ++i) {
+    const auto& sc = config_.sources[i];
+    if (sc.kind == ImageSourceKind::kSimulated) continue;
+    // Frames are brought to the configured detector size, so that the overlay's geometry applies.
+    try {
+      if (sc.kind == ImageSourceKind::kVideo) {
+        planes_[i]->source = imaging::open_video_capture({sc.path, sc.loop, sc.fps, g.width, g.height});
+      } else {
+        planes_[i]->source = imaging::open_image_files({sc.path, sc.fps, sc.loop, g.width, g.height});
+      }
+    } catch (const imaging::ImageSourceError& e) {
+      throw ConfigError(std::string("imaging.sources.") + sim::view_name(planes_[i]->view) + ": " + e.what());
+    }
+  }
   if (!config_.vessels.empty()) {
     std::vector<Eigen::Vector3f> wall;
     for (const auto& tube : config_.vessels) {
@@ -373,6 +480,17 @@ ImagingWorker::ImagingWorker(BackboneReader read_backbone, ImagingConfig config)
 
 ImagingWorker::~ImagingWorker() { stop(); }
 
+std::string ImagingWorker::describe_sources() const {
+  std::string out;
+  for (const auto& p : planes_) {
+    if (!out.empty()) out += "; ";
+    out += p->label;
+    out += ": ";
+    out += p->source ? p->source->description() : std::string("SIMULATED fluoroscope");
+  }
+  return out;
+}
+
 void ImagingWorker::start() {
   std::lock_guard lock(run_mutex_);
   if (!threads_.empty()) return;
@@ -383,38 +501,155 @@ void ImagingWorker::start() {
       Plane& p = *plane;
       // Named so that tools (and the image_stream_bench) can tell imaging CPU from serving CPU.
       pthread_setname_np(pthread_self(), p.view == sim::FluoroView::kAp ? "imaging-ap" : "imaging-lateral");
-      const auto period =
-          std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(1.0 / config_.fps));
-      auto next = first;  // both planes expose on the same schedule
-      while (true) {
-        {
-          std::unique_lock wait(run_mutex_);
-          if (!p.wanted) {
-            // Nobody watches this plane: sleep until someone does (no timer, no wake-ups).
-            run_wake_.wait(wait, [&] { return stopping_ || p.wanted; });
-            if (stopping_) return;
-            // Back on the common schedule, at its next exposure (at once if one is due).
-            const auto now = SteadyClock::now();
-            if (next < now) next += ((now - next) / period) * period;
-          }
-          if (run_wake_.wait_until(wait, next, [this, &p] { return stopping_ || !p.wanted; })) {
-            if (stopping_) return;
-            continue;  // unsubscribed while waiting for the exposure
-          }
-        }
-        capture(p, wall_ns());
-        next += period;
-        const auto now = SteadyClock::now();
-        if (next < now) {
-          // Rendering fell behind: skip the missed exposures rather than bursting to catch up.
-          const auto missed = (now - next) / period + 1;
-          next += missed * period;
-          std::lock_guard stats(p.stats_mutex);
-          p.skipped += static_cast<std::uint64_t>(missed);
-        }
+      if (p.source) {
+        run_source(p);
+      } else {
+        run_simulated(p, first);
       }
     });
   }
+  threads_.emplace_back([this] {
+    pthread_setname_np(pthread_self(), "imaging-watch");
+    watch();
+  });
+}
+
+void ImagingWorker::run_simulated(Plane& p, SteadyClock::time_point first) {
+  const auto period =
+      std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(1.0 / config_.fps));
+  auto next = first;  // both planes expose on the same schedule
+  while (true) {
+    {
+      std::unique_lock wait(run_mutex_);
+      if (!p.wanted) {
+        // Nobody watches this plane: sleep until someone does (no timer, no wake-ups).
+        run_wake_.wait(wait, [&] { return stopping_ || p.wanted; });
+        if (stopping_) return;
+        // Back on the common schedule, at its next exposure (at once if one is due).
+        const auto now = SteadyClock::now();
+        if (next < now) next += ((now - next) / period) * period;
+      }
+      if (run_wake_.wait_until(wait, next, [this, &p] { return stopping_ || !p.wanted; })) {
+        if (stopping_) return;
+        continue;  // unsubscribed while waiting for the exposure
+      }
+    }
+    capture(p, wall_ns());
+    next += period;
+    const auto now = SteadyClock::now();
+    if (next < now) {
+      // Rendering fell behind: skip the missed exposures rather than bursting to catch up.
+      const auto missed = (now - next) / period + 1;
+      next += missed * period;
+      std::lock_guard stats(p.stats_mutex);
+      p.skipped += static_cast<std::uint64_t>(missed);
+    }
+  }
+}
+
+void ImagingWorker::run_source(Plane& p) {
+  const auto period = std::chrono::duration_cast<SteadyClock::duration>(
+      std::chrono::duration<double>(p.source->frame_period_s()));
+  while (true) {
+    {
+      std::unique_lock wait(run_mutex_);
+      run_wake_.wait(wait, [&] { return stopping_ || p.wanted; });
+      if (stopping_) return;
+    }
+    // May block for up to a few frame periods (a device waits for its next frame): that is why each
+    // plane has a thread of its own and the watchdog watches from another.
+    const auto t0 = SteadyClock::now();
+    const auto result = p.source->grab(p.frame);
+    const std::uint64_t received_ns = wall_ns();
+    if (result.status == imaging::GrabStatus::kFrame) {
+      bool shape_ok = false;
+      read_overlay(p, shape_ok);
+      const auto t1 = SteadyClock::now();
+      imaging::encode_jpeg(p.frame, config_.jpeg_quality, p.jpeg);
+      publish(p, received_ns, p.jpeg, shape_ok, std::chrono::duration<double>(t1 - t0).count(),
+              std::chrono::duration<double>(SteadyClock::now() - t1).count());
+      continue;
+    }
+    if (result.status == imaging::GrabStatus::kEnded) {
+      {
+        std::lock_guard stats(p.stats_mutex);
+        p.ended = true;
+        p.watching = false;
+      }
+      warn(safety::FaultCode::kSensorStale,
+           std::string("imaging: ") + p.label + " replay ended; no new images");
+      std::unique_lock wait(run_mutex_);
+      run_wake_.wait(wait, [&] { return stopping_; });
+      return;
+    }
+    // Dropped: counted; a warning at most once a second, with how many since the last one.
+    std::string text;
+    {
+      std::lock_guard stats(p.stats_mutex);
+      ++p.dropped;
+      ++p.drops_unreported;
+      p.last_drop_reason = result.reason;
+      const auto now = SteadyClock::now();
+      if (now - p.last_drop_warning >= std::chrono::seconds(1)) {
+        text = std::string("imaging: ") + p.label + ": " + std::to_string(p.drops_unreported) +
+               " frame(s) dropped: " + result.reason;
+        p.drops_unreported = 0;
+        p.last_drop_warning = now;
+      }
+    }
+    if (!text.empty()) warn(safety::FaultCode::kSensorStale, text);
+    // A source that fails at once (a device gone) must not spin: wait out the rest of a frame period.
+    std::unique_lock wait(run_mutex_);
+    run_wake_.wait_until(wait, t0 + period, [this] { return stopping_; });
+    if (stopping_) return;
+  }
+}
+
+void ImagingWorker::watch() {
+  const auto stale_after =
+      std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(config_.stale_after_s));
+  const auto tick = std::min<SteadyClock::duration>(stale_after / 4, std::chrono::milliseconds(100));
+  const auto any_wanted = [this] {
+    return std::any_of(planes_.begin(), planes_.end(), [](const auto& p) { return p->wanted; });
+  };
+  std::unique_lock wait(run_mutex_);
+  while (true) {
+    // Nothing watched: no ticks at all until a plane is wanted (an idle server stays idle).
+    run_wake_.wait(wait, [&] { return stopping_ || any_wanted(); });
+    if (stopping_ || run_wake_.wait_for(wait, tick, [this] { return stopping_; })) return;
+    const auto now = SteadyClock::now();
+    for (auto& plane : planes_) {
+      Plane& p = *plane;
+      std::string text;
+      {
+        std::lock_guard stats(p.stats_mutex);
+        const bool watch_now = p.wanted && !p.ended;       // p.wanted: run_mutex_ is held
+        if (watch_now && !p.watching) p.last_frame = now;  // watching begins: the clock starts now
+        p.watching = watch_now;
+        if (!watch_now) {
+          p.stale = false;
+          continue;
+        }
+        if (!p.stale && now - p.last_frame > stale_after) {
+          p.stale = true;
+          ++p.stale_episodes;
+          char buf[96];
+          std::snprintf(buf, sizeof buf, "imaging: no %s image for %.1f s; the view is stale", p.label,
+                        std::chrono::duration<double>(now - p.last_frame).count());
+          text = buf;
+        }
+      }
+      if (!text.empty()) {
+        wait.unlock();  // the sink may take a while (it posts to the runtime); never under our lock
+        warn(safety::FaultCode::kSensorStale, text);
+        wait.lock();
+      }
+    }
+  }
+}
+
+void ImagingWorker::warn(safety::FaultCode code, const std::string& text) const {
+  if (warn_) warn_(code, text);
 }
 
 void ImagingWorker::set_demand(const std::string& topic, bool wanted) {
@@ -422,6 +657,10 @@ void ImagingWorker::set_demand(const std::string& topic, bool wanted) {
     if (plane->topic != topic) continue;
     {
       std::lock_guard lock(run_mutex_);
+      if (wanted && !plane->wanted) {
+        std::lock_guard stats(plane->stats_mutex);
+        plane->last_frame = SteadyClock::now();  // the stale clock starts when watching starts
+      }
       plane->wanted = wanted;
     }
     if (!wanted) {
@@ -444,17 +683,17 @@ void ImagingWorker::stop() {
 
 void ImagingWorker::capture_once() {
   const auto now = wall_ns();
-  for (auto& plane : planes_) capture(*plane, now);
+  for (auto& plane : planes_)
+    if (!plane->source) capture(*plane, now);
 }
 
-void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
-  // The exposure: the backbone as the runtime snapshot has it now.
+void ImagingWorker::read_overlay(Plane& p, bool& shape_ok) {
   p.backbone.clear();
-  bool shape_ok = false;
+  shape_ok = false;
   try {
     shape_ok = read_backbone_(p.backbone);
   } catch (const std::exception&) {
-    shape_ok = false;  // counted below; the frame shows no instrument rather than a stale one
+    shape_ok = false;  // counted; the frame shows no instrument rather than a stale one
   }
   if (!shape_ok) p.backbone.clear();
   p.plan.clear();
@@ -465,37 +704,61 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
       p.plan.clear();  // no plan drawn rather than a stale one
     }
   }
+}
+
+void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
+  // The exposure: the backbone as the runtime snapshot has it now.
+  bool shape_ok = false;
+  read_overlay(p, shape_ok);
   const auto t0 = SteadyClock::now();
   p.fluoroscope.render(p.backbone);
   const auto t1 = SteadyClock::now();
   p.fluoroscope.encode_jpeg(config_.jpeg_quality, p.jpeg);
+  publish(p, capture_ns, p.jpeg, shape_ok, std::chrono::duration<double>(t1 - t0).count(),
+          std::chrono::duration<double>(SteadyClock::now() - t1).count());
+}
+
+void ImagingWorker::publish(Plane& p, std::uint64_t capture_ns, const std::vector<std::uint8_t>& jpeg,
+                            bool shape_ok, double render_s, double encode_s) {
+  const auto t0 = SteadyClock::now();
   auto message = std::make_shared<std::string>();
-  message->reserve(p.jpeg.size() * 4 / 3 + 160);
+  message->reserve(jpeg.size() * 4 / 3 + 160);
   *message += "{\"timestamp\":";
   append_timestamp(capture_ns, *message);
   *message += ",\"frame_id\":\"" + p.frame_id + "\",\"format\":\"jpeg\",\"data\":\"";
-  append_base64(p.jpeg.data(), p.jpeg.size(), *message);
+  append_base64(jpeg.data(), jpeg.size(), *message);
   *message += "\",\"overlay\":{\"robot\":";
   append_projected(p.fluoroscope, p.backbone, *message);
   *message += ",\"plan\":";
   append_projected(p.fluoroscope, p.plan, *message);
   *message += "}}";
-  const auto t2 = SteadyClock::now();
+  encode_s += std::chrono::duration<double>(SteadyClock::now() - t0).count();
   {
     std::lock_guard lock(p.slot_mutex);
     p.payload = std::move(message);
     ++p.version;
     p.ready_ns = wall_ns();
   }
+  std::string text;
   {
     std::lock_guard lock(p.stats_mutex);
     const std::size_t slot = p.frames % kTimingWindow;
-    p.render_s[slot] = std::chrono::duration<double>(t1 - t0).count();
-    p.encode_s[slot] = std::chrono::duration<double>(t2 - t1).count();
+    p.render_s[slot] = render_s;
+    p.encode_s[slot] = encode_s;
     ++p.frames;
     if (!shape_ok) ++p.shape_errors;
-    p.jpeg_bytes = p.jpeg.size();
+    p.jpeg_bytes = jpeg.size();
+    const auto now = SteadyClock::now();
+    if (p.stale) {
+      char buf[96];
+      std::snprintf(buf, sizeof buf, "imaging: %s images again after %.1f s", p.label,
+                    std::chrono::duration<double>(now - p.last_frame).count());
+      text = buf;
+      p.stale = false;
+    }
+    p.last_frame = now;
   }
+  if (!text.empty()) warn(safety::FaultCode::kSensorStale, text);
   announce();
 }
 
@@ -543,8 +806,7 @@ std::string ImagingWorker::metrics() const {
     std::nth_element(values.begin(), at, end);
     return *at;
   };
-  out << "# HELP tendril_imaging_frames_total Simulated fluoroscopy frames rendered and published, by "
-         "plane.\n"
+  out << "# HELP tendril_imaging_frames_total Frames published (rendered or received), by plane.\n"
          "# TYPE tendril_imaging_frames_total counter\n";
   for (const auto& p : planes_) {
     std::lock_guard lock(p->stats_mutex);
@@ -563,6 +825,22 @@ std::string ImagingWorker::metrics() const {
     std::lock_guard lock(p->stats_mutex);
     out << "tendril_imaging_shape_errors_total{view=\"" << sim::view_name(p->view) << "\"} "
         << p->shape_errors << '\n';
+  }
+  out << "# HELP tendril_imaging_dropped_frames_total Frames a source could not deliver (unreadable, "
+         "undecodable), by plane.\n"
+         "# TYPE tendril_imaging_dropped_frames_total counter\n";
+  for (const auto& p : planes_) {
+    std::lock_guard lock(p->stats_mutex);
+    out << "tendril_imaging_dropped_frames_total{view=\"" << sim::view_name(p->view) << "\"} " << p->dropped
+        << '\n';
+  }
+  out << "# HELP tendril_imaging_stale_total Times a watched plane went without a frame for longer than "
+         "stale_after_s.\n"
+         "# TYPE tendril_imaging_stale_total counter\n";
+  for (const auto& p : planes_) {
+    std::lock_guard lock(p->stats_mutex);
+    out << "tendril_imaging_stale_total{view=\"" << sim::view_name(p->view) << "\"} " << p->stale_episodes
+        << '\n';
   }
   out << "# HELP tendril_imaging_jpeg_bytes Size of the last JPEG, by plane.\n"
          "# TYPE tendril_imaging_jpeg_bytes gauge\n";

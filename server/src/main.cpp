@@ -196,19 +196,27 @@ int main(int argc, char** argv) {
     }
     ho.tls_certificate_file = config.tls_certificate.string();
     ho.tls_private_key_file = config.tls_private_key.string();
-    // Simulated bi-plane fluoroscopy: its own threads read the runtime snapshot, never the RT thread.
+    // Bi-plane imaging (simulated or from sources): its own threads read the runtime snapshot, never the
+    // RT thread.
     std::shared_ptr<ImagingWorker> imaging;
     if (auto ic = parse_imaging_config(config.imaging, config.file); ic.enabled) {
       ic.vessels = vessel_tubes(placed_vessel);
       ic.vessel_source =
           scene.source + (entry ? ", its start at the vessel entry of robot '" + scene_robot + "'"
                                 : std::string(", in its own frame (no robot has a vessel entry)"));
-      std::cerr << "tendrild: imaging: SIMULATED bi-plane fluoroscope (/imaging/ap, /imaging/lateral) "
-                << ic.fluoroscope.geometry.width << "x" << ic.fluoroscope.geometry.height << " at " << ic.fps
-                << " fps; vessel: " << ic.vessel_source << std::endl;
+      const auto geometry = ic.fluoroscope.geometry;  // a copy: ic is moved below
+      const double fps = ic.fps;
+      const std::string vessel_source = ic.vessel_source;
       auto backbone = backbone_from(runtime, ic.robot);
       const std::string imaged = ic.robot.empty() ? config.robots.front().name : ic.robot;
       imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
+      std::cerr << "tendrild: imaging: bi-plane (/imaging/ap, /imaging/lateral) " << geometry.width << "x"
+                << geometry.height << ", simulated planes at " << fps << " fps; "
+                << imaging->describe_sources() << "; vessel: " << vessel_source << std::endl;
+      // Stale, dropped or ended images are the imaged robot's operator's concern: warnings in its log.
+      imaging->set_warning_sink([&runtime, imaged](tendril::safety::FaultCode code, const std::string& text) {
+        runtime.report_warning(imaged, code, text);
+      });
       // Drawn over the images: the loaded plan's planned tips (in the world frame since load_path).
       imaging->set_plan_reader([&runtime, imaged](std::vector<Eigen::Vector3d>& out) {
         const auto path = runtime.path_following(imaged);

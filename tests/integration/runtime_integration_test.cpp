@@ -192,6 +192,33 @@ TEST_F(RuntimeTest, OperatorLostStopsServoAtOnceAndDoesNotResume) {
   EXPECT_LT(held, 1.0 * 0.060);
 }
 
+TEST_F(RuntimeTest, AWarningFromOutsideTheLoopIsLoggedWithoutAStateChange) {
+  auto goal = measured();
+  goal[2] += 1.0;
+  enable();
+  ASSERT_EQ(api->move_jp("srmc", {{"goal", goal}}).status, 202);
+  steps(20);
+  const std::string text(150, 'x');  // longer than an event holds: cut, not refused
+  EXPECT_TRUE(
+      runtime->report_warning("srmc", safety::FaultCode::kSensorStale, "imaging: no AP image for 1.2 s"));
+  EXPECT_TRUE(runtime->report_warning("srmc", safety::FaultCode::kSensorStale, text));
+  EXPECT_FALSE(runtime->report_warning("nobody", safety::FaultCode::kSensorStale, "lost"));
+  steps(5);
+  EXPECT_EQ(state(), "ENABLED") << "a warning changes no state";
+  std::uint64_t total = 0;
+  const auto events = runtime->events_since(0, total);
+  int warnings = 0;
+  for (const auto& e : events) {
+    if (e.kind != "warning") continue;
+    ++warnings;
+    EXPECT_EQ(e.robot, "srmc");
+    if (warnings == 1) EXPECT_EQ(e.message, "imaging: no AP image for 1.2 s");
+    if (warnings == 2) EXPECT_EQ(e.message, std::string(95, 'x'));
+  }
+  EXPECT_EQ(warnings, 2);
+  EXPECT_TRUE(step_until([&] { return at(goal, 0.01); }, 3000)) << "the move went on";
+}
+
 TEST_F(RuntimeTest, DriveHeartbeatLossFaultsTheRobotWithTheCause) {
   enable();
   runtime->simulated_drive("srmc", "roll")->set_silent(true);

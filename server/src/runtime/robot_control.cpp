@@ -163,6 +163,9 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
     case CommandKind::plugin:
       r.controller->apply(ctx, c.plugin);
       break;
+    case CommandKind::warning:
+      sup.record(t, safety::EventKind::kWarning, c.code, -1, c.text);
+      break;
   }
   ++s.commands_applied;
 }

@@ -532,6 +532,18 @@ void RobotRuntime::operator_lost(const std::string& robot) {
   }
 }
 
+bool RobotRuntime::report_warning(const std::string& robot, safety::FaultCode code, const std::string& text) {
+  for (auto& r : impl_->robots) {
+    if (r->config.name != robot) continue;
+    RobotCommand c;
+    c.kind = CommandKind::warning;
+    c.code = code;
+    text.copy(c.text, sizeof c.text - 1);
+    return impl_->post(*r, c);
+  }
+  return false;
+}
+
 // ---- Path following -------------------------------------------------------------------------
 
 namespace {

@@ -47,6 +47,7 @@ enum class CommandKind : std::uint8_t {
   path_loaded,  // a new plan was loaded: no step reached yet
   path_step,    // index = step; values = the step's joint configuration
   plugin,       // the robot type's own command
+  warning,      // log `text` with `code` as a warning event (no state change)
 };
 
 // One command from the network threads to the control thread; trivially copyable, fixed size.
@@ -59,6 +60,8 @@ struct RobotCommand {
   PluginCommand plugin{};
   std::chrono::steady_clock::time_point received{};
   char actor[48] = {};  // who sent it, for the event log (e-stop); NUL-terminated
+  safety::FaultCode code = safety::FaultCode::kNone;  // warning
+  char text[96] = {};                                 // warning; NUL-terminated
 };
 
 // A plan loaded for path following: built and freed on network threads, never seen by the control

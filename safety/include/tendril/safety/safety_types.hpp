@@ -47,6 +47,8 @@ enum class EventKind : std::uint8_t {
   kEstop,       // e-stop latched
   kEstopReset,  // e-stop latch cleared
   kRecovery,    // a way out of a hold ran (e.g. the catheter's springs relaxed): no state change
+  kWarning,     // a condition the operator must see, reported from outside the loop (e.g. images
+                // stopped coming): no state change
 };
 
 enum class ViolationKind : std::uint8_t {

@@ -1,9 +1,12 @@
-// ImagingWorker: the SIMULATED bi-plane fluoroscope of tendrild, published as WebSocket topics.
+// ImagingWorker: tendrild's bi-plane imaging, published as WebSocket topics. Each plane's frames come
+// from its source: the SIMULATED fluoroscope (the default), a video capture device or video file, or a
+// folder of image files replayed at a set rate (imaging::ImageSource).
 //
-// Two threads (one per plane, AP and lateral) expose on a common schedule at `fps`, each only while
-// its topic has a subscriber (set_demand; an unwatched plane sleeps and costs nothing): each reads the
-// robot's backbone through ControlApi::shape (the runtime snapshot; never the RT thread), renders it
-// with sim::SimulatedFluoroscope, JPEG-encodes it and puts the serialised foxglove.CompressedImage
+// Two threads (one per plane, AP and lateral) run only while the plane's topic has a subscriber
+// (set_demand; an unwatched plane sleeps and costs nothing). A simulated plane exposes on a common
+// schedule at `fps`: it reads the robot's backbone through RobotService::shape (the runtime snapshot;
+// never the RT thread) and renders it with sim::SimulatedFluoroscope; another plane takes its source's
+// frames as they come. Each frame is JPEG-encoded and put, as a serialised foxglove.CompressedImage,
 // into a latest-value slot that the front end shares with every subscriber:
 //   /imaging/ap, /imaging/lateral  foxglove.CompressedImage (JSON, data base64), frame_id imaging_ap|lateral
 //   /maps/vessel                   foxglove.PointCloud of the vessel wall (float32 x,y,z), frame "world"
@@ -11,14 +14,23 @@
 // the imaged robot's model backbone and the plan's path projected with the plane's own geometry
 // (pixels of the frame, row 0 at the top), so a console draws them over the image without knowing
 // the projection (foxglove.CompressedImage readers ignore the extra field).
-// The message's timestamp is the capture time: the wall-clock instant the exposure started, i.e. when
-// the backbone was sampled. The WebSocket message header carries the log time: when the encoded
-// frame was ready to send (their difference is the render + encode time).
+// For a source other than the simulator the overlay uses the configured geometry: it lies on the
+// image only when that geometry is the C-arm's (calibrate it; a replay of tendril's own simulated
+// frames matches by construction).
+// A watchdog thread warns the imaged robot's operator (set_warning_sink) when a watched plane's frames
+// stop for longer than `stale_after_s`, when they come again, when frames are dropped (at most one
+// warning a second, with the count) and when a replay ends. Imaging never waits on control, nor
+// control on imaging: the warnings go through the robot's command mailbox.
+// The message's timestamp is the capture time: the wall-clock instant the exposure started (the
+// backbone was sampled), or for other sources the instant the frame was received. The WebSocket message
+// header carries the log time: when the encoded frame was ready to send (their difference is the render +
+// encode time).
 #pragma once
 
 #include <Eigen/Core>
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <filesystem>
@@ -31,13 +43,29 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tendril/drivers/imaging/image_source.hpp"
 #include "tendril/drivers/sim/simulated_fluoroscope.hpp"
+#include "tendril/safety/safety_types.hpp"
 #include "tendril/server/control_api.hpp"
 #include "tendril/server/robot_service.hpp"
 #include "tendril/server/topic_source.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::server {
+
+enum class ImageSourceKind : std::uint8_t {
+  kSimulated,  // sim::SimulatedFluoroscope renders the imaged robot's backbone
+  kVideo,      // imaging::open_video_capture: a V4L2 device (/dev/videoN) or a video file
+  kFiles,      // imaging::open_image_files: a folder of images (or one image) replayed at `fps`
+};
+
+// Where one plane's frames come from: imaging.sources.ap / imaging.sources.lateral.
+struct PlaneSourceConfig {
+  ImageSourceKind kind = ImageSourceKind::kSimulated;
+  std::filesystem::path path;  // kVideo, kFiles
+  double fps = 0.0;            // kVideo: 0 = the file's own rate; kFiles: the replay rate
+  bool loop = true;            // replays start again at their end
+};
 
 struct ImagingConfig {
   bool enabled = false;
@@ -46,8 +74,10 @@ struct ImagingConfig {
   int jpeg_quality = 80;
   sim::FluoroscopeOptions
       fluoroscope;  // geometry (width, height, SID, SOD, pixel spacing, isocentre), physics
-  std::vector<sim::VesselTube> vessels;  // contrast-filled branches, world frame (mm)
-  std::string vessel_source;             // where the vessel came from, for the start-up message
+  std::vector<sim::VesselTube> vessels;      // contrast-filled branches, world frame (mm)
+  std::string vessel_source;                 // where the vessel came from, for the start-up message
+  std::array<PlaneSourceConfig, 2> sources;  // [0] AP, [1] lateral
+  double stale_after_s = 1.0;                // a watched plane without a frame for longer is stale
 };
 
 // Reads the "imaging" object of the server file (`imaging` may be null: imaging off). Relative paths
@@ -70,6 +100,12 @@ SceneVessel load_scene_vessel(const nlohmann::json& scene, const nlohmann::json&
 // Contrast-filled tubes for the fluoroscope from centerline branches (2 mm where a branch has no radii).
 std::vector<sim::VesselTube> vessel_tubes(const std::vector<teleop::CenterlinePolyline>& branches);
 
+// "simulated", "video" or "files".
+const char* source_kind_name(ImageSourceKind kind) noexcept;
+
+// A warning for the imaged robot's operator: the cause and a message for a person.
+using ImagingWarningSink = std::function<void(safety::FaultCode code, const std::string& text)>;
+
 // Fills `out` with the imaged robot's backbone (world mm, base to tip); false when unavailable.
 // Called from the imaging threads.
 using BackboneReader = std::function<bool(std::vector<Eigen::Vector3d>& out)>;
@@ -80,7 +116,8 @@ BackboneReader backbone_from(const RobotService& service, std::string robot);
 
 class ImagingWorker final : public TopicSource {
  public:
-  // Throws sim::FluoroscopeError for an unusable geometry.
+  // Throws sim::FluoroscopeError for an unusable geometry, ConfigError for a source that cannot be
+  // opened (naming imaging.sources.<plane> and why).
   ImagingWorker(BackboneReader read_backbone, ImagingConfig config);
   ~ImagingWorker() override;
   ImagingWorker(const ImagingWorker&) = delete;
@@ -89,6 +126,10 @@ class ImagingWorker final : public TopicSource {
   // What is drawn over the images besides the imaged robot's backbone: the plan's path (world mm, e.g.
   // the planned tip of each step of the loaded path; false or empty = none). Call before start().
   void set_plan_reader(BackboneReader read_plan) { read_plan_ = std::move(read_plan); }
+  // Where the watchdog's warnings go (stale, dropped, ended). Call before start().
+  void set_warning_sink(ImagingWarningSink sink) { warn_ = std::move(sink); }
+  // Where each plane's frames come from, for the start-up message.
+  std::string describe_sources() const;
 
   void start();
   void stop();  // joins the threads; safe to call twice
@@ -101,16 +142,24 @@ class ImagingWorker final : public TopicSource {
   void set_demand(const std::string& topic, bool wanted) override;
   std::string metrics() const override;
 
-  // Renders and publishes one frame of each plane now (tests; the threads need not run).
+  // Renders and publishes one frame of each simulated plane now (tests; the threads need not run).
   void capture_once();
 
  private:
   struct Plane;
+  void run_simulated(Plane& plane, std::chrono::steady_clock::time_point first);
+  void run_source(Plane& plane);
+  void watch();
   void capture(Plane& plane, std::uint64_t capture_ns);
+  void publish(Plane& plane, std::uint64_t capture_ns, const std::vector<std::uint8_t>& jpeg, bool shape_ok,
+               double render_s, double encode_s);
+  void read_overlay(Plane& plane, bool& shape_ok);
+  void warn(safety::FaultCode code, const std::string& text) const;
   void announce();
 
   BackboneReader read_backbone_;
   BackboneReader read_plan_;
+  ImagingWarningSink warn_;
   ImagingConfig config_;
   std::array<std::unique_ptr<Plane>, 2> planes_;
   std::shared_ptr<const std::string> vessel_cloud_;

@@ -103,6 +103,7 @@ class RobotRuntime final : public RobotService {
   Status estop(const std::string& actor) override;
   Status estop_reset(const std::string& actor) override;
   void operator_lost(const std::string& robot) override;
+  bool report_warning(const std::string& robot, safety::FaultCode code, const std::string& text) override;
   std::vector<SafetyEventView> faults(std::size_t max_events) const override;
   std::vector<SafetyEventView> events_since(std::uint64_t since, std::uint64_t& total) const override;
   std::string metrics() const override;

@@ -255,6 +255,11 @@ class RobotService {
   // The connection of the holder of `robot`'s lease went away while streaming: its streams stop and
   // it holds. Other robots, maybe commanded by someone else, go on.
   virtual void operator_lost(const std::string& robot) = 0;
+  // Logs a warning about `robot` in its safety event log (EventKind::kWarning: seen by the operator,
+  // no state change), from any thread but the control thread; `text` is cut to the event's 95
+  // characters. False for an unknown robot or a full command queue (the warning is then lost, and
+  // counted as a dropped command).
+  virtual bool report_warning(const std::string& robot, safety::FaultCode code, const std::string& text) = 0;
 
   virtual std::vector<SafetyEventView> faults(std::size_t max_events) const = 0;
   // The events logged after the first `since` (oldest first); `total` = how many were logged so far.
