@@ -261,6 +261,8 @@ void Recorder::write(Entry& entry) {
   if (!writer_) open_file();
   if (written_in_file_ == 0) file_first_log_time_ = entry.log_time;
 
+  // The chunk's age counts from its first record, a channel's records included.
+  if (writer_->open_chunk_bytes() == 0) chunk_opened_ = std::chrono::steady_clock::now();
   std::uint16_t& channel_id = file_channel_[entry.channel];
   if (channel_id == 0) {
     ChannelSpec spec;
@@ -287,7 +289,6 @@ void Recorder::write(Entry& entry) {
     file_schema_[entry.channel] = schema_id;
     channel_id = writer_->add_channel(schema_id, spec.topic, spec.message_encoding, spec.metadata);
   }
-  if (writer_->open_chunk_bytes() == 0) chunk_opened_ = std::chrono::steady_clock::now();
   const std::uint64_t chunks_before = writer_->stats().chunks;
   writer_->write_message(channel_id, entry.sequence, entry.log_time, entry.log_time, entry.data);
   ++written_in_file_;

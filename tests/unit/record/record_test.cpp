@@ -231,7 +231,9 @@ TEST_F(RecordTest, RecorderRotatesBySizeIntoSeveralCompleteFiles) {
   constexpr std::uint64_t kJoint = 900, kImage = 9;
   for (std::uint64_t i = 0; i < kJoint; ++i) {
     ASSERT_TRUE(recorder.record(joints, i * 1'000'000, joint_state(i)));
-    if (i % 100 == 0) ASSERT_TRUE(recorder.record(image, i * 1'000'000, payload(1, i / 100, 60'000)));
+    if (i % 100 == 0) {
+      ASSERT_TRUE(recorder.record(image, i * 1'000'000, payload(1, i / 100, 60'000)));
+    }
   }
   recorder.start();
   recorder.stop();
