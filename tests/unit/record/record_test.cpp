@@ -301,6 +301,28 @@ TEST_F(RecordTest, RecorderRotatesByLogTimeDuration) {
   }
 }
 
+// With max_chunk_delay 0 every message is its own chunk, written at once: what stats() reports as
+// flushed is on disk, readable without a footer, while the recorder still runs.
+TEST_F(RecordTest, FlushedMessagesAreReadableWhileTheRecorderRuns) {
+  RecorderOptions options;
+  options.directory = dir_;
+  options.max_chunk_delay = std::chrono::milliseconds(0);
+  Recorder recorder(options);
+  const auto joints = recorder.add_channel(joint_spec());
+  recorder.start();
+  for (std::uint64_t i = 0; i < 25; ++i) ASSERT_TRUE(recorder.record(joints, i, joint_state(i)));
+  while (recorder.stats().flushed < 25) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  const auto running = read_mcap(recorder.files().at(0));
+  EXPECT_FALSE(running.complete);
+  ASSERT_EQ(running.messages.size(), 25U);
+  EXPECT_EQ(running.chunk_compressions.size(), 25U);  // one chunk per message
+  for (std::uint32_t i = 0; i < 25; ++i) EXPECT_EQ(running.messages[i].data, joint_state(i));
+  recorder.stop();
+  const auto finished = read_mcap(recorder.files().at(0));
+  EXPECT_TRUE(finished.complete);
+  EXPECT_EQ(finished.messages.size(), 25U);
+}
+
 TEST_F(RecordTest, QueueOverflowIsCountedPerChannelAndShowsAsSequenceGaps) {
   RecorderOptions options;
   options.directory = dir_;
