@@ -62,6 +62,17 @@ void Recorder::drop(ChannelId channel) {
 }
 
 bool Recorder::record(ChannelId channel, std::uint64_t log_time_ns, std::span<const std::uint8_t> bytes) {
+  return enqueue(channel, log_time_ns, bytes.size(), bytes, nullptr);
+}
+
+bool Recorder::record(ChannelId channel, std::uint64_t log_time_ns,
+                      std::shared_ptr<const std::string> payload) {
+  const std::size_t size = payload ? payload->size() : 0;
+  return enqueue(channel, log_time_ns, size, {}, std::move(payload));
+}
+
+bool Recorder::enqueue(ChannelId channel, std::uint64_t log_time_ns, std::size_t size,
+                       std::span<const std::uint8_t> copy, std::shared_ptr<const std::string> shared) {
   if (channel >= channel_count_.load(std::memory_order_acquire))
     return false;  // not a channel: nothing to count
   // The sequence is taken whether or not the message is kept: a dropped message is a gap in the file.
@@ -70,18 +81,19 @@ bool Recorder::record(ChannelId channel, std::uint64_t log_time_ns, std::span<co
     drop(channel);
     return false;
   }
-  const std::size_t queued = queued_bytes_.fetch_add(bytes.size(), std::memory_order_relaxed) + bytes.size();
+  const std::size_t queued = queued_bytes_.fetch_add(size, std::memory_order_relaxed) + size;
   if (queued > options_.queue_max_bytes) {
-    queued_bytes_.fetch_sub(bytes.size(), std::memory_order_relaxed);
+    queued_bytes_.fetch_sub(size, std::memory_order_relaxed);
     drop(channel);
     return false;
   }
   // Counted as waiting before it is pushed, so that the writer's count never runs below zero.
   const std::size_t waiting = queued_messages_.fetch_add(1, std::memory_order_acq_rel) + 1;
-  Entry entry{channel, sequence, log_time_ns, std::vector<std::uint8_t>(bytes.begin(), bytes.end())};
+  Entry entry{channel, sequence, log_time_ns, std::vector<std::uint8_t>(copy.begin(), copy.end()),
+              std::move(shared)};
   if (!push(std::move(entry))) {
     queued_messages_.fetch_sub(1, std::memory_order_acq_rel);
-    queued_bytes_.fetch_sub(bytes.size(), std::memory_order_relaxed);
+    queued_bytes_.fetch_sub(size, std::memory_order_relaxed);
     drop(channel);
     return false;
   }
@@ -123,9 +135,10 @@ bool Recorder::pop(Entry& out) {
     if (diff == 0) {
       if (dequeue_pos_.compare_exchange_weak(pos, pos + 1, std::memory_order_relaxed)) {
         out = std::move(cell.entry);
-        cell.entry.data = {};
+        cell.entry.owned = {};
+        cell.entry.shared.reset();
         cell.seq.store(pos + mask_ + 1, std::memory_order_release);
-        queued_bytes_.fetch_sub(out.data.size(), std::memory_order_relaxed);
+        queued_bytes_.fetch_sub(out.data().size(), std::memory_order_relaxed);
         queued_messages_.fetch_sub(1, std::memory_order_acq_rel);
         return true;
       }
@@ -252,7 +265,7 @@ void Recorder::close_file() {
 
 void Recorder::write(Entry& entry) {
   if (writer_ && written_in_file_ > 0) {
-    const std::uint64_t size = writer_->stats().bytes + writer_->open_chunk_bytes() + entry.data.size();
+    const std::uint64_t size = writer_->stats().bytes + writer_->open_chunk_bytes() + entry.data().size();
     const bool too_big = options_.max_file_bytes > 0 && size > options_.max_file_bytes;
     const bool too_long = options_.max_file_duration_ns > 0 && entry.log_time >= file_first_log_time_ &&
                           entry.log_time - file_first_log_time_ >= options_.max_file_duration_ns;
@@ -290,7 +303,7 @@ void Recorder::write(Entry& entry) {
     channel_id = writer_->add_channel(schema_id, spec.topic, spec.message_encoding, spec.metadata);
   }
   const std::uint64_t chunks_before = writer_->stats().chunks;
-  writer_->write_message(channel_id, entry.sequence, entry.log_time, entry.log_time, entry.data);
+  writer_->write_message(channel_id, entry.sequence, entry.log_time, entry.log_time, entry.data());
   ++written_in_file_;
   written_.fetch_add(1, std::memory_order_relaxed);
   if (writer_->stats().chunks == chunks_before) maybe_flush_by_age();

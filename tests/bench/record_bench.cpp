@@ -10,6 +10,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <memory>
 #include <random>
 #include <string>
 #include <thread>
@@ -127,6 +128,22 @@ void record_calls(benchmark::State& state, std::size_t size) {
   std::filesystem::remove_all(dir);
 }
 void BM_RecordCall_JointState(benchmark::State& state) { record_calls(state, 120); }
+// record(shared_ptr): the WebSocket publisher's already-serialised message, held rather than copied.
+void BM_RecordCall_SharedImage(benchmark::State& state) {
+  const auto dir = bench_dir("shared");
+  auto options = options_for(dir, Compression::kZstd);
+  options.queue_max_bytes = std::size_t{1} << 30;
+  Recorder recorder(options);
+  const auto channel = recorder.add_channel(ChannelSpec{"/bench", "json", "", "", {}, {}});
+  const auto message = std::make_shared<const std::string>(kImageBytes, 'j');
+  recorder.start();
+  std::uint64_t t = 0;
+  for (auto _ : state) benchmark::DoNotOptimize(recorder.record(channel, ++t, message));
+  recorder.stop();
+  state.counters["dropped"] = static_cast<double>(recorder.stats().dropped);
+  std::filesystem::remove_all(dir);
+}
+BENCHMARK(BM_RecordCall_SharedImage)->Iterations(2000);
 void BM_RecordCall_Image(benchmark::State& state) { record_calls(state, kImageBytes); }
 BENCHMARK(BM_RecordCall_JointState)->Iterations(100000);
 BENCHMARK(BM_RecordCall_Image)->Iterations(2000);

@@ -357,6 +357,31 @@ TEST_F(RecordTest, QueueOverflowIsCountedPerChannelAndShowsAsSequenceGaps) {
   EXPECT_EQ(recorder.stats().dropped, 13U);
 }
 
+// record(shared_ptr): the publisher's serialised payload is held, not copied, until written.
+TEST_F(RecordTest, SharedPayloadsAreWrittenAndReleased) {
+  RecorderOptions options;
+  options.directory = dir_;
+  options.queue_max_bytes = 1000;
+  Recorder recorder(options);
+  const auto joints = recorder.add_channel(joint_spec());
+  const auto text = joint_state(3);
+  auto payload = std::make_shared<const std::string>(text.begin(), text.end());
+  EXPECT_TRUE(recorder.record(joints, 10, payload));
+  EXPECT_EQ(payload.use_count(), 2);                                               // the queue holds it
+  EXPECT_TRUE(recorder.record(joints, 11, std::shared_ptr<const std::string>{}));  // null: empty message
+  auto big = std::make_shared<const std::string>(2000, 'x');
+  EXPECT_FALSE(recorder.record(joints, 12, big));  // the byte budget counts shared payloads too
+  EXPECT_EQ(big.use_count(), 1);
+  recorder.start();
+  recorder.stop();
+  EXPECT_EQ(payload.use_count(), 1);  // released once written
+  const auto file = read_mcap(recorder.files().at(0));
+  ASSERT_EQ(file.messages.size(), 2U);
+  EXPECT_EQ(file.messages[0].data, text);
+  EXPECT_TRUE(file.messages[1].data.empty());
+  EXPECT_EQ(recorder.dropped(joints), 1U);
+}
+
 TEST_F(RecordTest, QueueByteBudgetDropsLargeMessages) {
   RecorderOptions options;
   options.directory = dir_;
@@ -387,7 +412,7 @@ TEST_F(RecordTest, RecorderRefusesBadSetUpAndUnknownChannels) {
   EXPECT_THROW(recorder.add_channel(ChannelSpec{}), std::invalid_argument);  // no topic
   const auto joints = recorder.add_channel(joint_spec());
   EXPECT_THROW(recorder.add_channel(joint_spec()), std::invalid_argument);  // past max_channels
-  EXPECT_FALSE(recorder.record(joints + 1, 0, {}));
+  EXPECT_FALSE(recorder.record(joints + 1, 0, std::span<const std::uint8_t>{}));
   recorder.stop();  // never started: no file
   EXPECT_TRUE(recorder.files().empty());
 }

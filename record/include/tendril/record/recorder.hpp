@@ -87,6 +87,9 @@ class Recorder {
   // thread hands its data to a publisher thread, which records). Returns false when the message was
   // dropped. Before start() messages wait in the queue.
   bool record(ChannelId channel, std::uint64_t log_time_ns, std::span<const std::uint8_t> bytes);
+  // The same without a copy: the recorder holds the payload (e.g. a JSON message the WebSocket
+  // publisher already serialised once for all its clients) until it is written. Null counts as empty.
+  bool record(ChannelId channel, std::uint64_t log_time_ns, std::shared_ptr<const std::string> payload);
 
   void start();  // starts the writer thread
   void stop();   // writes what is queued, finalises the current file, joins. Idempotent.
@@ -100,7 +103,12 @@ class Recorder {
     ChannelId channel = 0;
     std::uint32_t sequence = 0;
     std::uint64_t log_time = 0;
-    std::vector<std::uint8_t> data;
+    std::vector<std::uint8_t> owned;            // record(span): the recorder's copy
+    std::shared_ptr<const std::string> shared;  // record(shared_ptr): the publisher's payload, held
+    std::span<const std::uint8_t> data() const {
+      if (shared) return {reinterpret_cast<const std::uint8_t*>(shared->data()), shared->size()};
+      return {owned.data(), owned.size()};
+    }
   };
   // Vyukov's bounded multi-producer queue cell: seq says whose turn the cell is.
   struct Cell {
@@ -112,6 +120,8 @@ class Recorder {
     std::atomic<std::uint64_t> dropped{0};
   };
 
+  bool enqueue(ChannelId channel, std::uint64_t log_time_ns, std::size_t size,
+               std::span<const std::uint8_t> copy, std::shared_ptr<const std::string> shared);
   bool push(Entry&& entry);
   bool pop(Entry& out);
   void drop(ChannelId channel);
