@@ -236,6 +236,10 @@ ServerConfig load_server_config(const std::filesystem::path& file) {
     r.child("imaging");  // must be an object; its keys are checked by parse_imaging_config
     sc.imaging = r.raw("imaging");
   }
+  if (r.has("recording")) {
+    r.child("recording");  // must be an object; its keys are checked by parse_recording_config
+    sc.recording = r.raw("recording");
+  }
   if (r.has("scene")) {
     r.child("scene");  // must be an object; its keys are checked by load_scene_vessel
     sc.scene = r.raw("scene");

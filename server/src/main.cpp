@@ -24,6 +24,7 @@
 #include "tendril/server/planning_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/server/robot_types.hpp"
+#include "tendril/server/session_recording.hpp"
 #include "tendril/server/version.hpp"
 
 namespace {
@@ -236,6 +237,19 @@ int main(int argc, char** argv) {
       if (const auto* type = types.find(rc.kind)) planning = type->planning_service(config.robots);
     }
     ho.planning = planning.get();
+    // The session recording: every published channel and every command, to rotating MCAP files.
+    std::shared_ptr<SessionRecording> recording;
+    if (const auto rc = parse_recording_config(config.recording, config.file); rc.enabled) {
+      recording = std::make_shared<SessionRecording>(
+          rc, [](std::string_view line) { std::cerr << "tendrild: recording: " << line << std::endl; });
+      std::cerr << "tendrild: recording to " << rc.directory.string() << " ("
+                << tendril::record::compression_name(rc.compression) << ", a new file every "
+                << rc.max_file_bytes / (1024ULL * 1024ULL) << " MB or "
+                << rc.max_file_duration_ns / 60'000'000'000ULL << " min; images "
+                << (rc.images_always ? "always" : "while watched") << ")" << std::endl;
+      recording->start();
+      ho.tap = recording;
+    }
     HttpServer http(api, ho);
     http.start();
 
@@ -249,6 +263,13 @@ int main(int argc, char** argv) {
     std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
               << " received: disabling the drives and stopping" << std::endl;
     http.stop();
+    if (recording) {
+      recording->stop();  // what is queued is written and the file gets its summary and footer
+      const auto stats = recording->stats();
+      std::cerr << "tendrild: recording: " << stats.written << " messages in " << stats.files << " file(s), "
+                << stats.dropped << " dropped" << (stats.error.empty() ? "" : "; error: " + stats.error)
+                << std::endl;
+    }
     if (planning) planning->shutdown();
     if (imaging) imaging->stop();
     runtime.stop();

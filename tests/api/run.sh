@@ -16,6 +16,8 @@ node --test --test-concurrency=1 "$here"/*.test.mjs
 status=$?
 # Last: SIGTERM must disable the drives and end the process cleanly.
 check_clean_shutdown || status=1
+# Then the session recording of the whole run, read back by @mcap/core.
+node --test "$here"/after_shutdown/*.test.mjs || status=1
 if [ $status -ne 0 ]; then
   echo "--- last lines of the tendrild log ---" >&2
   tail -n 40 "$TENDRIL_LOG" >&2

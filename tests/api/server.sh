@@ -65,9 +65,11 @@ start_tendrild() {
   "robots": ["$tendrild_workdir/srmc.json"$extra_robots],
   "scene": {"vessel": "$repo_root/config/vessels/synthetic_ica.csv"},
   "imaging": {"enabled": true, "width": 512, "height": 512, "fps": 10, "jpeg_quality": 80,
-              "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [15, -5, 55]}
+              "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [15, -5, 55]},
+  "recording": {"enabled": true, "directory": "$tendrild_workdir/recordings", "max_file_mb": 8}
 }
 JSON
+  export TENDRIL_RECORDING_DIR="$tendrild_workdir/recordings"
   local args=(--config "$tendrild_workdir/server.json")
   if [ -n "${TENDRILD_ARGS:-}" ]; then
     local expanded="${TENDRILD_ARGS//\{config\}/$tendrild_workdir/server.json}"

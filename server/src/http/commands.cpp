@@ -7,8 +7,40 @@ namespace tendril::server {
 using nlohmann::json;
 using namespace tendril::server::http;
 
+namespace {
+std::string command_name(const CommandRef& command) {
+  switch (command.kind) {
+    case Command::kEstop:
+      return "estop";
+    case Command::kEstopReset:
+      return "estop_reset";
+    case Command::kRobotCommand:
+      return command.name;
+    default:
+      break;
+  }
+  for (const auto& [name, kind] : core_robot_commands())
+    if (kind == command.kind) return name;
+  return "command";
+}
+}  // namespace
+
 ApiResult HttpServer::Impl::execute(const CommandRef& command, const std::string& robot, const json& body,
                                     const Identity& who) {
+  ApiResult result = execute_checked(command, robot, body, who);
+  if (opts.tap && command.kind != Command::kAuthorizeOnly) {
+    try {
+      opts.tap->command(wall_time_ns(), robot, command_name(command), who.label, body, result.status,
+                        result.ok() ? std::string() : result.code + ": " + result.message);
+    } catch (const std::exception& e) {
+      log(std::string("recording: a command was not recorded: ") + e.what());
+    }
+  }
+  return result;
+}
+
+ApiResult HttpServer::Impl::execute_checked(const CommandRef& command, const std::string& robot,
+                                            const json& body, const Identity& who) {
   if (command.kind == Command::kEstop) {
     try {
       return api.estop_from(who.label + (who.role == Role::kViewer ? " (viewer)" : " (operator)"));

@@ -217,8 +217,12 @@ class HttpServer::Impl {
   AuthOutcome authenticate(const Request& req, const http::RequestTarget& target, std::uint64_t connection_id,
                            bool accept_query_token, bool create_cookie_session, bool websocket);
 
+  // Runs a robot command after the preamble (role, robot, lease), and hands it with its outcome to
+  // the publish tap when there is one (a recording).
   ApiResult execute(const CommandRef& command, const std::string& robot, const nlohmann::json& body,
                     const Identity& who);
+  ApiResult execute_checked(const CommandRef& command, const std::string& robot, const nlohmann::json& body,
+                            const Identity& who);
   // action: "acquire" (with an optional takeover token), "release" or "status"; of one robot's lease,
   // or of every robot's when `robot` is empty (POST /api/v1/lease).
   ApiResult lease_action(const std::string& action, const Identity& who,

@@ -155,6 +155,15 @@ void HttpServer::Impl::refresh_channels() {
     last_topics = topics;
     sessions = live_sessions();
   }
+  if (opts.tap) {
+    for (const auto& channel : added) {
+      try {
+        opts.tap->channel(channel.id, channel.topic, channel.schema_name, channel.schema);
+      } catch (const std::exception& e) {
+        log(std::string("recording: channel ") + channel.topic + " not recorded: " + e.what());
+      }
+    }
+  }
   for (auto& session : sessions) {
     if (!removed.empty()) {
       session->drop_channels(removed);
@@ -196,6 +205,13 @@ void HttpServer::Impl::publish_once(bool only_sources) {
   report_new_safety_events();
   std::set<std::uint32_t> wanted;
   for (const auto& session : sessions) session->subscribed_channels(wanted);
+  if (opts.tap) {
+    // What the recording wants is fetched (and, from a source, produced) even with no subscriber.
+    std::lock_guard lock(channels_mutex);
+    for (const auto& [id, state] : channels)
+      if (!wanted.count(id) && opts.tap->wants(state.channel.topic, state.source != nullptr))
+        wanted.insert(id);
+  }
   tell_sources_demand(wanted);
   for (const std::uint32_t channel_id : wanted) {
     std::string topic;
@@ -227,6 +243,7 @@ void HttpServer::Impl::publish_once(bool only_sources) {
         it->second.last_time_ns = latest->log_time_ns;
       }
       for (const auto& session : sessions) session->offer(channel_id, latest->payload, latest->log_time_ns);
+      if (opts.tap) opts.tap->message(channel_id, latest->log_time_ns, latest->payload);
       continue;
     }
     if (only_sources) continue;
@@ -249,6 +266,7 @@ void HttpServer::Impl::publish_once(bool only_sources) {
       it->second.last_time_ns = time_ns;
     }
     for (const auto& session : sessions) session->offer(channel_id, payload, time_ns);
+    if (opts.tap) opts.tap->message(channel_id, time_ns, std::move(payload));
   }
 }
 

@@ -92,8 +92,9 @@ struct ServerConfig {
   bool realtime_priority = true;  // ask for SCHED_FIFO + mlockall; runs without if refused
   std::vector<std::filesystem::path> robot_files;
   std::vector<RobotConfig> robots;
-  nlohmann::json imaging;  // the "imaging" object (null if absent); read by parse_imaging_config
-  nlohmann::json scene;    // the "scene" object (null if absent); read by load_scene_vessel
+  nlohmann::json imaging;    // the "imaging" object (null if absent); read by parse_imaging_config
+  nlohmann::json scene;      // the "scene" object (null if absent); read by load_scene_vessel
+  nlohmann::json recording;  // the "recording" object (null if absent); read by parse_recording_config
 };
 
 // Parses a robot file's core keys (the robot type's sections are kept in RobotConfig::settings and

@@ -34,6 +34,7 @@
 #include <vector>
 
 #include "tendril/server/control_api.hpp"
+#include "tendril/server/http/publish_tap.hpp"
 #include "tendril/server/topic_source.hpp"
 
 namespace tendril::server {
@@ -76,6 +77,8 @@ struct HttpOptions {
   // Topics from outside ControlApi (imaging, maps), advertised and published next to the robots'
   // with the same newest-only backpressure; a source's ready callback publishes its topics at once.
   std::vector<std::shared_ptr<TopicSource>> topic_sources;
+  // A second reader of every channel, message and command (e.g. the session recording); null = none.
+  std::shared_ptr<http::PublishTap> tap;
   // Where the front end logs (refused connections, contained exceptions); null = standard error.
   std::function<void(const std::string&)> log;
 };
