@@ -36,7 +36,7 @@ enum class TipEkfStatus : std::uint8_t {
   invalid_step,         // ds or κ is NaN or infinite
   invalid_measurement,  // a component of the measured pose is NaN or infinite
   invalid_state,        // the state passed in holds a non-finite value (the filter never produces one)
-  numerical_failure,    // P⁻ + R is not positive definite (cannot happen from a valid state and model)
+  numerical_failure,    // P⁻ + R is not positive definite (only from a covariance the filter did not make)
 };
 const char* to_string(TipEkfStatus status) noexcept;
 
