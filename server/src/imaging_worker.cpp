@@ -561,6 +561,10 @@ void ImagingWorker::run_source(Plane& p) {
     const auto t0 = SteadyClock::now();
     const auto result = p.source->grab(p.frame);
     const std::uint64_t received_ns = wall_ns();
+    {
+      std::lock_guard lock(run_mutex_);
+      if (stopping_) return;  // a grab cut short by stop() is not the end of a replay
+    }
     if (result.status == imaging::GrabStatus::kFrame) {
       bool shape_ok = false;
       read_overlay(p, shape_ok);
@@ -677,6 +681,8 @@ void ImagingWorker::stop() {
     stopping_ = true;
   }
   run_wake_.notify_all();
+  for (auto& plane : planes_)
+    if (plane->source) plane->source->cancel();  // a slow replay's wait ends now
   for (auto& t : threads_) t.join();
   threads_.clear();
 }

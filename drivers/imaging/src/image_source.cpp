@@ -80,15 +80,22 @@ class Pacer {
  public:
   explicit Pacer(double period_s)
       : period_(std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(period_s))) {}
-  void wait() {
+  // False when `cancelled` was seen while waiting.
+  template <typename Cancelled>
+  bool wait(Cancelled cancelled) {
     const auto now = Clock::now();
     if (!started_) {
       started_ = true;
       next_ = now + period_;
-      return;
+      return !cancelled();
     }
-    if (next_ > now) std::this_thread::sleep_until(next_);
+    // In slices, so that a cancel is seen within one.
+    for (auto t = Clock::now(); t < next_; t = Clock::now()) {
+      if (cancelled()) return false;
+      std::this_thread::sleep_until(std::min(next_, t + std::chrono::milliseconds(50)));
+    }
     next_ = std::max(next_, now) + period_;
+    return !cancelled();
   }
   void restart() { started_ = false; }
 
@@ -124,7 +131,8 @@ class VideoCaptureSource final : public ImageSource {
   }
 
   GrabResult grab(GreyImage& out) override {
-    if (!device_) pacer_.wait();  // a device delivers at its own rate; a file is replayed at fps_
+    // A device delivers at its own rate; a file is replayed at fps_.
+    if (!device_ && !pacer_.wait([this] { return cancelled(); })) return {GrabStatus::kEnded, "stopped"};
     if (!capture_.read(frame_)) {
       if (device_) return {GrabStatus::kDropped, description_ + ": no frame from the device"};
       if (!options_.loop) return {GrabStatus::kEnded, description_ + ": end of the file"};
@@ -191,7 +199,7 @@ class ImageFilesSource final : public ImageSource {
       if (!options_.loop) return {GrabStatus::kEnded, description_ + ": end of the replay"};
       next_ = 0;
     }
-    pacer_.wait();
+    if (!pacer_.wait([this] { return cancelled(); })) return {GrabStatus::kEnded, "stopped"};
     const auto& file = files_[next_++];
     frame_ = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
     if (frame_.empty()) return {GrabStatus::kDropped, file.string() + ": cannot be read or decoded"};

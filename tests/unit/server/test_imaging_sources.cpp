@@ -128,6 +128,22 @@ TEST(ImageFiles, RefusesWhatCannotBeReplayedNamingThePath) {
   refuses({dir.path, 10.0, true, -1, -1}, "output size");
 }
 
+TEST(ImageFiles, CancelEndsAWaitForASlowReplaysNextFrame) {
+  TempDir dir;
+  cv::imwrite((dir.path / "a.png").string(), numbered_frame(0, 16, 16));
+  auto source = imaging::open_image_files({dir.path, 0.001, true, 0, 0});  // one frame every 1000 s
+  imaging::GreyImage image;
+  ASSERT_EQ(source->grab(image).status, imaging::GrabStatus::kFrame) << "the first frame comes at once";
+  imaging::GrabResult second;
+  std::thread reader([&] { second = source->grab(image); });  // waits for the next one, 1000 s away
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  source->cancel();
+  reader.join();  // without the cancel this would wait 1000 s (the test's timeout fails it first)
+  EXPECT_EQ(second.status, imaging::GrabStatus::kEnded);
+  EXPECT_EQ(second.reason, "stopped");
+  EXPECT_EQ(source->grab(image).status, imaging::GrabStatus::kEnded) << "and at once afterwards";
+}
+
 TEST(VideoCapture, ReplaysAVideoFileAtItsOwnRateAndAMissingDeviceIsRefused) {
   TempDir dir;
   const auto file = dir.path / "run.avi";
@@ -273,6 +289,23 @@ TEST(ImagingWorkerSources, StaleImagesWarnAndTheirReturnIsReported) {
   EXPECT_EQ(worker.metrics().find("tendril_imaging_stale_total{view=\"ap\"} 0"), std::string::npos);
   worker.set_demand("/imaging/ap", false);
   worker.stop();
+}
+
+TEST(ImagingWorkerSources, StopDoesNotWaitForASlowReplaysNextFrame) {
+  TempDir dir;
+  cv::imwrite((dir.path / "only.png").string(), numbered_frame(1, 64, 48));
+  auto config =
+      config_with({{"ap", {{"kind", "files"}, {"path", "only.png"}, {"fps", 0.1}}}}, 60.0, dir.path);
+  ImagingWorker worker(straight_catheter(), config);
+  Warnings warnings;
+  worker.set_warning_sink(warnings.sink());
+  worker.start();
+  worker.set_demand("/imaging/ap", true);
+  for (int i = 0; i < 500 && !worker.latest("/imaging/ap", 0); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  ASSERT_TRUE(worker.latest("/imaging/ap", 0));
+  worker.stop();  // the plane's thread is waiting 10 s for the next frame: stop() cancels that wait
+  EXPECT_FALSE(warnings.any("replay ended")) << "a stop is not the end of the replay";
 }
 
 TEST(ImagingWorkerSources, DroppedFramesAndTheEndOfAReplayAreWarnedNotStale) {

@@ -9,6 +9,7 @@
 // The header is free of OpenCV types so that only this library compiles against OpenCV.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -53,6 +54,16 @@ class ImageSource {
   virtual std::string description() const = 0;
   // The nominal frame period in seconds (a device's or file's own rate, or the replay rate).
   virtual double frame_period_s() const = 0;
+  // Any thread: a grab() waiting for a replayed frame's time returns within about 50 ms (kEnded,
+  // "stopped"), and later grabs at once, so that a slow replay never holds up a shutdown. A device's
+  // read is bounded by its driver's timeout instead.
+  void cancel() noexcept { cancelled_.store(true, std::memory_order_relaxed); }
+
+ protected:
+  bool cancelled() const noexcept { return cancelled_.load(std::memory_order_relaxed); }
+
+ private:
+  std::atomic<bool> cancelled_{false};
 };
 
 struct VideoCaptureOptions {
