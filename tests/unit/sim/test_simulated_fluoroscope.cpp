@@ -49,6 +49,25 @@ TEST(SimulatedFluoroscope, IsocentreProjectsToTheDetectorCentre) {
   }
 }
 
+TEST(SimulatedFluoroscope, ARayThroughADetectorPointProjectsBackOntoItAndTwoPlanesMeetAtThePoint) {
+  SimulatedFluoroscope ap(FluoroView::kAp, plain_options());
+  SimulatedFluoroscope lateral(FluoroView::kLateral, plain_options());
+  for (const Eigen::Vector3d p :
+       {Eigen::Vector3d(0, 0, 60), Eigen::Vector3d(7.5, -4.0, 71.0), Eigen::Vector3d(-12.0, 9.0, 48.5)}) {
+    for (const auto* fluoro : {&ap, &lateral}) {
+      const auto d = fluoro->project(p);
+      const auto ray = fluoro->ray(d.column, d.row);
+      EXPECT_NEAR(ray.direction.norm(), 1.0, 1e-12);
+      // The point lies on the ray, and every point of the ray projects to the same pixel.
+      const Eigen::Vector3d rel = p - ray.origin;
+      EXPECT_NEAR((rel - rel.dot(ray.direction) * ray.direction).norm(), 0.0, 1e-9);
+      const auto far = fluoro->project(ray.origin + 900.0 * ray.direction);
+      EXPECT_NEAR(far.column, d.column, 1e-9);
+      EXPECT_NEAR(far.row, d.row, 1e-9);
+    }
+  }
+}
+
 TEST(SimulatedFluoroscope, PerspectiveProjectionMagnifiesWithDepth) {
   SimulatedFluoroscope ap(FluoroView::kAp, plain_options());
   // 10 mm along +x at the isocentre plane: 10 · SID/SOD on the detector = 13.333 mm = 53.33 px right.

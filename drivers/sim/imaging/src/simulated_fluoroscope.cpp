@@ -334,6 +334,16 @@ DetectorPoint SimulatedFluoroscope::project(const Eigen::Vector3d& world_mm) con
   return impl_->project(world_mm);
 }
 
+DetectorRay SimulatedFluoroscope::ray(double column, double row) const noexcept {
+  const auto& s = *impl_;
+  const auto& g = s.opts.geometry;
+  // The detector point in the world: SID along the beam from the source, offset in the detector plane.
+  const Eigen::Vector3d on_detector = s.source + g.sid_mm * s.beam +
+                                      (column - 0.5 * (g.width - 1)) * g.pixel_spacing_mm * s.axis_u +
+                                      (0.5 * (g.height - 1) - row) * g.pixel_spacing_mm * s.axis_v;
+  return {s.source, (on_detector - s.source).normalized()};
+}
+
 std::span<const std::uint8_t> SimulatedFluoroscope::render(std::span<const Eigen::Vector3d> backbone) {
   impl_->compose_frame(backbone);
   impl_->quantise(true);

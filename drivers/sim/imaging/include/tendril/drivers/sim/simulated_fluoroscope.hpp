@@ -74,6 +74,12 @@ struct DetectorPoint {
   bool in_front = false;       // false when the point is at or behind the source
 };
 
+// The X-ray through a detector point: from the source (world mm) along a unit direction.
+struct DetectorRay {
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();
+};
+
 class FluoroscopeError : public std::invalid_argument {
  public:
   using std::invalid_argument::invalid_argument;
@@ -98,6 +104,9 @@ class SimulatedFluoroscope {
 
   // Where a world point lands on the detector (sub-pixel).
   DetectorPoint project(const Eigen::Vector3d& world_mm) const noexcept;
+  // The inverse: the ray from the source through detector point (column, row); every world point on
+  // it projects there. Two planes' rays through the same object point meet at it (triangulation).
+  DetectorRay ray(double column, double row) const noexcept;
 
   // Renders one exposure of the catheter whose backbone is `backbone` (world mm, base to tip; an
   // empty span shows only the vessel and background). Returns the 8-bit grey image, row-major,
