@@ -4,7 +4,7 @@
 // and STL centerline extraction. Reports only; asserts nothing.
 #include <benchmark/benchmark.h>
 
-#include "tendril/teleop/shape_error_planner.hpp"
+#include "tendril/teleop/design_optimiser.hpp"
 #include "tendril/teleop/vessel_mesh.hpp"
 
 namespace {

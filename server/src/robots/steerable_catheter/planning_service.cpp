@@ -18,6 +18,7 @@
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/job_queue.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/design_optimiser.hpp"
 #include "tendril/teleop/shape_error_planner.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 #include "tendril/teleop/vessel_mesh.hpp"
