@@ -200,6 +200,22 @@ json design_json(const teleop::CatheterParameters& p, bool free_flexure) {
           {"k2", p.distal_curvature_gain}};
 }
 
+// How the design optimiser's search went (teleop/design_optimiser.hpp): why it stopped, and with
+// flexure whether a plan with γ free beat the best design without it.
+json convergence_json(const teleop::DesignResult& r) {
+  const auto& c = r.convergence;
+  return {{"method", "exploration + NLopt BOBYQA with restarts"},
+          {"stop_reason", teleop::to_string(c.stop_reason)},
+          {"converged", c.converged},
+          {"local_runs", c.local_runs},
+          {"search_evaluations", c.search_evaluations},
+          {"search_ds", c.search_spacing},
+          {"explored_penalty", c.explored_penalty},
+          {"subset_penalty", r.flexure ? json(c.subset_penalty) : json()},
+          {"flexure_improved", r.flexure ? json(c.flexure_improved) : json()},
+          {"best_penalty_history", c.best_penalty_history}};
+}
+
 // Planner drive limits = the robot's bend-joint limits less their soft margins.
 teleop::ShapeErrorPlannerOptions planner_options(const RobotConfig& rc, double dq1, bool flexure) {
   teleop::ShapeErrorPlannerOptions o;
@@ -512,6 +528,7 @@ struct PlanningService::Impl {
                     {"penalty", result.penalty},
                     {"initial_penalty", result.initial_penalty},
                     {"evaluations", result.evaluations},
+                    {"convergence", convergence_json(result)},
                     {"summary",
                      {{"steps", result.plan.steps.size()},
                       {"mean_position_error_mm", result.plan.position_error_mean},
