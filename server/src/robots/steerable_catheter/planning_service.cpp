@@ -535,6 +535,8 @@ struct PlanningService::Impl {
                       {"max_position_error_mm", result.plan.position_error_max},
                       {"mean_orientation_error_deg", result.plan.tangent_error_mean},
                       {"max_orientation_error_deg", result.plan.tangent_error_max},
+                      {"mean_tip_error_mm", result.tip_error_mean},
+                      {"max_tip_error_mm", result.tip_error_max},
                       {"compute_s", compute_s}}}};
       };
     }
