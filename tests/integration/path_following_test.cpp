@@ -4,12 +4,14 @@
 // make_synthetic_vessel writes, and a plan of it runs through PlanningService.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <thread>
+#include <vector>
 
 #include "json_api.hpp"
 #include "steerable_catheter/planning_service.hpp"
@@ -286,6 +288,42 @@ TEST(PlanningServiceOnTheSampleVessel, PlansWithinTheJointLimitsAndTheRuntimeLoa
   EXPECT_EQ(bad_stl.message.find("STL", bad_stl.message.find("STL") + 1), std::string::npos)
       << bad_stl.message;
   EXPECT_EQ(planning.upload_vessel(csv, "application/pdf", {}).status, 415);
+}
+
+// POST /designs with flexure: the design job reports how the optimiser converged, and the flexure
+// design is no worse than the best design without it (issue 15).
+TEST(PlanningServiceOnTheSampleVessel, DesignJobReportsConvergence) {
+  PlanningService planning({load_robot_config(kSrmc)});
+  const auto vessel = planning.upload_vessel(read_file(kIca), "text/csv", {});
+  ASSERT_EQ(vessel.status, 201) << vessel.message;
+  // ds 2 / dq1 6 keep the job to seconds under the sanitizers.
+  const auto job = planning.submit_design(
+      {{"vessel", vessel.body["id"]}, {"branch", 0}, {"flexure", true}, {"ds", 2.0}, {"dq1", 6.0}});
+  ASSERT_EQ(job.status, 202) << job.message;
+  const auto id = job.body["id"].get<std::string>();
+  nlohmann::json state;
+  for (int i = 0; i < 1200; ++i) {
+    state = planning.job(id).body;
+    if (state["state"] != "queued" && state["state"] != "running") break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ(state["state"], "succeeded") << state["message"];
+  const auto& result = state["result"];
+  const auto& c = result["convergence"];
+  std::cout << "[ design ] g " << result["initial_penalty"] << " -> " << result["penalty"] << ", "
+            << c["stop_reason"] << ", subset g " << c["subset_penalty"] << "\n";
+  EXPECT_LT(result["penalty"].get<double>(), result["initial_penalty"].get<double>());
+  EXPECT_LE(result["penalty"].get<double>(), c["subset_penalty"].get<double>());
+  EXPECT_TRUE(c["stop_reason"].is_string());
+  EXPECT_TRUE(c["converged"].is_boolean());
+  EXPECT_TRUE(c["flexure_improved"].is_boolean());
+  EXPECT_GE(c["local_runs"].get<int>(), 2);
+  const auto history = c["best_penalty_history"].get<std::vector<double>>();
+  ASSERT_FALSE(history.empty());
+  EXPECT_TRUE(std::is_sorted(history.rbegin(), history.rend()));
+  EXPECT_GE(result["summary"]["max_tip_error_mm"].get<double>(),
+            result["summary"]["mean_tip_error_mm"].get<double>());
+  EXPECT_TRUE(result["design"]["flexure"].get<bool>());
 }
 
 }  // namespace

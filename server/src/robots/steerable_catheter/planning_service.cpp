@@ -18,6 +18,7 @@
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/job_queue.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/design_optimiser.hpp"
 #include "tendril/teleop/shape_error_planner.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 #include "tendril/teleop/vessel_mesh.hpp"
@@ -197,6 +198,22 @@ json design_json(const teleop::CatheterParameters& p, bool free_flexure) {
   return {{"L1", p.proximal_length},      {"L2", p.distal_length},    {"delta2", p.plane_offset},
           {"flexure", free_flexure},      {"flexure_rad", p.flexure}, {"k1", p.proximal_curvature_gain},
           {"k2", p.distal_curvature_gain}};
+}
+
+// How the design optimiser's search went (teleop/design_optimiser.hpp): why it stopped, and with
+// flexure whether a plan with γ free beat the best design without it.
+json convergence_json(const teleop::DesignResult& r) {
+  const auto& c = r.convergence;
+  return {{"method", "exploration + NLopt BOBYQA with restarts"},
+          {"stop_reason", teleop::to_string(c.stop_reason)},
+          {"converged", c.converged},
+          {"local_runs", c.local_runs},
+          {"search_evaluations", c.search_evaluations},
+          {"search_ds", c.search_spacing},
+          {"explored_penalty", c.explored_penalty},
+          {"subset_penalty", r.flexure ? json(c.subset_penalty) : json()},
+          {"flexure_improved", r.flexure ? json(c.flexure_improved) : json()},
+          {"best_penalty_history", c.best_penalty_history}};
 }
 
 // Planner drive limits = the robot's bend-joint limits less their soft margins.
@@ -511,12 +528,15 @@ struct PlanningService::Impl {
                     {"penalty", result.penalty},
                     {"initial_penalty", result.initial_penalty},
                     {"evaluations", result.evaluations},
+                    {"convergence", convergence_json(result)},
                     {"summary",
                      {{"steps", result.plan.steps.size()},
                       {"mean_position_error_mm", result.plan.position_error_mean},
                       {"max_position_error_mm", result.plan.position_error_max},
                       {"mean_orientation_error_deg", result.plan.tangent_error_mean},
                       {"max_orientation_error_deg", result.plan.tangent_error_max},
+                      {"mean_tip_error_mm", result.tip_error_mean},
+                      {"max_tip_error_mm", result.tip_error_max},
                       {"compute_s", compute_s}}}};
       };
     }
