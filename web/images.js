@@ -5,7 +5,8 @@
 // Per panel, as on a fluoroscopy monitor: last-image hold (the shown frame is frozen, labelled HOLD
 // with its age, while new frames keep arriving underneath) and zoom (wheel about the pointer, the
 // + / − / 1× buttons, drag to pan when zoomed). Over the image, the message's own overlay (the server
-// projects them with the plane's geometry): the robot's model backbone and the plan's path, drawn
+// projects them with the plane's geometry): the robot's model backbone and the plan's path, the
+// catheter as segmented in the frame and the tracked (EKF) tip, drawn
 // with the frame they came with (held with it, zoomed with it); the Overlay button hides them.
 
 const STALE_MS = 2000;
@@ -163,7 +164,8 @@ export class ImagePanel {
     this.overlayClip = document.createElementNS(SVG_NS, 'rect');
     clip.appendChild(this.overlayClip);
     this.overlay.appendChild(clip);
-    for (const [name, cls] of [['plan', 'overlay-plan'], ['robot', 'overlay-robot']]) {
+    // The catheter as segmented in this frame (the tracking) is drawn over the model's backbone.
+    for (const [name, cls] of [['plan', 'overlay-plan'], ['robot', 'overlay-robot'], ['segmented', 'overlay-segmented']]) {
       const line = document.createElementNS(SVG_NS, 'polyline');
       line.setAttribute('clip-path', `url(#${clip.id})`);
       line.setAttribute('class', cls);
@@ -173,6 +175,14 @@ export class ImagePanel {
       this.overlay.appendChild(line);
       this.overlayLines[name] = line;
     }
+    // The tracked (EKF-filtered) tip: a ring where the filter puts it.
+    this.overlayTip = document.createElementNS(SVG_NS, 'circle');
+    this.overlayTip.setAttribute('class', 'overlay-tip');
+    this.overlayTip.setAttribute('fill', 'none');
+    this.overlayTip.setAttribute('vector-effect', 'non-scaling-stroke');
+    this.overlayTip.setAttribute('r', '0');
+    this.overlayTip.dataset.testid = `${id}-overlay-tip`;
+    this.overlay.appendChild(this.overlayTip);
     this.img.insertAdjacentElement('afterend', this.overlay);
     this.img.addEventListener('load', () => {
       if (!this.img.naturalWidth) return;
@@ -217,6 +227,13 @@ export class ImagePanel {
       line.setAttribute('points', points.map((p) => `${Number(p[0])},${Number(p[1])}`).join(' '));
       line.dataset.points = String(points.length);
     }
+    const tip = overlay?.tip;
+    const shown = Array.isArray(tip) && tip.length >= 2 && Number.isFinite(Number(tip[0])) && Number.isFinite(Number(tip[1]));
+    this.overlayTip.setAttribute('cx', shown ? String(Number(tip[0])) : '0');
+    this.overlayTip.setAttribute('cy', shown ? String(Number(tip[1])) : '0');
+    // A ring of 2 % of the frame's width, whatever its resolution.
+    this.overlayTip.setAttribute('r', shown ? String(Math.max(3, (this.img.naturalWidth || 512) * 0.02)) : '0');
+    this.overlayTip.dataset.shown = String(shown);
   }
 
   setHeld(held) {

@@ -295,6 +295,8 @@ ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::fil
   f.anatomy = r.boolean("anatomy", true);
 
   c.stale_after_s = r.number("stale_after_s", 1.0, 0.05, 60.0);
+  c.tracking = parse_tracking_config(imaging.contains("tracking") ? imaging.at("tracking") : nlohmann::json(),
+                                     server_file);
   if (imaging.contains("sources")) {
     const auto& sources = imaging.at("sources");
     if (!sources.is_object()) r.fail("sources", "an object {\"ap\": {…}, \"lateral\": {…}}");
@@ -412,10 +414,13 @@ struct ImagingWorker::Plane {
   std::uint64_t version = 0;
   std::uint64_t ready_ns = 0;  // when the message was ready: its log time (the capture time is inside)
 
-  bool wanted = false;  // guarded by ImagingWorker::run_mutex_: someone subscribes to the topic
+  // Guarded by ImagingWorker::run_mutex_: someone subscribes to the plane's topic (topic_wanted), and
+  // the plane runs (wanted: its topic or, for a simulated plane, the tracking is watched).
+  bool topic_wanted = false;
+  bool wanted = false;
 
   mutable std::mutex stats_mutex;
-  std::array<double, kTimingWindow> render_s{}, encode_s{};
+  std::array<double, kTimingWindow> render_s{}, encode_s{}, track_s{};
   std::uint64_t frames = 0, skipped = 0, shape_errors = 0, dropped = 0, stale_episodes = 0;
   std::size_t jpeg_bytes = 0;
   // The watchdog's view (stats_mutex): when the last frame came, or when watching began.
@@ -466,6 +471,14 @@ ImagingWorker::ImagingWorker(BackboneReader read_backbone, ImagingConfig config)
     } catch (const imaging::ImageSourceError& e) {
       throw ConfigError(std::string("imaging.sources.") + sim::view_name(planes_[i]->view) + ": " + e.what());
     }
+  }
+  if (config_.tracking.enabled) {
+    // Segmentation needs an empty-vessel roadmap: a simulated plane renders its own. A plane fed by a
+    // source has none (a roadmap acquisition for sources is not built yet), so it is not tracked.
+    tracker_ = std::make_unique<BiplaneTipTracker>(
+        config_.tracking,
+        std::array<sim::SimulatedFluoroscope*, 2>{&planes_[0]->fluoroscope, &planes_[1]->fluoroscope},
+        1.0 / config_.fps, [this](safety::FaultCode code, const std::string& text) { warn(code, text); });
   }
   if (!config_.vessels.empty()) {
     std::vector<Eigen::Vector3f> wall;
@@ -571,7 +584,7 @@ void ImagingWorker::run_source(Plane& p) {
       const auto t1 = SteadyClock::now();
       imaging::encode_jpeg(p.frame, config_.jpeg_quality, p.jpeg);
       publish(p, received_ns, p.jpeg, shape_ok, std::chrono::duration<double>(t1 - t0).count(),
-              std::chrono::duration<double>(SteadyClock::now() - t1).count());
+              std::chrono::duration<double>(SteadyClock::now() - t1).count(), nullptr);
       continue;
     }
     if (result.status == imaging::GrabStatus::kEnded) {
@@ -656,16 +669,33 @@ void ImagingWorker::warn(safety::FaultCode code, const std::string& text) const 
   if (warn_) warn_(code, text);
 }
 
+void ImagingWorker::update_wanted() {
+  for (auto& plane : planes_) {
+    const bool wanted = plane->topic_wanted || (tracking_wanted_ && tracker_ && !plane->source);
+    if (wanted && !plane->wanted) {
+      std::lock_guard stats(plane->stats_mutex);
+      plane->last_frame = SteadyClock::now();  // the stale clock starts when watching starts
+    }
+    plane->wanted = wanted;
+  }
+}
+
 void ImagingWorker::set_demand(const std::string& topic, bool wanted) {
+  if (topic == "/imaging/tracking" && tracker_) {
+    {
+      std::lock_guard lock(run_mutex_);
+      tracking_wanted_ = wanted;
+      update_wanted();
+    }
+    run_wake_.notify_all();
+    return;
+  }
   for (auto& plane : planes_) {
     if (plane->topic != topic) continue;
     {
       std::lock_guard lock(run_mutex_);
-      if (wanted && !plane->wanted) {
-        std::lock_guard stats(plane->stats_mutex);
-        plane->last_frame = SteadyClock::now();  // the stale clock starts when watching starts
-      }
-      plane->wanted = wanted;
+      plane->topic_wanted = wanted;
+      update_wanted();
     }
     if (!wanted) {
       std::lock_guard slot(plane->slot_mutex);
@@ -717,15 +747,28 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   bool shape_ok = false;
   read_overlay(p, shape_ok);
   const auto t0 = SteadyClock::now();
-  p.fluoroscope.render(p.backbone);
+  const auto frame = p.fluoroscope.render(p.backbone);
   const auto t1 = SteadyClock::now();
+  // The tracking sees the frame as rendered (before JPEG), as a frame grabber would deliver it.
+  const PlaneTrack* track = nullptr;
+  if (tracker_) {
+    track =
+        &tracker_->track(p.view == sim::FluoroView::kAp ? 0 : 1,
+                         teleop::perception::grey_image(frame, p.fluoroscope.width(), p.fluoroscope.height()),
+                         p.backbone, capture_ns);
+  }
+  const auto t2 = SteadyClock::now();
   p.fluoroscope.encode_jpeg(config_.jpeg_quality, p.jpeg);
   publish(p, capture_ns, p.jpeg, shape_ok, std::chrono::duration<double>(t1 - t0).count(),
-          std::chrono::duration<double>(SteadyClock::now() - t1).count());
+          std::chrono::duration<double>(SteadyClock::now() - t2).count(), track);
+  if (track) {
+    std::lock_guard stats(p.stats_mutex);
+    p.track_s[(p.frames - 1) % kTimingWindow] = std::chrono::duration<double>(t2 - t1).count();
+  }
 }
 
 void ImagingWorker::publish(Plane& p, std::uint64_t capture_ns, const std::vector<std::uint8_t>& jpeg,
-                            bool shape_ok, double render_s, double encode_s) {
+                            bool shape_ok, double render_s, double encode_s, const PlaneTrack* track) {
   const auto t0 = SteadyClock::now();
   auto message = std::make_shared<std::string>();
   message->reserve(jpeg.size() * 4 / 3 + 160);
@@ -737,6 +780,23 @@ void ImagingWorker::publish(Plane& p, std::uint64_t capture_ns, const std::vecto
   append_projected(p.fluoroscope, p.backbone, *message);
   *message += ",\"plan\":";
   append_projected(p.fluoroscope, p.plan, *message);
+  if (track) {
+    char buf[64];
+    *message += ",\"segmented\":[";
+    bool first = true;
+    for (const auto& q : track->found ? track->backbone_px : std::vector<Eigen::Vector2d>{}) {
+      std::snprintf(buf, sizeof buf, "%s[%.1f,%.1f]", first ? "" : ",", q.x(), q.y());
+      *message += buf;
+      first = false;
+    }
+    *message += "],\"tip\":";
+    if (track->filtered) {
+      std::snprintf(buf, sizeof buf, "[%.1f,%.1f]", track->filtered_px.x(), track->filtered_px.y());
+      *message += buf;
+    } else {
+      *message += "null";
+    }
+  }
   *message += "}}";
   encode_s += std::chrono::duration<double>(SteadyClock::now() - t0).count();
   {
@@ -782,12 +842,19 @@ std::vector<TopicInfo> ImagingWorker::topics() const {
   std::vector<TopicInfo> out;
   const std::string image_schema = compressed_image_schema();
   for (const auto& plane : planes_) out.push_back({plane->topic, "foxglove.CompressedImage", image_schema});
+  if (tracker_) out.push_back({"/imaging/tracking", "tendril.TipTracking", BiplaneTipTracker::schema()});
   if (vessel_cloud_) out.push_back({"/maps/vessel", "foxglove.PointCloud", point_cloud_schema()});
   return out;
 }
 
 std::optional<TopicPayload> ImagingWorker::latest(const std::string& topic,
                                                   std::uint64_t since_version) const {
+  if (topic == "/imaging/tracking" && tracker_) {
+    std::uint64_t version = 0, time_ns = 0;
+    auto payload = tracker_->latest(version, time_ns);
+    if (!payload || version <= since_version) return std::nullopt;
+    return TopicPayload{std::move(payload), version, time_ns};
+  }
   if (topic == "/maps/vessel") {
     if (!vessel_cloud_ || since_version >= 1) return std::nullopt;
     return TopicPayload{vessel_cloud_, 1, vessel_time_ns_};
@@ -858,7 +925,10 @@ std::string ImagingWorker::metrics() const {
        {std::tuple{"tendril_imaging_render_seconds", "Time to render one frame (projection, blur, noise)",
                    &Plane::render_s},
         std::tuple{"tendril_imaging_encode_seconds", "Time to JPEG-encode and serialise one frame",
-                   &Plane::encode_s}}) {
+                   &Plane::encode_s},
+        std::tuple{"tendril_imaging_tracking_seconds",
+                   "Time to segment one frame and step its tip filter (simulated planes with tracking)",
+                   &Plane::track_s}}) {
     out << "# HELP " << name << ' ' << help << ", over the last " << kTimingWindow << " frames.\n# TYPE "
         << name << " summary\n";
     for (const auto& p : planes_) {

@@ -10,7 +10,11 @@
 // into a latest-value slot that the front end shares with every subscriber:
 //   /imaging/ap, /imaging/lateral  foxglove.CompressedImage (JSON, data base64), frame_id imaging_ap|lateral
 //   /maps/vessel                   foxglove.PointCloud of the vessel wall (float32 x,y,z), frame "world"
-// Each image message also carries "overlay": {"robot": [[column, row], …], "plan": [[column, row], …]},
+//   /imaging/tracking              tendril.TipTracking (BiplaneTipTracker): each simulated plane's
+//                                  segmented and EKF-filtered tip, the 3D tip from both, the model's tip
+//                                  and their disagreement (a subscriber makes both simulated planes render)
+// Each image message also carries "overlay": {"robot": [[column, row], …], "plan": [[column, row], …],
+// "segmented": [[column, row], …], "tip": [column, row] or null} (the last two from the tracking),
 // the imaged robot's model backbone and the plan's path projected with the plane's own geometry
 // (pixels of the frame, row 0 at the top), so a console draws them over the image without knowing
 // the projection (foxglove.CompressedImage readers ignore the extra field).
@@ -47,6 +51,7 @@
 #include "tendril/drivers/sim/simulated_fluoroscope.hpp"
 #include "tendril/safety/safety_types.hpp"
 #include "tendril/server/control_api.hpp"
+#include "tendril/server/image_tracking.hpp"
 #include "tendril/server/robot_service.hpp"
 #include "tendril/server/topic_source.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
@@ -78,6 +83,7 @@ struct ImagingConfig {
   std::string vessel_source;                 // where the vessel came from, for the start-up message
   std::array<PlaneSourceConfig, 2> sources;  // [0] AP, [1] lateral
   double stale_after_s = 1.0;                // a watched plane without a frame for longer is stale
+  TrackingConfig tracking;                   // imaging.tracking: segmentation, tip EKF, 3D tip
 };
 
 // Reads the "imaging" object of the server file (`imaging` may be null: imaging off). Relative paths
@@ -152,7 +158,8 @@ class ImagingWorker final : public TopicSource {
   void watch();
   void capture(Plane& plane, std::uint64_t capture_ns);
   void publish(Plane& plane, std::uint64_t capture_ns, const std::vector<std::uint8_t>& jpeg, bool shape_ok,
-               double render_s, double encode_s);
+               double render_s, double encode_s, const PlaneTrack* track);
+  void update_wanted();  // caller holds run_mutex_
   void read_overlay(Plane& plane, bool& shape_ok);
   void warn(safety::FaultCode code, const std::string& text) const;
   void announce();
@@ -160,6 +167,8 @@ class ImagingWorker final : public TopicSource {
   BackboneReader read_backbone_;
   BackboneReader read_plan_;
   ImagingWarningSink warn_;
+  std::unique_ptr<BiplaneTipTracker> tracker_;  // null: tracking off
+  bool tracking_wanted_ = false;                // guarded by run_mutex_: /imaging/tracking has a subscriber
   ImagingConfig config_;
   std::array<std::unique_ptr<Plane>, 2> planes_;
   std::shared_ptr<const std::string> vessel_cloud_;

@@ -1,0 +1,200 @@
+// BiplaneTipTracker: the catheter tip segmented in both simulated planes, filtered by the tip EKF and
+// triangulated into 3D, against the backbone the frames were rendered from; the disagreement warning
+// when the model's tip is elsewhere; and the tracking through ImagingWorker (/imaging/tracking, the
+// image overlay's segmented backbone and tracked tip).
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "tendril/drivers/sim/simulated_fluoroscope.hpp"
+#include "tendril/server/config.hpp"
+#include "tendril/server/image_tracking.hpp"
+#include "tendril/server/imaging_worker.hpp"
+
+namespace tendril::server {
+namespace {
+
+using nlohmann::json;
+namespace perception = teleop::perception;
+
+sim::FluoroscopeOptions options() {
+  sim::FluoroscopeOptions o;
+  o.geometry.width = 512;
+  o.geometry.height = 512;
+  o.geometry.pixel_spacing_mm = 160.0 / 512;
+  o.geometry.isocentre = {0.0, 0.0, 60.0};
+  return o;
+}
+
+// A catheter entering from below and bending in x and y: its tip lies off both planes' axes.
+std::vector<Eigen::Vector3d> bent_catheter(double insertion_mm) {
+  std::vector<Eigen::Vector3d> points;
+  for (double s = 0; s <= 20.0 + insertion_mm; s += 0.5) {
+    const double bend = std::max(0.0, s - 20.0);
+    points.emplace_back(0.004 * bend * bend * bend / 3.0, -0.002 * bend * bend * bend / 3.0, 40.0 + s);
+  }
+  return points;
+}
+
+std::vector<Eigen::Vector3d> shifted(std::vector<Eigen::Vector3d> points, const Eigen::Vector3d& by) {
+  for (auto& p : points) p += by;
+  return points;
+}
+
+struct Captured {
+  std::mutex mutex;
+  std::vector<std::string> texts;
+  TrackingWarning sink() {
+    return [this](safety::FaultCode, const std::string& text) {
+      std::lock_guard lock(mutex);
+      texts.push_back(text);
+    };
+  }
+  int count(const std::string& words) {
+    std::lock_guard lock(mutex);
+    int n = 0;
+    for (const auto& t : texts) n += t.find(words) != std::string::npos ? 1 : 0;
+    return n;
+  }
+};
+
+struct Rig {
+  sim::SimulatedFluoroscope ap{sim::FluoroView::kAp, options()};
+  sim::SimulatedFluoroscope lateral{sim::FluoroView::kLateral, options()};
+  Captured warnings;
+  BiplaneTipTracker tracker;
+  std::uint64_t t = 1'000'000'000ULL;
+  Rig() : tracker(TrackingConfig{}, {&ap, &lateral}, 1.0 / 15, warnings.sink()) {}
+  // Renders both planes from `truth` and tracks them with `model` as the model's backbone.
+  json frame(const std::vector<Eigen::Vector3d>& truth, const std::vector<Eigen::Vector3d>& model) {
+    t += 66'000'000ULL;
+    const auto a = ap.render(truth);
+    tracker.track(0, perception::grey_image(a, ap.width(), ap.height()), model, t);
+    const auto l = lateral.render(truth);
+    tracker.track(1, perception::grey_image(l, lateral.width(), lateral.height()), model, t);
+    std::uint64_t version = 0, time_ns = 0;
+    return json::parse(*tracker.latest(version, time_ns));
+  }
+};
+
+Eigen::Vector3d vec(const json& j) { return {j[0].get<double>(), j[1].get<double>(), j[2].get<double>()}; }
+
+TEST(BiplaneTipTracker, TheTwoPlanesTriangulateTheRenderedTipAndTheFilterFollowsAnInsertion) {
+  Rig rig;
+  double worst_raw = 0, worst_filtered = 0;
+  for (int i = 0; i <= 20; ++i) {
+    const auto truth = bent_catheter(10.0 + 0.5 * i);  // inserting 0.5 mm per frame
+    const json m = rig.frame(truth, truth);
+    ASSERT_TRUE(m["planes"]["ap"]["found"].get<bool>()) << m.dump();
+    ASSERT_TRUE(m["planes"]["lateral"]["found"].get<bool>()) << m.dump();
+    ASSERT_FALSE(m["raw_tip_mm"].is_null()) << m.dump();
+    worst_raw = std::max(worst_raw, (vec(m["raw_tip_mm"]) - truth.back()).norm());
+    worst_filtered = std::max(worst_filtered, (vec(m["tip_mm"]) - truth.back()).norm());
+    EXPECT_LT(m["ray_gap_mm"].get<double>(), 1.0) << "the two rays nearly meet";
+    EXPECT_NEAR(m["disagreement_mm"].get<double>(), (vec(m["raw_tip_mm"]) - truth.back()).norm(), 1e-3);
+  }
+  std::cout << "tip error over 21 frames: raw ≤ " << worst_raw << " mm, filtered ≤ " << worst_filtered
+            << " mm\n";
+  // About a pixel at the isocentre is 0.23 mm; the tip marker and the blur make it ~1 px.
+  EXPECT_LT(worst_raw, 1.0);
+  EXPECT_LT(worst_filtered, 1.0);
+  EXPECT_EQ(rig.warnings.count("imaging:"), 0) << "image and model agree";
+}
+
+TEST(BiplaneTipTracker, AModelTipAwayFromTheImagedOneWarnsAfterTheConfiguredFramesAndAgainWhenTheyAgree) {
+  Rig rig;
+  const auto truth = bent_catheter(20.0);
+  const auto model = shifted(truth, {4.0, 0.0, 2.0});  // the plant is 4.5 mm from where the model says
+  rig.frame(truth, model);
+  rig.frame(truth, model);
+  EXPECT_EQ(rig.warnings.count("imaged tip is"), 0) << "not before disagreement_frames (3) evaluations";
+  const json m = rig.frame(truth, model);
+  EXPECT_NEAR(m["disagreement_mm"].get<double>(), std::hypot(4.0, 2.0), 0.7) << m.dump();
+  EXPECT_EQ(rig.warnings.count("imaged tip is"), 1);
+  for (int i = 0; i < 5; ++i) rig.frame(truth, model);
+  EXPECT_EQ(rig.warnings.count("imaged tip is"), 1) << "one warning per episode";
+  for (int i = 0; i < 3; ++i) rig.frame(truth, truth);
+  EXPECT_EQ(rig.warnings.count("agrees with the model's again"), 1);
+}
+
+TEST(BiplaneTipTracker, NoCatheterInAPlaneIsReportedWithTheReasonAndNoTriangulation) {
+  Rig rig;
+  const json m = rig.frame({}, bent_catheter(20.0));
+  EXPECT_FALSE(m["planes"]["ap"]["found"].get<bool>());
+  EXPECT_NE(m["planes"]["ap"]["reason"].get<std::string>(), "");
+  EXPECT_TRUE(m["raw_tip_mm"].is_null());
+  EXPECT_TRUE(m["disagreement_mm"].is_null());
+  EXPECT_EQ(rig.warnings.count("imaging:"), 0) << "no image of the tip is not a disagreement";
+}
+
+TEST(TrackingConfig, MistakesNameTheKey) {
+  const std::filesystem::path file = "/etc/tendril/server.json";
+  EXPECT_TRUE(parse_tracking_config(nullptr, file).enabled);
+  const auto c = parse_tracking_config({{"disagreement_mm", 5},
+                                        {"disagreement_frames", 2},
+                                        {"noise", "vessel"},
+                                        {"segmentation", {{"ap", {{"threshold", 50}}}}}},
+                                       file);
+  EXPECT_EQ(c.disagreement_mm, 5.0);
+  EXPECT_EQ(c.disagreement_frames, 2);
+  EXPECT_TRUE(c.vessel_scale_noise);
+  EXPECT_EQ(c.segmentation.ap.threshold, 50);
+  const auto refuses = [&](const json& j, const std::string& words) {
+    try {
+      parse_tracking_config(j, file);
+      ADD_FAILURE() << "accepted " << j.dump();
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+    }
+  };
+  refuses({{"disagreement_mm", 0}}, "imaging.tracking.disagreement_mm");
+  refuses({{"disagreement_mm", std::nan("")}}, "imaging.tracking.disagreement_mm");
+  refuses({{"disagreement_frames", 0}}, "imaging.tracking.disagreement_frames");
+  refuses({{"noise", "loud"}}, "imaging.tracking.noise");
+  refuses({{"segmentation", {{"ap", {{"threshold", 999}}}}}}, "imaging.tracking.segmentation.ap.threshold");
+  refuses({{"rate", 1}}, "imaging.tracking.rate: unknown key");
+}
+
+TEST(ImagingWorkerTracking, ASubscriberOfTheTrackingMakesBothPlanesRenderAndTheOverlayCarriesTheTrackedTip) {
+  auto config = parse_imaging_config(
+      json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
+      "/nonexistent/server.json");
+  ImagingWorker worker(
+      [](std::vector<Eigen::Vector3d>& out) {
+        out = bent_catheter(20.0);
+        return true;
+      },
+      config);
+  const auto topics = worker.topics();
+  ASSERT_TRUE(std::any_of(topics.begin(), topics.end(),
+                          [](const auto& t) { return t.topic == "/imaging/tracking"; }));
+  worker.capture_once();
+  const json image = json::parse(*worker.latest("/imaging/ap", 0)->payload);
+  ASSERT_TRUE(image["overlay"]["segmented"].is_array());
+  EXPECT_GE(image["overlay"]["segmented"].size(), 10u);
+  ASSERT_TRUE(image["overlay"]["tip"].is_array()) << image["overlay"].dump();
+
+  worker.start();
+  worker.set_demand("/imaging/tracking", true);  // only the tracking is watched
+  std::optional<TopicPayload> tracking;
+  for (int i = 0; i < 500; ++i) {
+    tracking = worker.latest("/imaging/tracking", 6);
+    if (tracking) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_TRUE(tracking) << "both planes rendered and were tracked";
+  const json m = json::parse(*tracking->payload);
+  EXPECT_LT((vec(m["raw_tip_mm"]) - bent_catheter(20.0).back()).norm(), 1.0) << m.dump();
+  worker.set_demand("/imaging/tracking", false);
+  worker.stop();
+}
+
+}  // namespace
+}  // namespace tendril::server
