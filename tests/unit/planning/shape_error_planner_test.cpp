@@ -213,5 +213,64 @@ TEST(ShapeErrorPlanner, ReportsProgressAndStopsWhenCancelled) {
   EXPECT_EQ(fractions.size(), 10u);
 }
 
+// Issue 15: the analytic Jacobian of the residuals against central differences of the residuals, on a
+// step with both segments inside a curved vessel, at a bent configuration with a flexure, and near the
+// straight pose (where the series branches of the closed forms apply); also the normal equations.
+TEST(ShapeErrorPlanner, AnalyticJacobianMatchesFiniteDifferences) {
+  ShapeErrorPlannerOptions options;
+  options.free_flexure = true;
+  ShapeErrorPlanner planner(ConstantCurvatureCatheter(nominal_planning_design()), options);
+  planner.prepare(VesselCenterline::from_polyline(make_synthetic_ica(1), 0.5));
+  auto ws = planner.make_workspace();
+  planner.load_step(60.0, Eigen::Vector3d(0.3, -0.2, 0.1), ws);
+  ASSERT_EQ(ws.count, 82u);
+  const auto rows = static_cast<Eigen::Index>(6 * ws.count);
+  Eigen::VectorXd r(rows), plus(rows), minus(rows);
+  Eigen::Matrix<double, Eigen::Dynamic, 4> J(rows, 4), unused(rows, 4);
+  for (const Eigen::Vector4d& x :
+       {Eigen::Vector4d(0.7, 1.3, -0.9, 0.25), Eigen::Vector4d(-2.0, 2e-3, -5e-4, 0.0),
+        Eigen::Vector4d(0.1, 4e-5, 3e-3, -0.4)}) {
+    ASSERT_TRUE(planner.residuals(ws, x, r, J));
+    for (int j = 0; j < 4; ++j) {
+      const double h = 1e-6;
+      Eigen::Vector4d xp = x, xm = x;
+      xp[j] += h;
+      xm[j] -= h;
+      planner.residuals(ws, xp, plus, unused);
+      planner.residuals(ws, xm, minus, unused);
+      const Eigen::VectorXd numeric = (plus - minus) / (2.0 * h);
+      EXPECT_LT((J.col(j) - numeric).cwiseAbs().maxCoeff(),
+                1e-6 * std::max(1.0, numeric.cwiseAbs().maxCoeff()))
+          << "column " << j << " at " << x.transpose();
+    }
+    Eigen::Matrix4d A;
+    Eigen::Vector4d g;
+    const double cost = planner.normal_equations(ws, x, A, g);
+    EXPECT_NEAR(cost, r.squaredNorm(), 1e-9 * std::max(1.0, cost));
+    EXPECT_NEAR(planner.cost(ws, x), cost, 1e-9 * std::max(1.0, cost));
+    EXPECT_LT((A - J.transpose() * J).cwiseAbs().maxCoeff(), 1e-9 * std::max(1.0, A.cwiseAbs().maxCoeff()));
+    EXPECT_LT((g - J.transpose() * r).cwiseAbs().maxCoeff(), 1e-9 * std::max(1.0, g.cwiseAbs().maxCoeff()));
+  }
+  Eigen::VectorXd short_r(rows - 1);
+  EXPECT_FALSE(planner.residuals(ws, Eigen::Vector4d::Zero(), short_r, unused));
+}
+
+// The step-wise API reproduces plan(): loading step k and solving from step k−1's solution gives step k.
+TEST(ShapeErrorPlanner, StepwiseSolveReproducesThePlan) {
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(1), 0.5);
+  ShapeErrorPlanner planner(ConstantCurvatureCatheter(nominal_planning_design()), {});
+  const PathPlan plan = planner.plan(vessel);
+  auto ws = planner.make_workspace();
+  PlanStep step;
+  for (std::size_t k = 1; k < plan.steps.size(); k += 6) {
+    const PlanStep& previous = plan.steps[k - 1];
+    planner.load_step(plan.steps[k].q[0], Eigen::Vector3d::Zero(), ws);
+    planner.solve_loaded(ws, {previous.q[1], previous.q[2], previous.q[3], previous.flexure}, step);
+    EXPECT_EQ(step.q, plan.steps[k].q) << k;
+    EXPECT_EQ(step.cost, plan.steps[k].cost) << k;
+    EXPECT_LT((step.base_position - plan.steps[k].base_position).norm(), 1e-12);
+  }
+}
+
 }  // namespace
 }  // namespace tendril::teleop

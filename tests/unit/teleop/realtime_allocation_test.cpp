@@ -6,6 +6,7 @@
 
 #include "allocation_counter.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/image_guided_replanner.hpp"
 #include "tendril/teleop/pid.hpp"
 #include "tendril/teleop/quintic_interpolator.hpp"
 
@@ -37,6 +38,42 @@ TEST(TeleopRealtime, TickPathDoesNotAllocate) {
   // The counter really sees allocations, so the check above can fail.
   tendril::testing::allocate_probe();
   EXPECT_GT(tendril::testing::allocation_count.load(), before);
+  EXPECT_TRUE(std::isfinite(sink));
+}
+
+// Issue 15: a planner step (load + Levenberg–Marquardt) and a live replan work in their preallocated
+// workspace only.
+TEST(TeleopRealtime, PlannerStepAndReplanDoNotAllocate) {
+  const auto vessel = VesselCenterline::from_polyline(make_synthetic_ica(1), 0.5);
+  const ConstantCurvatureCatheter model(nominal_planning_design());
+  ShapeErrorPlannerOptions options;
+  options.free_flexure = true;
+  ShapeErrorPlanner planner(model, options);
+  planner.prepare(vessel);
+  auto ws = planner.make_workspace();
+  const ImageGuidedReplanner replanner(model, options, vessel);
+  ReplannerState state = replanner.make_state();
+  PlanStep step;
+  ReplanInput in;
+  double sink = 0.0;
+
+  const long before = tendril::testing::allocation_count.load();
+  Eigen::Vector4d start(0.0, 0.0, 0.0, 0.0);
+  for (int k = 1; k <= 20; ++k) {
+    planner.load_step(3.0 * k, Eigen::Vector3d(0.1, 0.0, 0.0), ws);
+    planner.solve_loaded(ws, start, step);
+    start = {step.q[1], step.q[2], step.q[3], step.flexure};
+    sink += step.cost;
+    const ReplanResult next = replanner.replan(state, in);
+    EXPECT_EQ(next.status, ReplanStatus::kOk);
+    in.commanded_configuration = next.configuration;
+    in.measured_insertion = next.target_insertion;
+    in.measured_tip =
+        replanner.predicted_tip(next.configuration, next.target_insertion) + Eigen::Vector3d(0.2, -0.1, 0.0);
+    sink += next.configuration.sum();
+  }
+  EXPECT_EQ(tendril::testing::allocation_count.load(), before);
+  EXPECT_GT(step.iterations + state.replans, 0);
   EXPECT_TRUE(std::isfinite(sink));
 }
 
