@@ -10,6 +10,9 @@ source "$here/server.sh"
 trap stop_tendrild EXIT INT TERM
 
 [ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
+# The session is recorded (config "recording") and read back after the shutdown (after_shutdown/).
+# Only here: the browser tests' server does not record, so it keeps the CPU the page needs.
+export TENDRIL_TEST_RECORDING=true
 start_tendrild "${1:-${TENDRILD:-$repo_root/build/server/tendrild}}" || exit 1
 # One file at a time: the files share one server and its single robot.
 node --test --test-concurrency=1 "$here"/*.test.mjs

@@ -66,7 +66,8 @@ start_tendrild() {
   "scene": {"vessel": "$repo_root/config/vessels/synthetic_ica.csv"},
   "imaging": {"enabled": true, "width": 512, "height": 512, "fps": 10, "jpeg_quality": 80,
               "sid_mm": 1000, "sod_mm": 750, "detector_mm": 160, "isocentre_mm": [15, -5, 55]},
-  "recording": {"enabled": true, "directory": "$tendrild_workdir/recordings", "max_file_mb": 8}
+  "recording": {"enabled": ${TENDRIL_TEST_RECORDING:-false}, "directory": "$tendrild_workdir/recordings",
+                "max_file_mb": 8}
 }
 JSON
   export TENDRIL_RECORDING_DIR="$tendrild_workdir/recordings"
