@@ -750,8 +750,14 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   const auto frame = p.fluoroscope.render(p.backbone);
   const auto t1 = SteadyClock::now();
   // The tracking sees the frame as rendered (before JPEG), as a frame grabber would deliver it.
+  // Only while someone watches the tracking (segmentation costs CPU; an unwatched result is waste).
   const PlaneTrack* track = nullptr;
-  if (tracker_) {
+  bool tracking = false;
+  {
+    std::lock_guard lock(run_mutex_);
+    tracking = tracking_wanted_;
+  }
+  if (tracker_ && tracking) {
     track =
         &tracker_->track(p.view == sim::FluoroView::kAp ? 0 : 1,
                          teleop::perception::grey_image(frame, p.fluoroscope.width(), p.fluoroscope.height()),

@@ -176,13 +176,16 @@ TEST(ImagingWorkerTracking, ASubscriberOfTheTrackingMakesBothPlanesRenderAndTheO
   ASSERT_TRUE(std::any_of(topics.begin(), topics.end(),
                           [](const auto& t) { return t.topic == "/imaging/tracking"; }));
   worker.capture_once();
+  EXPECT_FALSE(json::parse(*worker.latest("/imaging/ap", 0)->payload)["overlay"].contains("segmented"))
+      << "no tracking while nobody watches it";
+  worker.set_demand("/imaging/tracking", true);
+  worker.capture_once();
   const json image = json::parse(*worker.latest("/imaging/ap", 0)->payload);
   ASSERT_TRUE(image["overlay"]["segmented"].is_array());
   EXPECT_GE(image["overlay"]["segmented"].size(), 10u);
   ASSERT_TRUE(image["overlay"]["tip"].is_array()) << image["overlay"].dump();
 
-  worker.start();
-  worker.set_demand("/imaging/tracking", true);  // only the tracking is watched
+  worker.start();  // only the tracking is watched (since above)
   std::optional<TopicPayload> tracking;
   for (int i = 0; i < 500; ++i) {
     tracking = worker.latest("/imaging/tracking", 6);

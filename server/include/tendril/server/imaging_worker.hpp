@@ -12,9 +12,10 @@
 //   /maps/vessel                   foxglove.PointCloud of the vessel wall (float32 x,y,z), frame "world"
 //   /imaging/tracking              tendril.TipTracking (BiplaneTipTracker): each simulated plane's
 //                                  segmented and EKF-filtered tip, the 3D tip from both, the model's tip
-//                                  and their disagreement (a subscriber makes both simulated planes render)
+//                                  and their disagreement; tracking runs only while this topic has a
+//                                  subscriber, and makes both simulated planes render
 // Each image message also carries "overlay": {"robot": [[column, row], …], "plan": [[column, row], …],
-// "segmented": [[column, row], …], "tip": [column, row] or null} (the last two from the tracking),
+// "segmented": [[column, row], …], "tip": [column, row] or null} (the last two while the tracking runs),
 // the imaged robot's model backbone and the plan's path projected with the plane's own geometry
 // (pixels of the frame, row 0 at the top), so a console draws them over the image without knowing
 // the projection (foxglove.CompressedImage readers ignore the extra field).
