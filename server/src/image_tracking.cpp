@@ -334,7 +334,8 @@ void BiplaneTipTracker::fuse(int plane, const std::vector<Eigen::Vector3d>& mode
     ++version_;
     message_ns_ = capture_ns;
   }
-  if (!warning.empty() && warn_) warn_(safety::FaultCode::kSensorStale, warning);
+  // Not a stale sensor: the images and the model disagree, a cause reported from outside the loop.
+  if (!warning.empty() && warn_) warn_(safety::FaultCode::kExternal, warning);
 }
 
 std::shared_ptr<const std::string> BiplaneTipTracker::latest(std::uint64_t& version,

@@ -52,7 +52,8 @@ struct Captured {
   std::mutex mutex;
   std::vector<std::string> texts;
   TrackingWarning sink() {
-    return [this](safety::FaultCode, const std::string& text) {
+    return [this](safety::FaultCode code, const std::string& text) {
+      EXPECT_EQ(code, safety::FaultCode::kExternal) << "a disagreement, not a stale sensor";
       std::lock_guard lock(mutex);
       texts.push_back(text);
     };
