@@ -6,10 +6,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 with_tests=0
+with_container=0
 for arg in "$@"; do
   case "$arg" in
     --tests) with_tests=1 ;;
-    *) echo "install-deps.sh: unknown option '$arg' (known: --tests)" >&2; exit 2 ;;
+    --container) with_container=1 ;;
+    *) echo "install-deps.sh: unknown option '$arg' (known: --tests, --container)" >&2; exit 2 ;;
   esac
 done
 
@@ -32,6 +34,11 @@ command -v npm >/dev/null || packages+=(npm)
 if [ "$with_tests" = 1 ]; then
   packages+=(libgtest-dev libgmock-dev libbenchmark-dev clang-format clang-tidy libclang-rt-14-dev
     chromium qemu-system-x86 busybox-static iproute2 xz-utils cpio can-utils kmod)
+fi
+# --container: what scripts/test-container.sh needs to make the debian:12 base image and build and
+# run tendril's image with podman (runc: crun fails on this kind of machine with setrlimit).
+if [ "$with_container" = 1 ]; then
+  packages+=(podman runc debootstrap iproute2)
 fi
 
 missing=()
