@@ -91,6 +91,42 @@ async function switchMode(mode) {
 
 const deadmanPressed = () => page.locator(tid('deadman-button')).getAttribute('aria-pressed');
 
+// Presses the on-screen deadman with the mouse and drags it 80 px up (full distal stick), until the
+// server receives the console's stick (with the distal axis at `fraction` when given, which is the
+// speed preset's share); the mouse stays down. The button is
+// found again for each try: a layout shift between reading its box and pressing (a banner line as the
+// page turns STALE on a loaded machine) made suite runs miss it. Fails with what the page and the
+// server showed.
+async function pressAndDragDeadman(fraction = null) {
+  const received = (st) => st.joystick?.source === 'console' && st.joystick?.deadman === true &&
+      (fraction === null || Math.abs((st.joystick?.axes?.[3] ?? 0) - fraction) < 0.01);
+  let last = null;
+  for (let attempt = 0; attempt < 3; ++attempt) {
+    await page.locator(tid('deadman-button')).scrollIntoViewIfNeeded();
+    const box = await page.locator(tid('deadman-button')).boundingBox();
+    const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
+    await page.mouse.move(x, y);
+    await page.mouse.down();
+    await page.mouse.move(x, y - 80, {steps: 8});
+    const until = Date.now() + 6000;
+    while (Date.now() < until) {
+      last = await serverState();
+      if (received(last)) return last;
+      await new Promise((r) => setTimeout(r, 100));
+    }
+    await page.mouse.up();
+  }
+  const shown = await page.evaluate(() => {
+    const q = (id) => document.querySelector(`[data-testid="${id}"]`);
+    const r = q('deadman-button').getBoundingClientRect();
+    return {deadman: q('deadman-button').getAttribute('aria-pressed'), box: [r.x, r.y, r.width, r.height],
+            viewport: [innerWidth, innerHeight], joystick: q('joystick-status').textContent,
+            status: q('command-status').textContent, badge: q('state-badge').dataset.state};
+  });
+  assert.fail(`the server never received the console's stick (distal ${fraction ?? 'any'}): page ${JSON.stringify(shown)}, server ` +
+              JSON.stringify({state: last?.state, mode: last?.mode, hold: last?.hold, joystick: last?.joystick}));
+}
+
 test('the console loads; lease and enable', async () => {
   await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
   await page.waitForFunction(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live',
@@ -144,11 +180,7 @@ test('Space is the deadman on a focused slider or button (no scroll, no click); 
   // One mouse: press the deadman and drag up: the distal bend moves; let go and it stops.
   await waitHolding();
   const q1 = await measuredJs();
-  const box = await page.locator(tid('deadman-button')).boundingBox();
-  const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
-  await page.mouse.move(x, y);
-  await page.mouse.down();
-  await page.mouse.move(x, y - 80, {steps: 8});
+  await pressAndDragDeadman();
   await page.waitForFunction(() => /moving from console/.test(document.querySelector('[data-testid="joystick-status"]').textContent),
                              null, WAIT);
   assert.equal(await deadmanPressed(), 'true');
@@ -315,22 +347,22 @@ test('imaging is at the centre and scales with the screen (1280x720 and 3840x216
   }
 });
 
-// The fastest a joint moved over ~250 ms windows (server time stamps) during `ms`: on a loaded machine
-// the page may turn STALE for a moment, and then the deadman counts as released, so an average over the
-// whole time would measure the interruptions rather than the commanded speed.
-async function peakVelocity(joint, ms = 2000) {
-  const samples = [];
+// What the server commanded a joint and how far it moved while the deadman was held for `ms`: the
+// peak of the setpoint velocity (GET setpoint_js, the server's own command: axis × full-stick speed)
+// and the measured travel. On a loaded machine the page may turn STALE for a moment, and then the
+// deadman counts as released (the product's safe behaviour), so a velocity measured from positions
+// over wall-clock windows measured those interruptions as much as the preset (a cold CI run read 0.47
+// for 0.25); the commanded velocity does not depend on how often the page got to send.
+async function commandedVelocity(joint, ms = 2000) {
+  const start = (await measuredJs())[joint];
+  let peak = 0;
   const until = Date.now() + ms;
   while (Date.now() < until) {
-    samples.push(await api('GET', '/robots/srmc/measured_js'));
-    await new Promise((r) => setTimeout(r, 250));
+    const v = (await api('GET', '/robots/srmc/setpoint_js')).velocity?.[joint] ?? 0;
+    peak = Math.max(peak, v);
+    await new Promise((r) => setTimeout(r, 50));
   }
-  let peak = 0;
-  for (let i = 1; i < samples.length; ++i) {
-    const dt = samples[i].timestamp - samples[i - 1].timestamp;
-    if (dt > 0.1) peak = Math.max(peak, (samples[i].position[joint] - samples[i - 1].position[joint]) / dt);
-  }
-  return peak;
+  return {velocity: peak, moved: (await measuredJs())[joint] - start};
 }
 
 // Issue 12 (the cockpit): speed presets. The server moves a joint at axis × its full-stick speed
@@ -353,32 +385,22 @@ test('joystick speed presets: slow sends a quarter of the stick and the bend mov
     await waitHolding();
     // Full stick up (distal) with the mouse on the deadman (about 0.5 mm slow, then 2 mm fast: within
     // the bend's 5 mm).
-    // The button is found again for each try: a layout shift between reading its box and pressing
-    // (a banner line as the page turns STALE on a loaded machine) made one suite run miss it.
-    const axisAt = (st) => Math.abs((st.joystick?.axes?.[3] ?? 0) - fraction) < 0.01;
-    let os = null;
-    for (let attempt = 0; attempt < 3 && !os; ++attempt) {
-      const box = await page.locator(tid('deadman-button')).boundingBox();
-      const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
-      await page.mouse.move(x, y);
-      await page.mouse.down();
-      await page.mouse.move(x, y - 80, {steps: 8});
-      try {
-        os = await untilServer(serverState, axisAt, `the server receives the distal axis at ${fraction}`, 6000)
-            .catch((err) => (attempt === 2 ? Promise.reject(err) : null));
-        if (os) seen[preset] = {axes: os.joystick.axes, velocity: await peakVelocity(3), attempts: attempt + 1};
-      } finally {
-        await page.mouse.up();
-      }
+    const os = await pressAndDragDeadman(fraction);
+    try {
+      seen[preset] = {axes: os.joystick.axes, ...(await commandedVelocity(3))};
+    } finally {
+      await page.mouse.up();
     }
     await waitHolding();
   }
   console.log(`presets: ${JSON.stringify(seen)}`);
-  // The bend moves a quarter as fast with slow as with fast (what the drive reaches of the commanded
-  // speed is the server's; the ratio is the preset's).
+  // The server commands a quarter of the full-stick speed with slow and all of it with fast, and the
+  // bend moves in both.
   const ratio = seen.slow.velocity / seen.fast.velocity;
-  assert.ok(seen.fast.velocity > 0.05 && ratio > 0.15 && ratio < 0.35,
-            `slow/fast distal bend speed ${ratio.toFixed(2)} (${seen.slow.velocity.toFixed(3)} / ${seen.fast.velocity.toFixed(3)} mm/s), want 0.25`);
+  assert.ok(Math.abs(seen.fast.velocity - fullDistal) < 0.05 * fullDistal && Math.abs(ratio - 0.25) < 0.02,
+            `slow/fast distal bend speed commanded ${ratio.toFixed(3)} (${seen.slow.velocity.toFixed(3)} / ${seen.fast.velocity.toFixed(3)} mm/s, full stick ${fullDistal}), want 0.25`);
+  // (How far depends on how often the loaded page got to send, so only that it moved is asserted.)
+  assert.ok(seen.slow.moved > 0.02 && seen.fast.moved > 0.02, `the bend moved: ${JSON.stringify(seen)}`);
   await page.click(tid('speed-normal'));
   await waitHolding();
   await switchMode('joint');
@@ -411,6 +433,10 @@ async function stepInsertion(sign, expectMm) {
 
 // Issue 12 (the cockpit): a procedure timer and an inserted-length counter in the header.
 test('the header shows the procedure time since the first Enable and the inserted length with the deepest so far', async () => {
+  // The steps are joint-mode buttons on the joints tab (the previous test ends there; if it failed
+  // half-way, this one still starts where it needs to).
+  await switchMode('joint');
+  await page.click(tid('tab-joints'));
   const a = await procedureShown();
   assert.equal(a.running, 'true', `the first Enable started the timer: ${JSON.stringify(a)}`);
   assert.match(a.timer, /^\d\d:\d\d$/);
