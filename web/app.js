@@ -7,6 +7,7 @@ import {FoxgloveConnection} from './foxglove.js';
 import {CatheterPanel} from './catheter.js';
 import {buildJointPanel} from './joints.js';
 import {ImagePanel} from './images.js';
+import {decodeCompressedImage} from './protobuf.js';
 import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
 import {PlanPanel} from './plan.js';
 import {ProcedurePanel} from './procedure.js';
@@ -126,8 +127,9 @@ let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
 const procedure = new ProcedurePanel($('[data-testid="procedure"]'));
 const images = {
-  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap', 'AP', {ageMs: (stamp) => clock.ageMs(stamp)}),
-  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral', 'Lateral', {ageMs: (stamp) => clock.ageMs(stamp)}),
+  ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap/compressed', 'AP', {ageMs: (stamp) => clock.ageMs(stamp)}),
+  lateral: new ImagePanel($('[data-testid="image-lateral"]'), '/imaging/lateral/compressed', 'Lateral',
+                          {ageMs: (stamp) => clock.ageMs(stamp)}),
 };
 
 // ---------------------------------------------------------------- token handling
@@ -653,7 +655,12 @@ function renderFrame() {
   if (view) view.contentStampMs = shown.scene;
   for (const key of ['ap', 'lateral', 'map']) {
     if (!due(topics[key])) continue;
-    const m = latest.take(topics[key]);
+    if (key !== 'map') {
+      // The overlay first: the frame of the same time stamp finds it waiting.
+      const overlay = latest.take(topics[`${key}Overlay`]);
+      if (overlay) images[key].overlayMessage(overlay.msg);
+    }
+    const m = key === 'map' ? latest.take(topics[key]) : latest.take(topics[key], decodeCompressedImage);
     lastTaken.set(topics[key], start);
     if (m && key === 'map') view?.setPointCloud(m.msg);
     else if (m) images[key].frame(m.msg, m.stampMs);
@@ -751,7 +758,11 @@ function startPolling() {
 function topicNames(robotName) {
   return {
     joints: `/${robotName}/joint_states`, operating: `/${robotName}/operating_state`, scene: `/${robotName}/scene`,
-    diagnostics: `/${robotName}/diagnostics`, events: '/safety/events', ap: '/imaging/ap', lateral: '/imaging/lateral',
+    diagnostics: `/${robotName}/diagnostics`, events: '/safety/events',
+    // The images in protobuf (foxglove.CompressedImage: the JPEG's bytes, no base64) and, beside each,
+    // its overlay in JSON; the server builds /imaging/{view} (base64 JSON) only for clients that ask.
+    ap: '/imaging/ap/compressed', lateral: '/imaging/lateral/compressed',
+    apOverlay: '/imaging/ap/overlay', lateralOverlay: '/imaging/lateral/overlay',
     map: '/maps/vessel', catheter: `/${robotName}/catheter`,
   };
 }

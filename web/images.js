@@ -1,5 +1,6 @@
 // Imaging panels (AP and lateral fluoroscopy-style views). Each shows the frames of one
-// foxglove.CompressedImage topic ({"timestamp","frame_id","format":"jpeg|png","data":"<base64>"}),
+// foxglove.CompressedImage topic (protobuf on /imaging/{view}/compressed: data is the image's bytes;
+// the JSON form's base64 string is read too) and the overlays of /imaging/{view}/overlay,
 // and says plainly why it shows nothing: no connection to the stream, topic not advertised by the
 // server, or frames stopped arriving. Nothing is drawn that did not come from the server.
 // Per panel, as on a fluoroscopy monitor: last-image hold (the shown frame is frozen, labelled HOLD
@@ -44,6 +45,8 @@ export class ImagePanel {
     this.advertised = false;
     this.connected = false;
     this.pendingUrl = null;
+    this.objectUrl = null;       // the blob URL on screen (released when the next replaces it)
+    this.overlays = new Map();   // server stamp (ms) → overlay message, the last few
     this.img.alt = `${label} image`;
     this.render();
     setInterval(() => this.render(), 500);
@@ -59,18 +62,40 @@ export class ImagePanel {
     this.render();
   }
 
+  // An overlay (tendril.ImageOverlay) for the frame of its time stamp: drawn now if that frame is on
+  // screen, else kept for it (the two streams are published together, in either order).
+  overlayMessage(msg) {
+    const stamp = frameStampMs(msg, NaN);
+    if (!Number.isFinite(stamp)) return;
+    this.overlays.set(stamp, msg);
+    while (this.overlays.size > 8) this.overlays.delete(this.overlays.keys().next().value);
+    if (stamp === this.shownStampMs) this.setOverlay(msg);
+  }
+
   frame(msg, streamStampMs = NaN) {
-    if (!msg || typeof msg.data !== 'string' || !msg.data) return;
+    const binary = msg?.data instanceof Uint8Array;
+    if (!msg || !(binary || typeof msg.data === 'string') || !msg.data.length) return;
     const format = String(msg.format || 'jpeg').toLowerCase().replace(/^image\//, '');
     const mime = format === 'png' ? 'image/png' : format === 'webp' ? 'image/webp' : 'image/jpeg';
     const now = performance.now();
     this.frames++;
-    // A data URL decodes off the main thread in the browser; only the newest frame is kept. While held
+    // The image decodes off the main thread in the browser; only the newest frame is kept. While held
     // the frame on screen stays (and keeps its own age); the newest is counted, not shown.
     if (!this.held || !this.img.src) {
-      this.img.src = `data:${mime};base64,${msg.data}`;
-      this.setOverlay(msg.overlay);
+      if (binary) {
+        // A blob URL of the bytes as they came (no base64 round trip); the previous one is released.
+        const url = URL.createObjectURL(new Blob([msg.data], {type: mime}));
+        if (this.objectUrl) URL.revokeObjectURL(this.objectUrl);
+        this.objectUrl = url;
+        this.img.src = url;
+      } else {
+        this.img.src = `data:${mime};base64,${msg.data}`;
+      }
       this.shownStampMs = frameStampMs(msg, streamStampMs);
+      // The JSON form carries its overlay inside; the binary one finds it by time stamp (until it
+      // comes, the previous frame's stays rather than blinking out).
+      const overlay = msg.overlay ?? this.overlays.get(this.shownStampMs);
+      if (overlay || !binary) this.setOverlay(overlay);
       this.shownFrame = this.frames;
       this.root.dataset.shownFrame = String(this.frames);
     }

@@ -41,15 +41,18 @@ export class LatestByTopic {
   }
 
   // The newest undecoded message of `topic` as {msg, stampMs, receivedMs}, or null when nothing new
-  // arrived since the last take. A message that does not parse is dropped.
-  take(topic) {
+  // arrived since the last take. A message that does not parse is dropped. `decode` turns the bytes
+  // into the message: JSON by default; a binary (protobuf) topic passes its own decoder, which
+  // returns null for bytes it cannot read.
+  take(topic, decode = (bytes) => JSON.parse(decoder.decode(bytes))) {
     const slot = this.slots.get(topic);
     if (!slot || !slot.bytes) return null;
     const {bytes, stampMs, receivedMs} = slot;
     slot.bytes = null;
     slot.taken++;
     try {
-      return {msg: JSON.parse(decoder.decode(bytes)), stampMs, receivedMs};
+      const msg = decode(bytes);
+      return msg ? {msg, stampMs, receivedMs} : null;
     } catch {
       return null;
     }

@@ -3,6 +3,8 @@
 #include <pthread.h>
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -11,6 +13,8 @@
 #include <sstream>
 
 #include "tendril/server/config.hpp"
+#include "tendril/server/foxglove_protobuf.hpp"
+#include "tendril/server/http/foxglove_protocol.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::server {
@@ -20,6 +24,11 @@ namespace {
 using SteadyClock = std::chrono::steady_clock;
 constexpr std::size_t kTimingWindow = 256;  // recent frames kept for the timing quantiles
 constexpr double kDefaultVesselRadiusMm = 2.0;
+// A plane's streams (ImagingWorker::Plane::topics).
+constexpr std::size_t kJson = 0;        // /imaging/{view}: JSON, base64 image and overlay in one message
+constexpr std::size_t kCompressed = 1;  // /imaging/{view}/compressed: protobuf foxglove.CompressedImage
+constexpr std::size_t kOverlay = 2;     // /imaging/{view}/overlay: JSON tendril.ImageOverlay
+constexpr std::size_t kStreams = 3;
 
 std::uint64_t wall_ns() {
   return static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -57,6 +66,28 @@ std::string compressed_image_schema() {
            "tendril: the imaged robot's model backbone and the plan's path projected onto this "
            "frame, [[column, row], …] in pixels (row 0 at the top)"},
           {"properties", {{"robot", {{"type", "array"}}}, {"plan", {{"type", "array"}}}}}}}}}}
+      .dump();
+}
+
+// The overlay of one frame by itself: its capture time (the frame's) and what is drawn on it.
+std::string image_overlay_schema() {
+  const nlohmann::json pixels = {{"type", "array"},
+                                 {"items", {{"type", "array"}, {"items", {{"type", "number"}}}}}};
+  return nlohmann::json{
+      {"title", "tendril.ImageOverlay"},
+      {"description",
+       "What the console draws over the frame of the same timestamp on /imaging/{view}/compressed: the "
+       "imaged robot's model backbone and the plan's path projected with the plane's geometry, and "
+       "while the tip is tracked the segmented catheter and the filtered tip; pixels [column, row], row 0 "
+       "at the top"},
+      {"type", "object"},
+      {"properties",
+       {{"timestamp", kTimeSchema},
+        {"frame_id", {{"type", "string"}}},
+        {"robot", pixels},
+        {"plan", pixels},
+        {"segmented", pixels},
+        {"tip", {{"type", {"array", "null"}}, {"items", {{"type", "number"}}}}}}}}
       .dump();
 }
 
@@ -230,26 +261,7 @@ std::vector<sim::VesselTube> vessel_tubes(const std::vector<teleop::CenterlinePo
 }
 
 void append_base64(const std::uint8_t* data, std::size_t size, std::string& out) {
-  static constexpr char kAlphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  const std::size_t start = out.size();
-  out.resize(start + (size + 2) / 3 * 4);
-  char* p = out.data() + start;
-  std::size_t i = 0;
-  for (; i + 3 <= size; i += 3) {
-    const std::uint32_t v = (std::uint32_t{data[i]} << 16) | (std::uint32_t{data[i + 1]} << 8) | data[i + 2];
-    *p++ = kAlphabet[(v >> 18) & 63];
-    *p++ = kAlphabet[(v >> 12) & 63];
-    *p++ = kAlphabet[(v >> 6) & 63];
-    *p++ = kAlphabet[v & 63];
-  }
-  if (i < size) {
-    std::uint32_t v = std::uint32_t{data[i]} << 16;
-    if (i + 1 < size) v |= std::uint32_t{data[i + 1]} << 8;
-    *p++ = kAlphabet[(v >> 18) & 63];
-    *p++ = kAlphabet[(v >> 12) & 63];
-    *p++ = i + 1 < size ? kAlphabet[(v >> 6) & 63] : '=';
-    *p++ = '=';
-  }
+  http::foxglove::append_base64(data, size, out);
 }
 
 ImagingConfig parse_imaging_config(const nlohmann::json& imaging, const std::filesystem::path& server_file) {
@@ -395,10 +407,18 @@ struct ImagingWorker::Plane {
         topic(std::string("/imaging/") + sim::view_name(v)),
         frame_id(std::string("imaging_") + sim::view_name(v)),
         label(v == sim::FluoroView::kAp ? "AP" : "lateral"),
-        fluoroscope(v, options, vessels) {}
+        fluoroscope(v, options, vessels) {
+    topics[kJson] = topic;
+    topics[kCompressed] = topic + "/compressed";
+    topics[kOverlay] = topic + "/overlay";
+  }
 
   const sim::FluoroView view;
   const std::string topic;
+  // The plane's three streams: kJson the JSON image with its overlay inside (the first form, for
+  // clients that read JSON only), kCompressed the image alone as protobuf foxglove.CompressedImage
+  // (no base64: what the console and Foxglove read), kOverlay the overlay alone as small JSON.
+  std::array<std::string, kStreams> topics;
   const std::string frame_id;
   const char* label;
   // Renders the simulated plane; for every plane, its geometry projects the overlay.
@@ -409,14 +429,15 @@ struct ImagingWorker::Plane {
   std::vector<Eigen::Vector3d> backbone;
   std::vector<Eigen::Vector3d> plan;
 
-  mutable std::mutex slot_mutex;  // the latest-value slot the front end reads
-  std::shared_ptr<const std::string> payload;
-  std::uint64_t version = 0;
+  mutable std::mutex slot_mutex;  // the latest-value slots the front end reads, one per stream
+  std::array<std::shared_ptr<const std::string>, kStreams> payloads;
+  std::array<std::uint64_t, kStreams> versions{};
   std::uint64_t ready_ns = 0;  // when the message was ready: its log time (the capture time is inside)
 
-  // Guarded by ImagingWorker::run_mutex_: someone subscribes to the plane's topic (topic_wanted), and
-  // the plane runs (wanted: its topic or, for a simulated plane, the tracking is watched).
-  bool topic_wanted = false;
+  // Written under ImagingWorker::run_mutex_: someone subscribes to a stream (stream_wanted; read by the
+  // plane's thread to build only those), and the plane runs (wanted: a stream or, for a simulated
+  // plane, the tracking is watched).
+  std::array<std::atomic<bool>, kStreams> stream_wanted{};
   bool wanted = false;
 
   mutable std::mutex stats_mutex;
@@ -671,7 +692,8 @@ void ImagingWorker::warn(safety::FaultCode code, const std::string& text) const 
 
 void ImagingWorker::update_wanted() {
   for (auto& plane : planes_) {
-    const bool wanted = plane->topic_wanted || (tracking_wanted_ && tracker_ && !plane->source);
+    bool wanted = tracking_wanted_ && tracker_ && !plane->source;
+    for (const auto& stream : plane->stream_wanted) wanted = wanted || stream.load(std::memory_order_relaxed);
     if (wanted && !plane->wanted) {
       std::lock_guard stats(plane->stats_mutex);
       plane->last_frame = SteadyClock::now();  // the stale clock starts when watching starts
@@ -691,17 +713,19 @@ void ImagingWorker::set_demand(const std::string& topic, bool wanted) {
     return;
   }
   for (auto& plane : planes_) {
-    if (plane->topic != topic) continue;
-    {
-      std::lock_guard lock(run_mutex_);
-      plane->topic_wanted = wanted;
-      update_wanted();
+    for (std::size_t k = 0; k < kStreams; ++k) {
+      if (plane->topics[k] != topic) continue;
+      {
+        std::lock_guard lock(run_mutex_);
+        plane->stream_wanted[k].store(wanted, std::memory_order_relaxed);
+        update_wanted();
+      }
+      if (!wanted) {
+        std::lock_guard slot(plane->slot_mutex);
+        plane->payloads[k].reset();  // the version stays, so nobody mistakes the next frame for this one
+      }
+      run_wake_.notify_all();
     }
-    if (!wanted) {
-      std::lock_guard slot(plane->slot_mutex);
-      plane->payload.reset();  // the version stays, so nobody mistakes the next frame for this one
-    }
-    run_wake_.notify_all();
   }
 }
 
@@ -776,39 +800,66 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
 void ImagingWorker::publish(Plane& p, std::uint64_t capture_ns, const std::vector<std::uint8_t>& jpeg,
                             bool shape_ok, double render_s, double encode_s, const PlaneTrack* track) {
   const auto t0 = SteadyClock::now();
-  auto message = std::make_shared<std::string>();
-  message->reserve(jpeg.size() * 4 / 3 + 160);
-  *message += "{\"timestamp\":";
-  append_timestamp(capture_ns, *message);
-  *message += ",\"frame_id\":\"" + p.frame_id + "\",\"format\":\"jpeg\",\"data\":\"";
-  append_base64(jpeg.data(), jpeg.size(), *message);
-  *message += "\",\"overlay\":{\"robot\":";
-  append_projected(p.fluoroscope, p.backbone, *message);
-  *message += ",\"plan\":";
-  append_projected(p.fluoroscope, p.plan, *message);
+  // The overlay's members, shared by the JSON image and the overlay stream.
+  std::string overlay = "\"robot\":";
+  append_projected(p.fluoroscope, p.backbone, overlay);
+  overlay += ",\"plan\":";
+  append_projected(p.fluoroscope, p.plan, overlay);
   if (track) {
     char buf[64];
-    *message += ",\"segmented\":[";
+    overlay += ",\"segmented\":[";
     bool first = true;
     for (const auto& q : track->found ? track->backbone_px : std::vector<Eigen::Vector2d>{}) {
       std::snprintf(buf, sizeof buf, "%s[%.1f,%.1f]", first ? "" : ",", q.x(), q.y());
-      *message += buf;
+      overlay += buf;
       first = false;
     }
-    *message += "],\"tip\":";
+    overlay += "],\"tip\":";
     if (track->filtered) {
       std::snprintf(buf, sizeof buf, "[%.1f,%.1f]", track->filtered_px.x(), track->filtered_px.y());
-      *message += buf;
+      overlay += buf;
     } else {
-      *message += "null";
+      overlay += "null";
     }
   }
-  *message += "}}";
+  // Only the streams someone reads are built (the base64 JSON costs a third more bytes and the CPU);
+  // all of them when nobody said (an exposure on request, capture_once, or only the tracking watched).
+  std::array<bool, kStreams> build{};
+  bool any = false;
+  for (std::size_t k = 0; k < kStreams; ++k)
+    any = (build[k] = p.stream_wanted[k].load(std::memory_order_relaxed)) || any;
+  if (!any) build.fill(true);
+  std::array<std::shared_ptr<const std::string>, kStreams> built;
+  if (build[kJson]) {
+    auto message = std::make_shared<std::string>();
+    message->reserve(jpeg.size() * 4 / 3 + overlay.size() + 160);
+    *message += "{\"timestamp\":";
+    append_timestamp(capture_ns, *message);
+    *message += ",\"frame_id\":\"" + p.frame_id + "\",\"format\":\"jpeg\",\"data\":\"";
+    append_base64(jpeg.data(), jpeg.size(), *message);
+    *message += "\",\"overlay\":{" + overlay + "}}";
+    built[kJson] = std::move(message);
+  }
+  if (build[kCompressed]) {
+    auto message = std::make_shared<std::string>();
+    protobuf::append_compressed_image(capture_ns, p.frame_id, jpeg, "jpeg", *message);
+    built[kCompressed] = std::move(message);
+  }
+  if (build[kOverlay]) {
+    auto message = std::make_shared<std::string>();
+    *message += "{\"timestamp\":";
+    append_timestamp(capture_ns, *message);
+    *message += ",\"frame_id\":\"" + p.frame_id + "\"," + overlay + "}";
+    built[kOverlay] = std::move(message);
+  }
   encode_s += std::chrono::duration<double>(SteadyClock::now() - t0).count();
   {
     std::lock_guard lock(p.slot_mutex);
-    p.payload = std::move(message);
-    ++p.version;
+    for (std::size_t k = 0; k < kStreams; ++k) {
+      if (!built[k]) continue;
+      p.payloads[k] = std::move(built[k]);
+      ++p.versions[k];
+    }
     p.ready_ns = wall_ns();
   }
   std::string text;
@@ -847,7 +898,13 @@ void ImagingWorker::set_ready_callback(std::function<void()> ready) {
 std::vector<TopicInfo> ImagingWorker::topics() const {
   std::vector<TopicInfo> out;
   const std::string image_schema = compressed_image_schema();
-  for (const auto& plane : planes_) out.push_back({plane->topic, "foxglove.CompressedImage", image_schema});
+  const std::string descriptors = protobuf::compressed_image_descriptor_set();
+  for (const auto& plane : planes_) {
+    out.push_back({plane->topics[kJson], "foxglove.CompressedImage", image_schema});
+    out.push_back(
+        {plane->topics[kCompressed], "foxglove.CompressedImage", descriptors, "protobuf", "protobuf"});
+    out.push_back({plane->topics[kOverlay], "tendril.ImageOverlay", image_overlay_schema()});
+  }
   if (tracker_) out.push_back({"/imaging/tracking", "tendril.TipTracking", BiplaneTipTracker::schema()});
   if (vessel_cloud_) out.push_back({"/maps/vessel", "foxglove.PointCloud", point_cloud_schema()});
   return out;
@@ -866,10 +923,12 @@ std::optional<TopicPayload> ImagingWorker::latest(const std::string& topic,
     return TopicPayload{vessel_cloud_, 1, vessel_time_ns_};
   }
   for (const auto& plane : planes_) {
-    if (plane->topic != topic) continue;
-    std::lock_guard lock(plane->slot_mutex);
-    if (!plane->payload || plane->version <= since_version) return std::nullopt;
-    return TopicPayload{plane->payload, plane->version, plane->ready_ns};
+    for (std::size_t k = 0; k < kStreams; ++k) {
+      if (plane->topics[k] != topic) continue;
+      std::lock_guard lock(plane->slot_mutex);
+      if (!plane->payloads[k] || plane->versions[k] <= since_version) return std::nullopt;
+      return TopicPayload{plane->payloads[k], plane->versions[k], plane->ready_ns};
+    }
   }
   return std::nullopt;
 }

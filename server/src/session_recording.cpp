@@ -141,14 +141,15 @@ bool SessionRecording::wants(const std::string& topic, bool from_source) const {
 }
 
 void SessionRecording::channel(std::uint32_t id, const std::string& topic, const std::string& schema_name,
-                               const std::string& json_schema) {
+                               const std::string& schema, const std::string& encoding,
+                               const std::string& schema_encoding) {
   record::ChannelSpec spec;
   spec.topic = topic;
-  spec.message_encoding = "json";
+  spec.message_encoding = encoding;  // MCAP's names: "json", "protobuf"
   spec.schema_name = schema_name;
-  spec.schema_encoding = json_schema.empty() ? "" : "jsonschema";
-  if (json_schema.empty()) spec.schema_name.clear();
-  spec.schema_data = bytes_of(json_schema);
+  spec.schema_encoding = schema.empty() ? "" : schema_encoding;
+  if (schema.empty()) spec.schema_name.clear();
+  spec.schema_data = bytes_of(schema);
   const auto recorded = recorder_.add_channel(std::move(spec));
   std::lock_guard lock(ids_mutex_);
   ids_[id] = recorded;

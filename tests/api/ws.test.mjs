@@ -4,6 +4,8 @@ import {test} from 'node:test';
 import assert from 'node:assert/strict';
 import wsProtocol from '@foxglove/ws-protocol';
 import WebSocket from 'ws';
+import protobuf from 'protobufjs';
+import descriptor from 'protobufjs/ext/descriptor/index.js';
 
 const {FoxgloveClient} = wsProtocol;  // CommonJS package: no named ESM exports
 import {BASE_URL, TOKEN, ROBOT, robotConfig, get} from './helpers.mjs';
@@ -158,6 +160,68 @@ test('the simulated fluoroscope streams JPEG foxglove.CompressedImage and the ve
     assert.ok(points.length >= 100 * cloud.point_stride, 'the vessel wall has points');
     assert.equal(points.length % cloud.point_stride, 0);
     assert.deepEqual(cloud.fields.slice(0, 3).map((f) => f.name), ['x', 'y', 'z']);
+  } finally {
+    client.close();
+  }
+});
+
+// Issue 15: images in a binary message encoding. /imaging/{view}/compressed is protobuf
+// foxglove.CompressedImage, decoded here by protobufjs from nothing but the descriptor set the server
+// advertises; it carries the very JPEG bytes of the JSON stream's frame of the same time stamp, and
+// /imaging/{view}/overlay that frame's overlay.
+test('the images also stream as protobuf foxglove.CompressedImage, described by the advertised FileDescriptorSet', async () => {
+  const {client} = connect(`${WS_URL}?token=${encodeURIComponent(TOKEN)}`);
+  try {
+    const channels = new Map();
+    client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
+    await waitFor(client, 'serverInfo', (i) => i);
+    for (const topic of ['/imaging/ap', '/imaging/ap/compressed', '/imaging/ap/overlay']) {
+      if (!channels.has(topic)) await waitFor(client, 'advertise', (list) => list.find((c) => c.topic === topic));
+    }
+    const binary = channels.get('/imaging/ap/compressed');
+    assert.equal(binary.encoding, 'protobuf');
+    assert.equal(binary.schemaEncoding, 'protobuf');
+    assert.equal(binary.schemaName, 'foxglove.CompressedImage');
+    const set = descriptor.FileDescriptorSet.decode(Buffer.from(binary.schema, 'base64'));
+    const CompressedImage = protobuf.Root.fromDescriptor(set).lookupType('foxglove.CompressedImage');
+    assert.deepEqual(CompressedImage.fieldsArray.map((f) => [f.name, f.id]).sort((a, b) => a[1] - b[1]),
+                     [['timestamp', 1], ['data', 2], ['format', 3], ['frame_id', 4]]);
+
+    const stamp = (t) => `${t.sec ?? t.seconds}.${t.nsec ?? t.nanos}`;
+    const json = new Map();
+    const binaryFrames = new Map();
+    const overlays = new Map();
+    const subs = {
+      [client.subscribe(channels.get('/imaging/ap').id)]: 'json',
+      [client.subscribe(binary.id)]: 'binary',
+      [client.subscribe(channels.get('/imaging/ap/overlay').id)]: 'overlay',
+    };
+    const bytesOf = (m) => new Uint8Array(m.data.buffer, m.data.byteOffset, m.data.byteLength);
+    const both = await waitFor(client, 'message', (m) => {
+      const kind = subs[m.subscriptionId];
+      if (kind === 'json') {
+        const msg = JSON.parse(new TextDecoder().decode(bytesOf(m)));
+        json.set(stamp(msg.timestamp), msg);
+      } else if (kind === 'binary') {
+        const msg = CompressedImage.toObject(CompressedImage.decode(bytesOf(m)), {longs: Number, bytes: Buffer});
+        binaryFrames.set(stamp({sec: msg.timestamp?.seconds ?? 0, nsec: msg.timestamp?.nanos ?? 0}), msg);
+      } else if (kind === 'overlay') {
+        const msg = JSON.parse(new TextDecoder().decode(bytesOf(m)));
+        overlays.set(stamp(msg.timestamp), msg);
+      }
+      for (const [key, frame] of binaryFrames) {
+        if (json.has(key) && overlays.has(key)) return {json: json.get(key), frame, overlay: overlays.get(key)};
+      }
+      return undefined;
+    }, 20000);
+    assert.equal(both.frame.format, 'jpeg');
+    assert.equal(both.frame.frame_id, 'imaging_ap');
+    assert.deepEqual([...both.frame.data.subarray(0, 3)], [0xff, 0xd8, 0xff], 'a JPEG (SOI marker)');
+    assert.ok(Buffer.from(both.json.data, 'base64').equals(both.frame.data),
+              'the same JPEG bytes as the JSON stream\'s frame of that time stamp');
+    assert.ok(both.frame.data.length < both.json.data.length * 0.8, 'no base64: about 3/4 of the JSON data string');
+    assert.deepEqual(both.overlay.robot, both.json.overlay.robot, 'the overlay stream carries that frame\'s overlay');
+    assert.ok(both.overlay.robot.length > 10, 'the projected model backbone');
   } finally {
     client.close();
   }

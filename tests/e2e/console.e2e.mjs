@@ -682,10 +682,14 @@ test('imaging panels show the frames of both planes of the simulated fluoroscope
   // (a server without it fails this test rather than skipping it).
   const advertised = await page.evaluate(() => [...window.tendrilConnection.advertisedTopics()]);
   for (const [key, topic] of [['ap', '/imaging/ap'], ['lateral', '/imaging/lateral']]) {
-    assert.ok(advertised.includes(topic), `${topic} advertised: ${advertised.join(', ')}`);
+    for (const t of [topic, `${topic}/compressed`, `${topic}/overlay`])
+      assert.ok(advertised.includes(t), `${t} advertised: ${advertised.join(', ')}`);
     await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}"]`).dataset.frames) >= 3 &&
                                       document.querySelector(`[data-testid="image-${k}-frame"]`).naturalWidth > 0, key, WAIT);
     assert.equal(await page.locator(tid(`image-${key}`)).getAttribute('data-state'), 'live');
+    // The console reads the binary stream (protobuf foxglove.CompressedImage): the JPEG's own bytes
+    // as a blob, not a base64 data URL.
+    assert.match(await page.locator(tid(`image-${key}-frame`)).getAttribute('src'), /^blob:/);
     // The model catheter drawn over the frame, with the frame's own projection (server side).
     await page.waitForFunction((k) => Number(document.querySelector(`[data-testid="image-${k}-overlay-robot"]`)?.dataset.points) > 10,
                                key, WAIT);

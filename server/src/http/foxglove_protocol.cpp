@@ -419,15 +419,44 @@ json server_info(const std::string& name, const std::vector<std::string>& capabi
           {"metadata", metadata},         {"sessionId", session_id}};
 }
 
+void append_base64(const std::uint8_t* data, std::size_t size, std::string& out) {
+  static constexpr char kAlphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  const std::size_t start = out.size();
+  out.resize(start + (size + 2) / 3 * 4);
+  char* p = out.data() + start;
+  std::size_t i = 0;
+  for (; i + 3 <= size; i += 3) {
+    const std::uint32_t v = (std::uint32_t{data[i]} << 16) | (std::uint32_t{data[i + 1]} << 8) | data[i + 2];
+    *p++ = kAlphabet[(v >> 18) & 63];
+    *p++ = kAlphabet[(v >> 12) & 63];
+    *p++ = kAlphabet[(v >> 6) & 63];
+    *p++ = kAlphabet[v & 63];
+  }
+  if (i < size) {
+    std::uint32_t v = std::uint32_t{data[i]} << 16;
+    if (i + 1 < size) v |= std::uint32_t{data[i + 1]} << 8;
+    *p++ = kAlphabet[(v >> 18) & 63];
+    *p++ = kAlphabet[(v >> 12) & 63];
+    *p++ = i + 1 < size ? kAlphabet[(v >> 6) & 63] : '=';
+    *p = '=';
+  }
+}
+
 json advertise(const std::vector<Channel>& channels) {
   json list = json::array();
   for (const auto& c : channels) {
+    std::string schema;
+    if (c.schema_encoding == "jsonschema") {
+      schema = c.schema;
+    } else {
+      append_base64(reinterpret_cast<const std::uint8_t*>(c.schema.data()), c.schema.size(), schema);
+    }
     list.push_back({{"id", c.id},
                     {"topic", c.topic},
                     {"encoding", c.encoding},
                     {"schemaName", c.schema_name},
-                    {"schema", c.schema},
-                    {"schemaEncoding", "jsonschema"}});
+                    {"schema", std::move(schema)},
+                    {"schemaEncoding", c.schema_encoding}});
   }
   return {{"op", "advertise"}, {"channels", std::move(list)}};
 }

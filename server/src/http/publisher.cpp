@@ -128,7 +128,9 @@ void HttpServer::Impl::refresh_channels() {
         auto& channel = channels[id].channel;
         channel.id = id;
         channel.topic = topic;
+        channel.encoding = source->second.second.encoding;
         channel.schema_name = source->second.second.schema_name;
+        channel.schema_encoding = source->second.second.schema_encoding;
         channel.schema = source->second.second.schema;
         channels[id].source = source->second.first;
       } else if (auto info = api_topic_schema(topic)) {
@@ -136,7 +138,9 @@ void HttpServer::Impl::refresh_channels() {
         auto& channel = channels[id].channel;
         channel.id = id;
         channel.topic = topic;
+        channel.encoding = info->encoding;
         channel.schema_name = info->schema_name;
+        channel.schema_encoding = info->schema_encoding;
         channel.schema = info->schema;
       } else {
         channels[id].channel = fg::channel_for_topic(id, topic);
@@ -158,7 +162,8 @@ void HttpServer::Impl::refresh_channels() {
   if (opts.tap) {
     for (const auto& channel : added) {
       try {
-        opts.tap->channel(channel.id, channel.topic, channel.schema_name, channel.schema);
+        opts.tap->channel(channel.id, channel.topic, channel.schema_name, channel.schema, channel.encoding,
+                          channel.schema_encoding);
       } catch (const std::exception& e) {
         log(std::string("recording: channel ") + channel.topic + " not recorded: " + e.what());
       }

@@ -10,6 +10,8 @@ import { join } from "node:path";
 import { McapIndexedReader } from "@mcap/core";
 import zstd from "@foxglove/wasm-zstd";
 import lz4 from "@foxglove/wasm-lz4";
+import protobuf from "protobufjs";
+import descriptor from "protobufjs/ext/descriptor/index.js";
 
 const dir = process.env.TENDRIL_RECORDING_DIR;
 if (!dir) throw new Error("set TENDRIL_RECORDING_DIR to the server's recording folder");
@@ -35,6 +37,8 @@ test("the session recording holds every published topic and every command, final
   const lastTime = {};
   const commands = [];
   const schemas = {};
+  const protobufTypes = {};  // topic → the type decoded from the recorded FileDescriptorSet
+  let protobufImages = 0;
   for (const file of files) {
     const bytes = new Uint8Array(readFileSync(join(dir, file)));
     // Indexed reading needs the footer and summary: the file was finalised at SIGTERM.
@@ -44,7 +48,14 @@ test("the session recording holds every published topic and every command, final
     for (const [, channel] of reader.channelsById) {
       const schema = reader.schemasById.get(channel.schemaId);
       if (schema) schemas[channel.topic] = schema.name;
-      assert.equal(channel.messageEncoding, "json");
+      if (channel.messageEncoding === "protobuf") {
+        // The binary images: the schema is the FileDescriptorSet the live stream advertises.
+        assert.equal(schema?.encoding, "protobuf", channel.topic);
+        const set = descriptor.FileDescriptorSet.decode(schema.data);
+        protobufTypes[channel.topic] = protobuf.Root.fromDescriptor(set).lookupType(schema.name);
+      } else {
+        assert.equal(channel.messageEncoding, "json", channel.topic);
+      }
     }
     for await (const message of reader.readMessages({ validateCrcs: true })) {
       const topic = reader.channelsById.get(message.channelId).topic;
@@ -53,11 +64,17 @@ test("the session recording holds every published topic and every command, final
       assert.equal(message.sequence, nextSeq[topic] ?? 0, `${topic}: a message missing or repeated`);
       nextSeq[topic] = message.sequence + 1;
       counts[topic] = (counts[topic] ?? 0) + 1;
+      if (protobufTypes[topic]) {
+        const image = protobufTypes[topic].decode(message.data);
+        assert.deepEqual([...image.data.subarray(0, 2)], [0xff, 0xd8], `${topic}: a JPEG`);
+        ++protobufImages;
+        continue;
+      }
       const body = JSON.parse(decoder.decode(message.data));  // every message is the JSON clients got
       if (topic === "/commands") commands.push(body);
     }
   }
-  console.log(`recorded: ${JSON.stringify(counts)} in ${files.length} file(s)`);
+  console.log(`recorded: ${JSON.stringify(counts)} in ${files.length} file(s); ${protobufImages} protobuf images decoded`);
   for (const topic of ["/srmc/joint_states", "/srmc/operating_state", "/safety/events", "/commands"])
     assert.ok(counts[topic] > 0, `nothing recorded on ${topic}: ${JSON.stringify(counts)}`);
   assert.ok(counts["/srmc/joint_states"] >= 50, `only ${counts["/srmc/joint_states"]} joint states`);

@@ -17,6 +17,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "tendril/server/config.hpp"
+#include "tendril/server/foxglove_protobuf.hpp"
 #include "tendril/server/imaging_worker.hpp"
 
 namespace tendril::server {
@@ -120,14 +121,24 @@ TEST(ImagingWorker, TheOverlayLiesOnTheImagedCatheterAndCarriesThePlan) {
 TEST(ImagingWorker, PublishesCompressedImagesWithCaptureTimestamp) {
   ImagingWorker worker(straight_catheter(), small_config());
   const auto topics = worker.topics();
-  ASSERT_EQ(topics.size(), 3u);  // no vessel configured: no /maps/vessel
+  // Per plane the JSON image, the protobuf image and the overlay; then the tracking (no vessel
+  // configured: no /maps/vessel).
+  ASSERT_EQ(topics.size(), 7u);
   EXPECT_EQ(topics[0].topic, "/imaging/ap");
-  EXPECT_EQ(topics[1].topic, "/imaging/lateral");
-  EXPECT_EQ(topics[2].topic, "/imaging/tracking");
-  EXPECT_EQ(topics[2].schema_name, "tendril.TipTracking");
+  EXPECT_EQ(topics[1].topic, "/imaging/ap/compressed");
+  EXPECT_EQ(topics[2].topic, "/imaging/ap/overlay");
+  EXPECT_EQ(topics[3].topic, "/imaging/lateral");
+  EXPECT_EQ(topics[6].topic, "/imaging/tracking");
+  EXPECT_EQ(topics[6].schema_name, "tendril.TipTracking");
   EXPECT_EQ(topics[0].schema_name, "foxglove.CompressedImage");
+  EXPECT_EQ(topics[0].encoding, "json");
   const json schema = json::parse(topics[0].schema);
   EXPECT_EQ(schema["properties"]["data"]["contentEncoding"], "base64");
+  EXPECT_EQ(topics[1].schema_name, "foxglove.CompressedImage");
+  EXPECT_EQ(topics[1].encoding, "protobuf");
+  EXPECT_EQ(topics[1].schema_encoding, "protobuf");
+  EXPECT_EQ(topics[1].schema, protobuf::compressed_image_descriptor_set());
+  EXPECT_EQ(topics[2].schema_name, "tendril.ImageOverlay");
 
   EXPECT_FALSE(worker.latest("/imaging/ap", 0)) << "nothing before the first exposure";
   std::atomic<int> ready{0};
@@ -161,6 +172,18 @@ TEST(ImagingWorker, PublishesCompressedImagesWithCaptureTimestamp) {
     EXPECT_EQ(image.rows, 96);
     // The timestamp comes first, so a client can read it without parsing 200 kB of base64.
     EXPECT_EQ(message->payload->rfind("{\"timestamp\":{\"sec\":", 0), 0u);
+    // The same frame in protobuf: the JPEG's bytes after the timestamp's field, and the same version.
+    const auto binary = worker.latest(std::string(topic) + "/compressed", 0);
+    ASSERT_TRUE(binary) << topic;
+    EXPECT_EQ(binary->version, 1u);
+    const std::string jpeg_bytes(jpeg.begin(), jpeg.end());
+    EXPECT_NE(binary->payload->find(jpeg_bytes), std::string::npos) << "the image's bytes, not base64";
+    EXPECT_LT(binary->payload->size(), jpeg.size() + 64);
+    const auto overlay = worker.latest(std::string(topic) + "/overlay", 0);
+    ASSERT_TRUE(overlay) << topic;
+    const json overlay_body = json::parse(*overlay->payload);
+    EXPECT_EQ(overlay_body["timestamp"], body["timestamp"]) << "the overlay names its frame by time stamp";
+    EXPECT_EQ(overlay_body["robot"], body["overlay"]["robot"]);
   }
   EXPECT_FALSE(worker.latest("/imaging/ap", 1)) << "no newer message than version 1";
   worker.capture_once();
@@ -194,9 +217,31 @@ TEST(ImagingWorker, ThreadsExposeOnlyThePlanesSomeoneWatches) {
   EXPECT_GE(ap->version, 3u);
   EXPECT_FALSE(worker.latest("/imaging/lateral", 0));
   EXPECT_NE(worker.metrics().find("tendril_imaging_frames_total{view=\"lateral\"} 0"), std::string::npos);
+  // Only the watched stream is built: the protobuf image and the overlay are not (nobody asked).
+  EXPECT_FALSE(worker.latest("/imaging/ap/compressed", 0));
   // Unwatched again: its last frame is dropped and rendering stops.
   worker.set_demand("/imaging/ap", false);
   EXPECT_FALSE(worker.latest("/imaging/ap", 0));
+  // The console's pair: the protobuf image and its overlay, without the base64 JSON.
+  const int before = ready.load();
+  worker.set_demand("/imaging/ap/compressed", true);
+  worker.set_demand("/imaging/ap/overlay", true);
+  for (int i = 0; i < 200 && ready.load() < before + 2; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_TRUE(worker.latest("/imaging/ap/compressed", 0));
+  EXPECT_TRUE(worker.latest("/imaging/ap/overlay", 0));
+  // The base64 JSON is not built for nobody: its version stands still while frames go on (one frame
+  // exposed as the demand changed may have landed; none after it).
+  const auto json_version = [&] {
+    const auto m = worker.latest("/imaging/ap", 0);
+    return m ? m->version : 0;
+  };
+  const auto frozen = json_version();
+  const int later = ready.load();
+  for (int i = 0; i < 200 && ready.load() < later + 2; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_GE(ready.load(), later + 2);
+  EXPECT_EQ(json_version(), frozen);
   worker.stop();
   worker.stop();  // twice is fine
 }
@@ -219,9 +264,9 @@ TEST(ImagingWorker, VesselPointCloudHasTheWallPoints) {
   config.vessels = {tube};
   ImagingWorker worker(straight_catheter(), config);
   const auto topics = worker.topics();
-  ASSERT_EQ(topics.size(), 4u);
-  EXPECT_EQ(topics[3].topic, "/maps/vessel");
-  EXPECT_EQ(topics[3].schema_name, "foxglove.PointCloud");
+  ASSERT_EQ(topics.size(), 8u);
+  EXPECT_EQ(topics[7].topic, "/maps/vessel");
+  EXPECT_EQ(topics[7].schema_name, "foxglove.PointCloud");
   const auto cloud = worker.latest("/maps/vessel", 0);
   ASSERT_TRUE(cloud);
   EXPECT_FALSE(worker.latest("/maps/vessel", cloud->version)) << "static map: published once";

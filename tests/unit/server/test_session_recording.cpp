@@ -73,7 +73,8 @@ TEST(SessionRecording, RecordsAdvertisedChannelsAndCommandsAndWantsImagesOnlyWhe
     EXPECT_TRUE(recording.wants("/srmc/joint_states", false)) << "robot topics: always";
     EXPECT_FALSE(recording.wants("/imaging/ap", true)) << "images: while watched";
     recording.start();
-    recording.channel(7, "/srmc/joint_states", "tendril.JointState", R"({"type":"object"})");
+    recording.channel(7, "/srmc/joint_states", "tendril.JointState", R"({"type":"object"})", "json",
+                      "jsonschema");
     recording.message(7, 1000, std::make_shared<const std::string>(R"({"position":[1,2]})"));
     recording.message(8, 1001, std::make_shared<const std::string>("{}"));  // never advertised: ignored
     recording.command(1002, "srmc", "move_jp", "surgeon", {{"goal", {1, 2}}}, 202, "");

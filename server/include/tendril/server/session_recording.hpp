@@ -56,7 +56,8 @@ class SessionRecording final : public http::PublishTap {
 
   bool wants(const std::string& topic, bool from_source) const override;
   void channel(std::uint32_t id, const std::string& topic, const std::string& schema_name,
-               const std::string& json_schema) override;
+               const std::string& schema, const std::string& encoding,
+               const std::string& schema_encoding) override;
   void message(std::uint32_t id, std::uint64_t log_time_ns,
                std::shared_ptr<const std::string> payload) override;
   void command(std::uint64_t time_ns, const std::string& robot, const std::string& command,

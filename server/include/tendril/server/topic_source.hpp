@@ -16,11 +16,16 @@ namespace tendril::server {
 struct TopicInfo {
   std::string topic;        // e.g. "/imaging/ap"
   std::string schema_name;  // e.g. "foxglove.CompressedImage"
-  std::string schema;       // JSON schema text (schemaEncoding "jsonschema"); messages are JSON
+  // With the default encodings: the JSON schema text, and the messages are JSON. With "protobuf" for
+  // both: the binary FileDescriptorSet (the front end base64s it in its advertisement; a recording
+  // stores the bytes), and the messages are protobuf.
+  std::string schema;
+  std::string encoding = "json";
+  std::string schema_encoding = "jsonschema";
 };
 
 struct TopicPayload {
-  std::shared_ptr<const std::string> payload;  // the serialised JSON message
+  std::shared_ptr<const std::string> payload;  // the serialised message (JSON text or protobuf bytes)
   std::uint64_t version = 0;                   // grows with every new message of the topic
   std::uint64_t log_time_ns = 0;               // wall-clock ns for the message header (capture time)
 };

@@ -116,12 +116,18 @@ std::string encode_client_message_data(std::uint32_t channel_id, std::string_vie
 struct Channel {
   std::uint32_t id = 0;
   std::string topic;
-  std::string encoding = "json";
+  std::string encoding = "json";  // of the messages: "json" or "protobuf"
   std::string schema_name;
-  std::string schema;  // JSON schema, as a string (the spec carries it as a string)
+  // "jsonschema": `schema` is the JSON schema text. "protobuf": `schema` is the binary
+  // FileDescriptorSet, which the advertisement carries in base64 (the spec's form for binary schemas).
+  std::string schema_encoding = "jsonschema";
+  std::string schema;
 };
 // Channel description for one of tendril's topics: schema name and JSON schema by topic kind.
 Channel channel_for_topic(std::uint32_t id, const std::string& topic);
+
+// Standard base64 (RFC 4648, with padding), appended to `out`.
+void append_base64(const std::uint8_t* data, std::size_t size, std::string& out);
 
 struct Service {
   std::uint32_t id = 0;

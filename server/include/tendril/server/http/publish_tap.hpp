@@ -19,8 +19,11 @@ class PublishTap {
   // True: fetch and pass on this topic's messages even while no client subscribes to it (a source
   // such as the imaging then produces them).
   virtual bool wants(const std::string& topic, bool from_source) const = 0;
+  // `schema` is JSON schema text for schema_encoding "jsonschema", FileDescriptorSet bytes for
+  // "protobuf"; `encoding` is the messages' ("json" or "protobuf").
   virtual void channel(std::uint32_t id, const std::string& topic, const std::string& schema_name,
-                       const std::string& json_schema) = 0;
+                       const std::string& schema, const std::string& encoding,
+                       const std::string& schema_encoding) = 0;
   virtual void message(std::uint32_t id, std::uint64_t log_time_ns,
                        std::shared_ptr<const std::string> payload) = 0;
   // A robot command (REST, Foxglove service, client-published stream) once executed. `robot` is empty
