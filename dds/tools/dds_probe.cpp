@@ -3,6 +3,7 @@
 // It speaks only DDS (Cyclone DDS C API, the types of dds/idl), never tendrild's HTTP API.
 #include <dds/dds.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -123,7 +124,8 @@ template <class T>
 long drain(dds_entity_t reader, long want, Clock::time_point deadline,
            const std::function<void(const T&)>& seen) {
   long got = 0;
-  while (got < want && Clock::now() < deadline) {
+  // At least one pass, so that a deadline of now still takes what has arrived.
+  for (bool first = true; got < want && (first || Clock::now() < deadline); first = false) {
     void* samples[16] = {};
     dds_sample_info_t infos[16];
     const dds_return_t n = dds_take(reader, samples, infos, 16, 16);
@@ -137,7 +139,7 @@ long drain(dds_entity_t reader, long want, Clock::time_point deadline,
       ++got;
     }
     if (n > 0) dds_return_loan(reader, samples, n);
-    if (n == 0) std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    if (n == 0 && Clock::now() < deadline) std::this_thread::sleep_for(std::chrono::microseconds(200));
   }
   return got;
 }
@@ -231,19 +233,32 @@ int send(dds_entity_t participant, const Options& o) {
   std::map<std::int32_t, long> by_status;
   long answered = 0;
   bool refused = false;
+  // When each request was written, for the round trip to its answer.
+  std::vector<Clock::time_point> written(static_cast<std::size_t>(o.count));
+  std::vector<double> round_trips_ms;
   auto print = [&](const tendril_msgs_msg_dds__CommandResult_& m) {
     if (str(m.client) != "dds:" + o.client) return;  // another commander's answer
-    std::cout << to_json(m).dump() << std::endl;
+    json line = to_json(m);
+    if (m.request_id < written.size()) {
+      const double ms =
+          std::chrono::duration<double, std::milli>(Clock::now() - written[m.request_id]).count();
+      round_trips_ms.push_back(ms);
+      line["round_trip_ms"] = ms;
+    }
+    std::cout << line.dump() << std::endl;
     ++by_status[m.status];
     ++answered;
     refused = refused || m.status >= 400;
   };
   for (long i = 0; i < o.count; ++i) {
     if (period > Clock::duration::zero()) {
+      // Answers are read while waiting for the next write, so each round trip is timed when it ends.
+      drain<tendril_msgs_msg_dds__CommandResult_>(results, o.count, next, print);
       std::this_thread::sleep_until(next);
       next += period;
     }
     dds_return_t rc;
+    written[static_cast<std::size_t>(i)] = Clock::now();
     const auto t =
         to_time(std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count());
     if (state) {
@@ -279,6 +294,14 @@ int send(dds_entity_t participant, const Options& o) {
   }
   std::cerr << "tendril-dds-probe: sent " << o.count << ", answered " << answered;
   for (const auto& [status, n] : by_status) std::cerr << ", " << status << ": " << n;
+  if (!round_trips_ms.empty()) {
+    std::sort(round_trips_ms.begin(), round_trips_ms.end());
+    auto at = [&](double q) {
+      return round_trips_ms[static_cast<std::size_t>(q * static_cast<double>(round_trips_ms.size() - 1))];
+    };
+    std::cerr << "; round trip ms p50 " << at(0.5) << ", p99 " << at(0.99) << ", max "
+              << round_trips_ms.back();
+  }
   std::cerr << "\n";
   if (answered == 0) return 3;
   if (refused) return 1;
