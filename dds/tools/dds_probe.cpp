@@ -284,6 +284,10 @@ int send(dds_entity_t participant, const Options& o) {
     if (rc != DDS_RETCODE_OK) std::cerr << "tendril-dds-probe: write failed: " << retcode_text(rc) << "\n";
     drain<tendril_msgs_msg_dds__CommandResult_>(results, o.count, Clock::now(), print);
   }
+  // Every sample delivered (acknowledged by tendrild's reader) before the answers are awaited: a
+  // participant deleted with unacknowledged samples would take the tail of a flood with it.
+  if (const dds_return_t rc = dds_wait_for_acks(writer, DDS_SECS(5)); rc != DDS_RETCODE_OK)
+    std::cerr << "tendril-dds-probe: not every sample was acknowledged: " << retcode_text(rc) << "\n";
   // A flood's answers: as many as arrive before the deadline or a quiet second.
   auto quiet_until = Clock::now() + std::chrono::seconds(1);
   while (answered < o.count && Clock::now() < deadline && Clock::now() < quiet_until) {

@@ -119,7 +119,7 @@ os="$(p --timeout 5 echo srmc operating_state)"
 # 5. A flood (no lease: nothing may move) is cut by the rate limit (burst 50, 200/s); what the
 # reader's keep-last history overwrote is counted from the gaps in request_id.
 flood="$(p --timeout 30 send srmc servo_jv 0,0,0,0 --count 1500 --rate 0 --client flood 2>&1)"
-if printf '%s\n' "$flood" | grep -q '"code":"rate_limited"'; then
+if grep -q '"code":"rate_limited"' <<< "$flood"; then
   ok "a flood of 1500 samples: $(printf '%s\n' "$flood" | tail -n 1 | sed 's/^tendril-dds-probe: //')"
 else
   not_ok "no sample of the flood was rate-limited: $(printf '%s\n' "$flood" | tail -n 1)"
@@ -133,7 +133,7 @@ for pattern in 'tendril_dds_commands_refused_total{code="lease_held"} [1-9]' \
                'tendril_dds_commands_total{status="202"} 1$' \
                'tendril_dds_samples_published_total{kind="state"} [1-9]' \
                'tendril_dds_commands_lost_total [0-9]'; do
-  printf '%s\n' "$metrics" | grep -q "$pattern" && ok "/metrics: $pattern" || not_ok "/metrics lacks $pattern"
+  grep -q "$pattern" <<< "$metrics" && ok "/metrics: $pattern" || not_ok "/metrics lacks $pattern"
 done
 # Every command sample is accounted for: taken by the bridge and answered (1500 of the flood and the
 # 7 before it), or counted lost from the gaps in its writer's request_id. (The probe itself may miss
