@@ -17,6 +17,7 @@
 #include <sstream>
 #include <thread>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "tendril/dds/wire.hpp"
@@ -342,7 +343,10 @@ struct DdsBridge::Impl {
         });
         buckets.erase(oldest);
       }
-      it = buckets.emplace(writer, Bucket{opts.command_burst, now, now}).first;
+      Bucket fresh;
+      fresh.tokens = opts.command_burst;
+      fresh.refilled = fresh.last_used = now;
+      it = buckets.emplace(writer, fresh).first;
     }
     Bucket& b = it->second;
     // A gap up to a million; a larger jump or a step back is a writer that started counting anew.
