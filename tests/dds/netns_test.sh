@@ -5,7 +5,8 @@
 # bound to its veth with unicast discovery of the other. Checks: joint states cross to B; a command
 # from B without the lease is refused; with the lease (taken on A, its token carried by B's samples)
 # B enables the robot and moves it; a servo stream from B whose commander is killed mid-stream leaves
-# the robot holding within the command timeout. In scripts/test.sh --full only.
+# the robot holding within the command timeout; a partitioned link holds the robot, and the hold's
+# safety event reaches host B over DDS when the link is back. In scripts/test.sh --full only.
 # usage: netns_test.sh <tendrild> <tendril-dds-probe>
 set -uo pipefail
 tendrild="$(realpath "$1")"
@@ -123,6 +124,30 @@ for _ in $(seq 100); do
 done
 [ $moving = 1 ] && ok "the servo stream from host B moves the robot (insertion velocity $v mm/s)" ||
   not_ok "the servo stream did not move the robot: $(tail -n 3 "$work/stream.log")"
+# A partitioned link: host B's veth down for 1 s mid-stream. The stream stops arriving, the robot
+# holds, and the hold is a safety event (servo command timeout) that host B gets over DDS
+# (rt/safety/events keeps the last 64, transient-local) once the link is back.
+timeouts() { grep -o 'command timeout' <<< "$1" | wc -l; }
+before="$(timeouts "$(rest GET /api/v1/faults)")"
+ip -n "$b" link set "tdB$n" down
+sleep 1
+after="$(timeouts "$(rest GET /api/v1/faults)")"
+v="$(field "$(rest GET /api/v1/robots/srmc/measured_js)" '.velocity[0]')"
+ip -n "$b" link set "tdB$n" up
+if [ "$after" -gt "$before" ] && node -e 'process.exit(Math.abs(Number(process.argv[1]))<0.1?0:1)' "$v"; then
+  ok "link partitioned: the robot on host A holds (insertion velocity $v mm/s) and logged a servo command timeout"
+else
+  not_ok "link partitioned: command-timeout events $before -> $after, insertion velocity $v mm/s"
+fi
+events="$(pb --timeout 10 echo safety events --count 64 2>/dev/null)"
+grep -q 'command timeout' <<< "$events" && ok "host B got the hold's safety event over rt/safety/events after the partition" ||
+  not_ok "host B did not get the safety event: $(tail -n 2 <<< "$events")"
+# The stream goes on after the partition (a hold is not a fault): wait until it moves the robot again.
+for _ in $(seq 100); do
+  v="$(field "$(rest GET /api/v1/robots/srmc/measured_js)" '.velocity[0]')"
+  node -e 'process.exit(Math.abs(Number(process.argv[1]))>0.5?0:1)' "$v" && break
+  sleep 0.05
+done
 # Host B watches the joint states (2 s of them) while its commander is killed; the stamps say when
 # the robot stopped.
 pb --timeout 20 echo srmc joint_states --count 100 > "$work/watch.jsonl" 2>&1 &
