@@ -24,7 +24,7 @@ fi
 # clang and lld build tendrild for scripts/run.sh too (faster than gcc and ld; README, "Run it").
 packages=(build-essential clang lld cmake ninja-build pkg-config git ca-certificates curl jq
   libboost-system-dev libboost-dev libeigen3-dev nlohmann-json3-dev libssl-dev openssl libopencv-dev
-  libzstd-dev liblz4-dev libnlopt-dev protobuf-compiler)
+  libzstd-dev liblz4-dev libnlopt-dev protobuf-compiler cyclonedds-dev cyclonedds-tools)
 # Node.js >= 20 runs the console tools (npm ci, the API and browser tests, the benches; package.json
 # "engines"). It may come from a vendor package; Debian 12's own nodejs is 18, past its end of life
 # and refused by Playwright, so it only bootstraps the newer one (below).

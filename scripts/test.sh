@@ -20,6 +20,7 @@
 #     8. clang-tidy over the whole tree (and, when clean, the commit to record in .ci/clang-tidy-base)
 #     9. long fuzzing (TENDRIL_FUZZ_SECONDS, default 300 in --full)
 #    10. the console's 4K screenshots in the browser tests (TENDRIL_E2E_FULL=1)
+#    11. DDS between two hosts made of network namespaces (tests/dds/netns_test.sh; needs root)
 #   scripts/test.sh --quick   stages 1-4 only (for a quick local check)
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -185,7 +186,7 @@ else
 fi
 
 # The translation units clang-tidy looks at: the project's library sources (not tests).
-tidy_scope='^(teleop(/perception)?|safety|drivers/[a-z_]+(/imaging)?|record|server)/src/.*\.cpp$'
+tidy_scope='^(teleop(/perception)?|safety|drivers/[a-z_]+(/imaging)?|record|server|dds)/src/.*\.cpp$'
 run_tidy() {  # run_tidy <log> <files...>
   local log=$1
   shift
@@ -212,6 +213,16 @@ else
 fi
 
 [ "$mode" = full ] || finish
+
+# ---- DDS between two hosts (network namespaces and a veth pair; needs root) -----------------------
+stage "DDS across two network namespaces (tests/dds/netns_test.sh)"
+bash tests/dds/netns_test.sh build/server/tendrild build/dds/tendril-dds-probe 2>&1 | tee build/dds-netns.log
+status=${PIPESTATUS[0]}
+if [ "$status" = 77 ]; then
+  record dds-netns 0 0 0  # skipped: no root or no network namespaces here
+else
+  record dds-netns "$status" "$(grep -c '^ok - ' build/dds-netns.log)" "$(grep -c '^not ok - ' build/dds-netns.log)"
+fi
 
 # ---- 7. gcc release build, benchmarks and its ctest ---------------------------------------------
 stage "gcc RelWithDebInfo build with benchmarks (build-gcc)"

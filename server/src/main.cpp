@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "tendril/dds/dds_bridge.hpp"
 #include "tendril/drivers/canopen/master.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/config_schema.hpp"
@@ -45,6 +46,10 @@ options:
   --allowed-origin O   also accept browser connections from origin O (repeatable), e.g. when
                        serving behind a proxy or from a container; default: the server's own
   --no-realtime        do not ask for SCHED_FIFO / mlockall for the control thread
+  --no-dds             do not join DDS (default: tendrild is a DDS participant publishing rt/<robot>/...
+                       topics and taking commands; README, "DDS")
+  --dds-domain N       DDS domain id, 0 to 232 (default 0, as ROS 2's ROS_DOMAIN_ID); Cyclone DDS reads
+                       its network settings from $CYCLONEDDS_URI
   --version            print the version and exit
   --help               print this help and exit
 
@@ -83,6 +88,8 @@ int main(int argc, char** argv) {
   std::filesystem::path config_file;
   std::string listen, token;
   bool no_realtime = false;
+  bool dds_enabled = true;
+  std::uint32_t dds_domain = 0;
   std::vector<std::string> extra_origins;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
@@ -106,6 +113,19 @@ int main(int argc, char** argv) {
       extra_origins.push_back(value("--allowed-origin"));
     } else if (arg == "--no-realtime") {
       no_realtime = true;
+    } else if (arg == "--no-dds") {
+      dds_enabled = false;
+    } else if (arg == "--dds-domain") {
+      const std::string text = value("--dds-domain");
+      std::size_t used = 0;
+      unsigned long domain = 233;
+      try {
+        domain = std::stoul(text, &used);
+      } catch (const std::exception&) {
+      }
+      if (text.empty() || used != text.size() || text[0] == '-' || domain > 232)
+        usage_error("--dds-domain expects a DDS domain id from 0 to 232, got '" + text + "'");
+      dds_domain = static_cast<std::uint32_t>(domain);
     } else {
       usage_error("unknown option '" + arg + "'");
     }
@@ -251,7 +271,35 @@ int main(int argc, char** argv) {
       ho.tap = recording;
     }
     HttpServer http(api, ho);
+    // DDS: the robots' state on rt/<robot>/... topics and commands through the same checks as REST
+    // (http.command). Its own threads; it never touches the control thread.
+    std::unique_ptr<tendril::dds::DdsBridge> dds;
+    // The state topics at the WebSocket's rate: the same snapshots, no more load on a test server.
+    const double dds_rate_hz = config.publish_rate_hz > 0 ? config.publish_rate_hz : 50.0;
+    if (dds_enabled) {
+      tendril::dds::DdsOptions dopts;
+      dopts.domain = dds_domain;
+      dopts.publish_rate_hz = dds_rate_hz;
+      try {
+        dds = std::make_unique<tendril::dds::DdsBridge>(
+            runtime,
+            [&http](const std::string& robot, const std::string& command, const nlohmann::json& body,
+                    const std::string& lease_token, const std::string& client) {
+              return http.command(robot, command, body, lease_token, client);
+            },
+            dopts);
+      } catch (const tendril::dds::DdsError& e) {
+        throw std::runtime_error(std::string(e.what()) + "; start with --no-dds to run without DDS");
+      }
+      http.add_metrics_source([bridge = dds.get()] { return bridge->metrics(); });
+    }
     http.start();
+    if (dds) {
+      dds->start();
+      std::cerr << "tendrild: dds: domain " << dds->domain() << ", publishing rt/<robot>/joint_states, "
+                << "operating_state, measured_cp and rt/safety/events at " << dds_rate_hz
+                << " Hz; commands on rt/<robot>/servo_jv, move_jp, state_command" << std::endl;
+    }
 
     std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
     if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
@@ -262,6 +310,7 @@ int main(int argc, char** argv) {
     sigwait(&stop_signals, &signal_number);
     std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
               << " received: disabling the drives and stopping" << std::endl;
+    if (dds) dds->stop();  // before the front end whose command path it uses
     http.stop();
     if (recording) {
       recording->stop();  // what is queued is written and the file gets its summary and footer

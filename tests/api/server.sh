@@ -79,6 +79,9 @@ JSON
     read -r -a args <<< "$expanded"
   fi
   export TENDRIL_LOG="$tendrild_workdir/tendrild.log"
+  # tendrild joins DDS by default (README, "DDS"): a test server's participant stays on loopback
+  # unless the caller chose its own Cyclone DDS settings.
+  export CYCLONEDDS_URI="${CYCLONEDDS_URI:-file://$repo_root/tests/dds/loopback.xml}"
   # TENDRIL_TOKEN in the environment would override the config's token (tendrild --help): a second
   # server started from this shell must not inherit the first one's.
   (cd "$repo_root" && TENDRIL_TOKEN="$token" exec "$binary" "${args[@]}") > "$TENDRIL_LOG" 2>&1 &

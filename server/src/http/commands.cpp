@@ -396,4 +396,32 @@ ApiResult HttpServer::Impl::set_parameters(const json& parameters, const Identit
   }
   return result;
 }
+
+ApiResult HttpServer::command(const std::string& robot, const std::string& command, const json& body,
+                              const std::string& lease_token, const std::string& client) {
+  Impl& s = *impl_;
+  // The caller is an operator whose only claim to the lease is the token in its sample, like a REST
+  // caller sending X-Tendril-Lease; without a token, a key no lease can be bound to.
+  Identity who;
+  who.role = Role::kOperator;
+  who.lease_key = lease_token.empty() ? std::string("none:") + client
+                                      : std::string(http::LeaseManager::kTokenKeyPrefix) + lease_token;
+  who.label = client;
+  if (!s.api.has_robot(robot)) return unknown_robot_result(robot);
+  const auto& core = core_robot_commands();
+  if (const auto it = core.find(command); it != core.end()) return s.execute(it->second, robot, body, who);
+  for (const auto& info : s.api.robot_commands(robot)) {
+    if (info.name == command) return s.execute(CommandRef(Command::kRobotCommand, command), robot, body, who);
+  }
+  return ApiResult::error(404, "not_found", "robot '" + robot + "' has no command '" + command + "'");
+}
+
+void HttpServer::add_metrics_source(std::function<std::string()> source) {
+  Impl& s = *impl_;
+  std::lock_guard lifecycle(s.lifecycle_mutex);
+  if (s.running)
+    throw HttpServerError("add_metrics_source: the server is already running; add sources before start()");
+  s.metrics_sources.push_back(std::move(source));
+}
+
 }  // namespace tendril::server

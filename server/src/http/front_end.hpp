@@ -186,6 +186,8 @@ class HttpServer::Impl {
   std::map<int, std::uint64_t> http_by_status;
   std::map<std::string, std::uint64_t> refused_requests;
   std::atomic<std::uint64_t> next_connection_id{1};
+  // More Prometheus text for GET /metrics (HttpServer::add_metrics_source; fixed once started).
+  std::vector<std::function<std::string()>> metrics_sources;
 
   // Runtime.
   std::unique_ptr<net::io_context> ioc;

@@ -338,6 +338,7 @@ std::string HttpServer::Impl::metrics() const {
   }
   for (const auto& source : opts.topic_sources)
     if (source) out << source->metrics();
+  for (const auto& source : metrics_sources) out << source();
   return out.str();
 }
 

@@ -120,6 +120,18 @@ class HttpServer {
   void publish_once();
   std::vector<ConnectionStats> connection_stats() const;
 
+  // A robot command from another front end of this server (the DDS bridge), checked exactly like
+  // POST /api/v1/robots/{robot}/{command} from an operator who sends `lease_token` as X-Tendril-Lease:
+  // the robot, the lease, then ControlApi's checks of shape, sizes, finiteness and limits; recorded
+  // by the tap like a REST command. `command` is a core CRTK command (state_command, mode, move_jp,
+  // servo_jv, ...) or one of the robot type's own; `client` is the caller's public label (lease
+  // holder, event log). Thread-safe; never called from the control thread.
+  ApiResult command(const std::string& robot, const std::string& command, const nlohmann::json& body,
+                    const std::string& lease_token, const std::string& client);
+  // Prometheus text that another part of the server appends to GET /metrics (e.g. the DDS bridge's
+  // counters). Call before start(); throws HttpServerError after.
+  void add_metrics_source(std::function<std::string()> source);
+
   // The REST routes this front end dispatches (method, path template with {robot}), for the test
   // that holds the OpenAPI document to what is served.
   struct Route {

@@ -1,0 +1,51 @@
+// The DDS face of tendril on the wire: topic names, the QoS of each topic and time stamps, shared by
+// tendrild's bridge and tendril-dds-probe so that the two cannot disagree. The types themselves are
+// the IDL under dds/idl (ros2_msgs.idl: the ROS 2 ones; tendril_msgs.idl: tendril's own), compiled
+// by idlc into ros2_msgs.h / tendril_msgs.h.
+//
+// Names follow ROS 2's mapping of a topic "/srmc/joint_states" onto DDS: the prefix "rt" (ROS topic)
+// and no leading slash, "rt/srmc/joint_states".
+#pragma once
+
+#include <dds/dds.h>
+
+#include <cstdint>
+#include <string>
+
+#include "ros2_msgs.h"
+#include "tendril_msgs.h"
+
+namespace tendril::dds {
+
+// What a topic carries, which decides its QoS (README, "DDS"):
+//   kState:   best-effort, keep-last 1, volatile: a lost sample is replaced by the next one.
+//   kEvent:   reliable, keep-last 64, transient-local: a late subscriber gets the recent events.
+//   kCommand: reliable, keep-last 64: a command is not lost on the way, a flood is cut by the rate
+//             limit of the bridge, not by the network.
+//   kResult:  reliable, keep-last 64, volatile: the answer to each command sample.
+enum class TopicKind { kState, kEvent, kCommand, kResult };
+
+// The QoS of `kind`; the caller owns it (dds_delete_qos).
+dds_qos_t* make_qos(TopicKind kind);
+
+// "rt/<robot>/<leaf>", e.g. robot_topic("srmc", "joint_states") = "rt/srmc/joint_states".
+std::string robot_topic(const std::string& robot, const std::string& leaf);
+inline constexpr const char* kSafetyEventsTopic = "rt/safety/events";
+
+// Topic leaves per robot.
+inline constexpr const char* kJointStates = "joint_states";        // sensor_msgs/JointState, kState
+inline constexpr const char* kOperatingState = "operating_state";  // tendril_msgs OperatingState, kState
+inline constexpr const char* kTipPose = "measured_cp";             // geometry_msgs/PoseStamped, kState
+inline constexpr const char* kServoJv = "servo_jv";                // tendril_msgs JointCommand, kCommand
+inline constexpr const char* kMoveJp = "move_jp";                  // tendril_msgs JointCommand, kCommand
+inline constexpr const char* kStateCommand = "state_command";      // tendril_msgs StateCommand, kCommand
+inline constexpr const char* kCommandResult = "command_result";    // tendril_msgs CommandResult, kResult
+
+// builtin_interfaces/Time from unix seconds.
+builtin_interfaces_msg_dds__Time_ to_time(double unix_seconds);
+double to_seconds(const builtin_interfaces_msg_dds__Time_& t);
+
+// A Cyclone DDS return code as text for a person, e.g. "DDS_RETCODE_BAD_PARAMETER".
+std::string retcode_text(dds_return_t rc);
+
+}  // namespace tendril::dds
