@@ -320,7 +320,7 @@ std::optional<ServiceError> SteerableCatheter::refuse_mode(ModeId mode,
                           "robot '" + config_.name +
                               "' has no loaded plan with a vessel: image_guided replans along the plan's "
                               "vessel; load a plan first (POST /api/v1/robots/" +
-                              config_.name + "/path)"};
+                              config_.name + "/path_following {\"plan\": \"<job id>\"})"};
     // The replanner is built here, on the network thread, on the plan loaded now (a plan loaded later
     // takes effect when the mode is entered again).
     return guidance_->prepare(path->vessel);

@@ -171,17 +171,19 @@ void ImageGuidance::on_tip(const ImagedTip& tip) {
            q4 >= options.distal_drive_min && q4 <= options.distal_drive_max;
   };
   const double now = snapshot.setpoint[1];
-  double best_roll = std::clamp(target.psi[1], lo, hi), best_sign = 1.0;
+  bool found = false;
+  double best_roll = 0.0, best_sign = 1.0;
   for (int m = -4; m <= 4; ++m) {
     const double r = target.psi[1] + m * std::numbers::pi;
     const double sign = m % 2 == 0 ? 1.0 : -1.0;
     if (r < lo || r > hi || !bends_in_range(sign)) continue;
-    if (std::abs(r - now) < std::abs(best_roll - now) ||
-        (best_roll == std::clamp(target.psi[1], lo, hi) && (best_roll < lo || best_roll > hi))) {
+    if (!found || std::abs(r - now) < std::abs(best_roll - now)) {
+      found = true;
       best_roll = r;
       best_sign = sign;
     }
   }
+  if (!found) best_roll = std::clamp(target.psi[1], lo, hi);  // out of reach: as near as the range allows
   target.psi[1] = best_roll;
   target.psi[2] *= best_sign;
   target.psi[3] *= best_sign;
