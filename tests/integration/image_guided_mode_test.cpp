@@ -243,6 +243,11 @@ TEST_F(ImageGuidedModeTest, TrackingLostForHalfASecondHoldsTheBendsAndWarnsInser
   steps(300);
   EXPECT_FALSE(op()["image_guidance"]["tracking_lost"].get<bool>());
   EXPECT_TRUE(has_event("tip tracking again"));
+  // The operator stops inserting: the mode can be left while the bends still follow new targets.
+  servo_insertion = 0.0;
+  steps(300);
+  const auto leave = api->mode("srmc", {{"mode", "joint"}});
+  EXPECT_EQ(leave.status, 200) << leave.message;
 }
 
 // The headline (issue 15): with a plant that differs from the model, the tip stays nearer the plan's

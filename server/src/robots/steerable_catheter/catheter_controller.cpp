@@ -413,7 +413,9 @@ bool CatheterController::moving(const ControlContext& ctx) const noexcept {
   if (relaxing_ || withdrawing_) return true;
   if (ctx.mode == kConfigurationMode && !robot_.configuration_->done(ctx.t)) return true;
   // A joystick whose deadman is held is driving the robot.
-  if (ctx.mode == kImageGuidedMode && !robot_.configuration_->done(ctx.t)) return true;
+  // image_guided: the bends follow a new target every frame, so their motion is the mode's steady
+  // state, not a move to wait for (counted, it would refuse every mode switch while tracking runs);
+  // the operator's insertion (a held deadman, a live stream) is.
   return (ctx.mode == kTelemanipulationMode || ctx.mode == kActiveComplianceMode ||
           ctx.mode == kImageGuidedMode) &&
          joystick_deadman_;
