@@ -407,8 +407,8 @@ struct ImagingWorker::Plane {
   imaging::GreyImage frame;                      // the source's last frame (the plane's thread only)
   std::vector<std::uint8_t> jpeg;
   std::vector<Eigen::Vector3d> backbone;
-  std::vector<Eigen::Vector3d>
-      imaged;  // what a simulated plane renders when it is not the model (ImageFeedback)
+  // What a simulated plane renders when it is not the model's backbone (ImageFeedback::imaged_backbone).
+  std::vector<Eigen::Vector3d> imaged;
   std::vector<Eigen::Vector3d> plan;
 
   mutable std::mutex slot_mutex;  // the latest-value slot the front end reads

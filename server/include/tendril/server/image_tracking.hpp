@@ -13,8 +13,9 @@
 // Safety: when the 3D tip from the raw segmentations lies farther than `disagreement_mm` from the
 // model's tip on `disagreement_frames` consecutive evaluations, the operator is warned (and again when
 // they agree). In the SIMULATION the image is rendered from the model's own backbone, so a
-// disagreement there means a segmentation error; with a real image source it is the plant leaving
-// the model (buckling, slip, a wrong calibration).
+// disagreement there means a segmentation error — unless the robot's simulated plant differs from its
+// model (ImageFeedback::imaged_backbone, e.g. a catheter's true_catheter); with a real image source it
+// is the plant leaving the model (buckling, slip, a wrong calibration).
 #pragma once
 
 #include <Eigen/Core>

@@ -13,7 +13,8 @@
 //   /imaging/tracking              tendril.TipTracking (BiplaneTipTracker): each simulated plane's
 //                                  segmented and EKF-filtered tip, the 3D tip from both, the model's tip
 //                                  and their disagreement; tracking runs only while this topic has a
-//                                  subscriber, and makes both simulated planes render
+//                                  subscriber or the imaged robot demands it (set_image_feedback), and
+//                                  makes both simulated planes render
 // Each image message also carries "overlay": {"robot": [[column, row], …], "plan": [[column, row], …],
 // "segmented": [[column, row], …], "tip": [column, row] or null} (the last two while the tracking runs),
 // the imaged robot's model backbone and the plan's path projected with the plane's own geometry
