@@ -230,6 +230,7 @@ const PlaneTrack& BiplaneTipTracker::track(int plane, perception::GreyImageView 
 void BiplaneTipTracker::fuse(int plane, const std::vector<Eigen::Vector3d>& model_backbone,
                              std::uint64_t capture_ns) {
   std::string warning;
+  std::optional<ImagedTip> evaluated;
   {
     std::lock_guard lock(fuse_mutex_);
     shared_[plane] = state_[plane]->track;
@@ -259,7 +260,16 @@ void BiplaneTipTracker::fuse(int plane, const std::vector<Eigen::Vector3d>& mode
     // bi-plane exposures, not the planes' calls.
     ++updates_[plane];
     const bool fresh_pair = updates_[0] > evaluated_at_[0] && updates_[1] > evaluated_at_[1];
-    if (fresh_pair) evaluated_at_ = updates_;
+    if (fresh_pair) {
+      evaluated_at_ = updates_;
+      ImagedTip tip;
+      // The filtered tip where both EKFs run (less noise); the raw triangulation while they start.
+      const auto best = filtered_tip ? filtered_tip : raw_tip;
+      tip.found = best.has_value() && ap.found && lateral.found;
+      if (best) tip.position = *best;
+      tip.capture_ns = capture_ns;
+      evaluated = tip;
+    }
     if (fresh_pair && disagreement) {
       if (*disagreement > config_.disagreement_mm) {
         agreeing_ = 0;
@@ -336,6 +346,7 @@ void BiplaneTipTracker::fuse(int plane, const std::vector<Eigen::Vector3d>& mode
   }
   // Not a stale sensor: the images and the model disagree, a cause reported from outside the loop.
   if (!warning.empty() && warn_) warn_(safety::FaultCode::kExternal, warning);
+  if (evaluated && listener_) listener_(*evaluated);
 }
 
 std::shared_ptr<const std::string> BiplaneTipTracker::latest(std::uint64_t& version,

@@ -427,6 +427,8 @@ struct ImagingWorker::Plane {
   imaging::GreyImage frame;                      // the source's last frame (the plane's thread only)
   std::vector<std::uint8_t> jpeg;
   std::vector<Eigen::Vector3d> backbone;
+  // What a simulated plane renders when it is not the model's backbone (ImageFeedback::imaged_backbone).
+  std::vector<Eigen::Vector3d> imaged;
   std::vector<Eigen::Vector3d> plan;
 
   mutable std::mutex slot_mutex;  // the latest-value slots the front end reads, one per stream
@@ -690,9 +692,24 @@ void ImagingWorker::warn(safety::FaultCode code, const std::string& text) const 
   if (warn_) warn_(code, text);
 }
 
+void ImagingWorker::set_image_feedback(ImageFeedback* feedback) {
+  feedback_ = feedback;
+  if (!feedback_ || !tracker_) return;
+  tracker_->set_tip_listener([feedback](const ImagedTip& tip) { feedback->on_tip(tip); });
+  feedback_->tracking_attached([this](bool wanted) {
+    {
+      std::lock_guard lock(run_mutex_);
+      if (feedback_wanted_ == wanted) return;
+      feedback_wanted_ = wanted;
+      update_wanted();
+    }
+    run_wake_.notify_all();
+  });
+}
+
 void ImagingWorker::update_wanted() {
   for (auto& plane : planes_) {
-    bool wanted = tracking_wanted_ && tracker_ && !plane->source;
+    bool wanted = (tracking_wanted_ || feedback_wanted_) && tracker_ && !plane->source;
     for (const auto& stream : plane->stream_wanted) wanted = wanted || stream.load(std::memory_order_relaxed);
     if (wanted && !plane->wanted) {
       std::lock_guard stats(plane->stats_mutex);
@@ -770,8 +787,19 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   // The exposure: the backbone as the runtime snapshot has it now.
   bool shape_ok = false;
   read_overlay(p, shape_ok);
+  // A simulated plane images the instrument as it is: the simulated plant's true backbone where the
+  // robot's simulation differs from its model (the overlay and the tracker keep the model's).
+  p.imaged.clear();
+  bool true_shape = false;
+  if (feedback_) {
+    try {
+      true_shape = feedback_->imaged_backbone(p.imaged);
+    } catch (const std::exception&) {
+      true_shape = false;
+    }
+  }
   const auto t0 = SteadyClock::now();
-  const auto frame = p.fluoroscope.render(p.backbone);
+  const auto frame = p.fluoroscope.render(true_shape ? p.imaged : p.backbone);
   const auto t1 = SteadyClock::now();
   // The tracking sees the frame as rendered (before JPEG), as a frame grabber would deliver it.
   // Only while someone watches the tracking (segmentation costs CPU; an unwatched result is waste).
@@ -779,7 +807,7 @@ void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
   bool tracking = false;
   {
     std::lock_guard lock(run_mutex_);
-    tracking = tracking_wanted_;
+    tracking = tracking_wanted_ || feedback_wanted_;
   }
   if (tracker_ && tracking) {
     track =

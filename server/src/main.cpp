@@ -245,6 +245,9 @@ int main(int argc, char** argv) {
         out = path->tips;
         return !out.empty();
       });
+      // A robot type that closes a loop on the images (a catheter's image-guided mode) gets the tracked
+      // tips, and a simulated plane images its simulated plant's true shape.
+      if (auto* plugin = runtime.plugin(imaged)) imaging->set_image_feedback(plugin->image_feedback());
       ho.topic_sources.push_back(imaging);
       imaging->start();
     }

@@ -72,7 +72,7 @@ after(async () => {
 test('the catheter lists its modes, configuration space and joystick sources', async () => {
   const res = await get('/robots');
   const srmc = res.json.find((r) => r.name === ROBOT);
-  for (const m of ['joint', 'configuration', 'active_compliance', 'telemanipulation', 'path_following'])
+  for (const m of ['joint', 'configuration', 'active_compliance', 'telemanipulation', 'image_guided', 'path_following'])
     assert.ok(srmc.modes.includes(m), `modes include ${m}: ${JSON.stringify(srmc.modes)}`);
   assert.deepEqual(srmc.configuration.names, ['insertion', 'roll', 'theta_proximal', 'theta_distal']);
   assert.ok(srmc.joystick_sources.includes('console'));

@@ -102,7 +102,7 @@ TEST_F(CatheterTest, ListsTheModesAndTheConfigurationSpace) {
   start(free_space_srmc());
   const auto robot = api->robots()[0];
   EXPECT_EQ(robot["modes"], nlohmann::json({"joint", "configuration", "active_compliance", "telemanipulation",
-                                            "path_following"}));
+                                            "image_guided", "path_following"}));
   EXPECT_EQ(robot["configuration"]["names"],
             nlohmann::json({"insertion", "roll", "theta_proximal", "theta_distal"}));
   // Seed bend-drive limits: -6 <= q3 <= 10 mm, |q4| <= 5 mm.

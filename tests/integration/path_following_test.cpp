@@ -105,7 +105,7 @@ TEST_F(PathFollowingTest, ModeSwitchNeedsALoadedPlan) {
   EXPECT_EQ(api->mode("srmc", {{"mode", "cartesian"}}).status, 422);
   const auto robots = api->robots();
   EXPECT_EQ(robots[0]["modes"], nlohmann::json({"joint", "configuration", "active_compliance",
-                                                "telemanipulation", "path_following"}));
+                                                "telemanipulation", "image_guided", "path_following"}));
 }
 
 TEST_F(PathFollowingTest, LoadRejectsAStepOutsideTheJointLimitsNamingIt) {

@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -197,6 +198,68 @@ TEST(ImagingWorkerTracking, ASubscriberOfTheTrackingMakesBothPlanesRenderAndTheO
   const json m = json::parse(*tracking->payload);
   EXPECT_LT((vec(m["raw_tip_mm"]) - bent_catheter(20.0).back()).norm(), 1.0) << m.dump();
   worker.set_demand("/imaging/tracking", false);
+  worker.stop();
+}
+
+// A robot that closes a loop on the images (ImageFeedback, e.g. the catheter's image_guided mode): its
+// demand makes the tracking run with nobody subscribed, it gets every bi-plane tip, and the simulated
+// planes image its true shape (here 3 mm off the model's) while the tracker keeps the model's.
+struct FakeFeedback final : ImageFeedback {
+  std::function<void(bool)> demand;
+  std::mutex mutex;
+  std::vector<ImagedTip> tips;
+  std::vector<Eigen::Vector3d> truth = shifted(bent_catheter(20.0), {3.0, 0.0, 0.0});
+  void tracking_attached(std::function<void(bool)> d) override { demand = std::move(d); }
+  void on_tip(const ImagedTip& tip) override {
+    std::lock_guard lock(mutex);
+    tips.push_back(tip);
+  }
+  bool imaged_backbone(std::vector<Eigen::Vector3d>& out) const override {
+    out = truth;
+    return true;
+  }
+  std::size_t count() {
+    std::lock_guard lock(mutex);
+    return tips.size();
+  }
+};
+
+TEST(ImagingWorkerTracking, AnImageFeedbackDemandsTheTrackingGetsEveryTipAndHasItsTrueShapeImaged) {
+  auto config = parse_imaging_config(
+      json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
+      "/nonexistent/server.json");
+  ImagingWorker worker(
+      [](std::vector<Eigen::Vector3d>& out) {
+        out = bent_catheter(20.0);
+        return true;
+      },
+      config);
+  FakeFeedback feedback;
+  worker.set_image_feedback(&feedback);
+  ASSERT_TRUE(feedback.demand) << "the imaging tells the robot that it tracks";
+  worker.capture_once();
+  EXPECT_EQ(feedback.count(), 0u) << "no tracking before the robot demands it";
+  feedback.demand(true);
+  for (int i = 0; i < 4; ++i) worker.capture_once();
+  ASSERT_EQ(feedback.count(), 4u) << "one tip per bi-plane exposure";
+  const ImagedTip last = feedback.tips.back();
+  ASSERT_TRUE(last.found);
+  EXPECT_LT((last.position - feedback.truth.back()).norm(), 1.0) << "the true catheter was imaged";
+  EXPECT_GT((last.position - bent_catheter(20.0).back()).norm(), 2.0) << "not the model";
+  // The overlay still draws the model's backbone.
+  const json image = json::parse(*worker.latest("/imaging/ap", 0)->payload);
+  ASSERT_FALSE(image["overlay"]["robot"].empty());
+  feedback.demand(false);
+  worker.capture_once();
+  EXPECT_EQ(feedback.count(), 4u) << "the demand ended: no tracking";
+
+  // The demand alone makes both simulated planes' threads run.
+  feedback.demand(true);
+  worker.start();
+  for (int i = 0; i < 500 && feedback.count() < 6; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_GE(feedback.count(), 6u);
+  feedback.demand(false);
   worker.stop();
 }
 

@@ -13,8 +13,9 @@
 // Safety: when the 3D tip from the raw segmentations lies farther than `disagreement_mm` from the
 // model's tip on `disagreement_frames` consecutive evaluations, the operator is warned (and again when
 // they agree). In the SIMULATION the image is rendered from the model's own backbone, so a
-// disagreement there means a segmentation error; with a real image source it is the plant leaving
-// the model (buckling, slip, a wrong calibration).
+// disagreement there means a segmentation error — unless the robot's simulated plant differs from its
+// model (ImageFeedback::imaged_backbone, e.g. a catheter's true_catheter); with a real image source it
+// is the plant leaving the model (buckling, slip, a wrong calibration).
 #pragma once
 
 #include <Eigen/Core>
@@ -32,6 +33,7 @@
 
 #include "tendril/drivers/sim/simulated_fluoroscope.hpp"
 #include "tendril/safety/safety_types.hpp"
+#include "tendril/server/image_feedback.hpp"
 #include "tendril/teleop/perception/fluoroscopy_segmenter.hpp"
 #include "tendril/teleop/perception/tip_ekf.hpp"
 
@@ -66,6 +68,9 @@ struct PlaneTrack {
 
 // A warning for the imaged robot's operator.
 using TrackingWarning = std::function<void(safety::FaultCode code, const std::string& text)>;
+// Each bi-plane evaluation's 3D tip (once per pair of new frames, found or not), on the thread of the
+// plane whose frame completed the pair, outside the tracker's lock.
+using TipListener = std::function<void(const ImagedTip& tip)>;
 
 class BiplaneTipTracker {
  public:
@@ -83,6 +88,9 @@ class BiplaneTipTracker {
   const PlaneTrack& track(int plane, teleop::perception::GreyImageView frame,
                           const std::vector<Eigen::Vector3d>& model_backbone, std::uint64_t capture_ns);
 
+  // Where each evaluation's 3D tip goes (a robot closing a loop on the image). Call before tracking.
+  void set_tip_listener(TipListener listener) { listener_ = std::move(listener); }
+
   // The newest /imaging/tracking message and its version (0: none yet). Any thread.
   std::shared_ptr<const std::string> latest(std::uint64_t& version, std::uint64_t& time_ns) const;
   static std::string schema();
@@ -98,6 +106,7 @@ class BiplaneTipTracker {
   std::uint64_t max_skew_ns_;
   teleop::perception::TipEkf ekf_;
   TrackingWarning warn_;
+  TipListener listener_;
   std::array<std::unique_ptr<PlaneState>, 2> state_;
 
   mutable std::mutex fuse_mutex_;  // the planes' published results, the disagreement count, the message

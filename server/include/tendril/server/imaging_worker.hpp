@@ -13,7 +13,8 @@
 //   /imaging/tracking              tendril.TipTracking (BiplaneTipTracker): each simulated plane's
 //                                  segmented and EKF-filtered tip, the 3D tip from both, the model's tip
 //                                  and their disagreement; tracking runs only while this topic has a
-//                                  subscriber, and makes both simulated planes render
+//                                  subscriber or the imaged robot demands it (set_image_feedback), and
+//                                  makes both simulated planes render
 // Each image message also carries "overlay": {"robot": [[column, row], …], "plan": [[column, row], …],
 // "segmented": [[column, row], …], "tip": [column, row] or null} (the last two while the tracking runs),
 // the imaged robot's model backbone and the plan's path projected with the plane's own geometry
@@ -52,6 +53,7 @@
 #include "tendril/drivers/sim/simulated_fluoroscope.hpp"
 #include "tendril/safety/safety_types.hpp"
 #include "tendril/server/control_api.hpp"
+#include "tendril/server/image_feedback.hpp"
 #include "tendril/server/image_tracking.hpp"
 #include "tendril/server/robot_service.hpp"
 #include "tendril/server/topic_source.hpp"
@@ -135,6 +137,11 @@ class ImagingWorker final : public TopicSource {
   void set_plan_reader(BackboneReader read_plan) { read_plan_ = std::move(read_plan); }
   // Where the watchdog's warnings go (stale, dropped, ended). Call before start().
   void set_warning_sink(ImagingWarningSink sink) { warn_ = std::move(sink); }
+  // The imaged robot's use of the images (null: none): it receives every 3D tip of the tracking, may
+  // demand tracking, and a simulated plane renders its imaged_backbone() (the simulated plant's true
+  // shape) where it has one, while the overlay and the tracker's model stay the model's. Call before
+  // start(). Without tracking (imaging.tracking.enabled false) only the rendering applies.
+  void set_image_feedback(ImageFeedback* feedback);
   // Where each plane's frames come from, for the start-up message.
   std::string describe_sources() const;
 
@@ -170,6 +177,8 @@ class ImagingWorker final : public TopicSource {
   ImagingWarningSink warn_;
   std::unique_ptr<BiplaneTipTracker> tracker_;  // null: tracking off
   bool tracking_wanted_ = false;                // guarded by run_mutex_: /imaging/tracking has a subscriber
+  bool feedback_wanted_ = false;                // guarded by run_mutex_: the imaged robot demands tracking
+  ImageFeedback* feedback_ = nullptr;
   ImagingConfig config_;
   std::array<std::unique_ptr<Plane>, 2> planes_;
   std::shared_ptr<const std::string> vessel_cloud_;

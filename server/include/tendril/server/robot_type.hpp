@@ -41,6 +41,7 @@ namespace tendril::server {
 
 class RobotApiExtension;
 class PlanningApi;
+class ImageFeedback;
 
 inline constexpr std::size_t kMaxJoints = safety::kMaxJoints;
 inline constexpr std::size_t kCommandValues = 16;
@@ -260,6 +261,9 @@ class RobotPlugin {
   // placed there for everyone (teleop::placement_at_entry), and plans made in the insertion frame are
   // shown in the robot's frame through it.
   virtual std::optional<Eigen::Isometry3d> vessel_entry() const { return std::nullopt; }
+  // The type's use of the bi-plane imaging (image_feedback.hpp): null for a type that does not close a
+  // loop on images. Owned by the plug-in; lives as long as it.
+  virtual ImageFeedback* image_feedback() { return nullptr; }
   // The type's part of the network API; `service` reaches the runtime, `post` hands a PluginCommand to
   // this robot's control thread (false: the mailbox is full).
   virtual std::unique_ptr<RobotApiExtension> api(RobotService& service,

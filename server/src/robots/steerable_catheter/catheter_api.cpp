@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "steerable_catheter/catheter_robot.hpp"
+#include "steerable_catheter/image_guidance.hpp"
 #include "tendril/server/robot_api_extension.hpp"
 
 namespace tendril::server {
@@ -99,9 +100,29 @@ class CatheterApi final : public RobotApiExtension {
     const auto sim = robot_.simulation_view();
     out["contact_force_n"] = sim.present ? json(sim.contact_force_n) : json(nullptr);
     out["max_contact_force_n"] = settings.max_contact_force_n;
-    if (sim.present)
+    if (sim.present) {
       out["simulation"] = {{"tip_bend_rad", sim.tip_bend_rad},
                            {"peak_contact_force_n", sim.max_contact_force_n}};
+      if (sim.true_catheter) out["simulation"]["true_insertion_mm"] = sim.true_insertion_mm;
+    }
+    // The image_guided mode's loop: null while another mode runs.
+    if (s.mode == kImageGuidedMode) {
+      const auto g = robot_.guidance().status();
+      const bool fix = g.replans > 0;
+      out["image_guidance"] = {
+          {"status", s.guidance_lost ? "lost" : to_string(g.state)},
+          {"reason", g.reason.empty() ? json(nullptr) : json(g.reason)},
+          {"tracking_lost", s.guidance_lost},
+          {"tracking_age_s", s.guidance_age_s >= 0 ? json(s.guidance_age_s) : json(nullptr)},
+          {"replans", g.replans},
+          {"drive_insertion_mm", g.drive_insertion_mm},
+          {"image_insertion_mm", fix ? json(g.image_insertion_mm) : json(nullptr)},
+          {"measured_insertion_mm", fix ? json(g.measured_insertion_mm) : json(nullptr)},
+          {"replanned_target", fix ? json(g.target) : json(nullptr)},
+          {"tip_mm", fix ? json(g.tip_mm) : json(nullptr)}};
+    } else {
+      out["image_guidance"] = nullptr;
+    }
     if (out.contains("hold") && out["hold"].is_object() && s.state == OperatingState::kPaused)
       hold(s, out["hold"]);
   }

@@ -7,6 +7,7 @@
 #include <cstdio>
 
 #include "steerable_catheter/catheter_robot.hpp"
+#include "steerable_catheter/image_guidance.hpp"
 
 namespace tendril::server {
 
@@ -182,6 +183,9 @@ void CatheterController::control(ControlContext& ctx) noexcept {
       for (std::size_t i = 2; i < kJoints; ++i) ctx.qd_des[i] = (ctx.q_des[i] - current[i]) / ctx.period;
       break;
     }
+    case kImageGuidedMode:
+      image_guided(ctx);
+      break;
     case kTelemanipulationMode: {
       joystick_velocity(ctx, v);
       for (std::size_t j = 0; j < kJoints; ++j) {
@@ -193,6 +197,57 @@ void CatheterController::control(ControlContext& ctx) noexcept {
     default:
       break;
   }
+}
+
+// image_guided (issue 15): insertion from the operator; roll and bends from the newest target the
+// imaging thread replanned (ImageGuidance), through the configuration controller (eq. 4.21 with the
+// coupling compensation). No new target for kTrackingLostS: the bends hold where they are and the
+// operator is warned once; the next target takes over again.
+void CatheterController::image_guided(ControlContext& ctx) noexcept {
+  auto& configuration = *robot_.configuration_;
+  std::array<double, kJoints> v{};
+  if (ctx.servo_live()) {
+    v[0] = ctx.servo_velocity()[0];
+  } else {
+    ctx.stop_servo();
+    joystick_velocity(ctx, v);
+  }
+  const auto target = robot_.guidance_->target().load();
+  if (target.sequence != guided_sequence_) {
+    guided_sequence_ = target.sequence;
+    guided_fix_t_ = ctx.t;
+    // The target's insertion is the replanner's (one step ahead); insertion stays the operator's.
+    if (configuration.retarget(ctx.t,
+                               Eigen::Vector4d(ctx.q_des[0], target.psi[1], target.psi[2], target.psi[3])) &&
+        guidance_lost_) {
+      guidance_lost_ = false;
+      ctx.supervisor->record(ctx.t, safety::EventKind::kWarning, safety::FaultCode::kSensorStale, -1,
+                             "image_guided: tip tracking again; roll and bends follow the replanned targets");
+    }
+  }
+  if (!guidance_lost_ && ctx.t - guided_fix_t_ > kTrackingLostS) {
+    guidance_lost_ = true;
+    configuration.reset(ctx.t, vec4(ctx.q_des));  // the bends hold where they are now
+    char text[120];
+    std::snprintf(
+        text, sizeof text,
+        "image_guided: tip tracking lost for %.1f s; the bends hold, insertion stays with the operator",
+        kTrackingLostS);
+    ctx.supervisor->record(ctx.t, safety::EventKind::kWarning, safety::FaultCode::kSensorStale, -1, text);
+  }
+  const double insertion = ctx.q_des[0];
+  Eigen::Vector4d q = vec4(ctx.q_des), qd;
+  if (!configuration.step(ctx.t, ctx.period, q, qd)) {
+    configuration.reset(ctx.t, vec4(ctx.q_des));
+    qd.setZero();
+    q = vec4(ctx.q_des);
+  }
+  for (std::size_t j = 1; j < kJoints; ++j) {
+    ctx.q_des[j] = q[static_cast<Eigen::Index>(j)];
+    ctx.qd_des[j] = qd[static_cast<Eigen::Index>(j)];
+  }
+  ctx.qd_des[0] = v[0];
+  ctx.q_des[0] = insertion + v[0] * ctx.period;
 }
 
 void CatheterController::retraction(ControlContext& ctx) noexcept {
@@ -321,6 +376,13 @@ void CatheterController::delay(ControlContext& ctx, double lost) noexcept {
 
 void CatheterController::reset(ControlContext& ctx) noexcept {
   robot_.configuration_->reset(ctx.t, vec4(ctx.q_des));
+  if (ctx.mode == kImageGuidedMode) {
+    // Entered, enabled or resumed: targets from before do not apply, and tracking gets a fresh
+    // kTrackingLostS to deliver the next one.
+    guided_sequence_ = robot_.guidance_->target().load().sequence;
+    guided_fix_t_ = ctx.t;
+    guidance_lost_ = false;
+  }
   if (ctx.mode != last_mode_) {
     // A stream for the old mode must not carry over.
     last_mode_ = ctx.mode;
@@ -351,7 +413,12 @@ bool CatheterController::moving(const ControlContext& ctx) const noexcept {
   if (relaxing_ || withdrawing_) return true;
   if (ctx.mode == kConfigurationMode && !robot_.configuration_->done(ctx.t)) return true;
   // A joystick whose deadman is held is driving the robot.
-  return (ctx.mode == kTelemanipulationMode || ctx.mode == kActiveComplianceMode) && joystick_deadman_;
+  // image_guided: the bends follow a new target every frame, so their motion is the mode's steady
+  // state, not a move to wait for (counted, it would refuse every mode switch while tracking runs);
+  // the operator's insertion (a held deadman, a live stream) is.
+  return (ctx.mode == kTelemanipulationMode || ctx.mode == kActiveComplianceMode ||
+          ctx.mode == kImageGuidedMode) &&
+         joystick_deadman_;
 }
 
 bool CatheterController::servo_allowed(const ControlContext& ctx, std::span<const double> v) const noexcept {
@@ -359,6 +426,8 @@ bool CatheterController::servo_allowed(const ControlContext& ctx, std::span<cons
   // backwards only.
   const bool bends_still = v.size() == kJoints && v[2] == 0.0 && v[3] == 0.0;
   return (ctx.mode == kActiveComplianceMode && ctx.state == OperatingState::kEnabled && bends_still) ||
+         (ctx.mode == kImageGuidedMode && ctx.state == OperatingState::kEnabled && bends_still &&
+          v[1] == 0.0) ||
          (retraction_only_ && ctx.state == OperatingState::kPaused && bends_still && v[1] == 0.0 &&
           v[0] <= 0.0);
 }
@@ -413,6 +482,8 @@ void CatheterController::publish(const ControlContext& ctx) noexcept {
   s.relaxing = relaxing_;
   s.relax_outcome = relax_outcome_;
   s.withdrawing = withdrawing_;
+  s.guidance_lost = ctx.mode == kImageGuidedMode && guidance_lost_;
+  s.guidance_age_s = ctx.mode == kImageGuidedMode ? ctx.t - guided_fix_t_ : -1.0;
   robot_.published_.store(s);
 }
 

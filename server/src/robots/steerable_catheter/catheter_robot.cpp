@@ -8,6 +8,7 @@
 #include <numbers>
 
 #include "steerable_catheter/catheter_simulation.hpp"
+#include "steerable_catheter/image_guidance.hpp"
 #include "steerable_catheter/planning_service.hpp"
 #include "steerable_catheter/steerable_catheter_schema.hpp"
 #include "tendril/drivers/canopen/bus_load.hpp"
@@ -57,7 +58,8 @@ class SteerableCatheterType final : public RobotType {
 
 void register_steerable_catheter(RobotTypes& types) { types.add(std::make_unique<SteerableCatheterType>()); }
 
-SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assembly) : config_(rc) {
+SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assembly)
+    : config_(rc), guidance_(std::make_unique<ImageGuidance>(*this)) {
   const std::string file = rc.file.string();
   // The kinematic model first: its error names the model that needs the four joints.
   display_ = make_catheter_display_model(rc.settings.value("kinematics", nlohmann::json::object()),
@@ -175,7 +177,10 @@ std::vector<ModeInfo> SteerableCatheter::modes() const {
           {"active_compliance",
            "the bend drives follow their springs (eqs. 4.24-4.26); insertion and roll from servo_jv or a "
            "joystick"},
-          {"telemanipulation", "joint velocities from a joystick while its deadman is held"}};
+          {"telemanipulation", "joint velocities from a joystick while its deadman is held"},
+          {"image_guided",
+           "the operator inserts (servo_jv insertion, a joystick's insertion axis); roll and bends follow "
+           "targets replanned along the loaded plan's vessel from the tracked tip on every exposure"}};
 }
 
 std::optional<Eigen::Isometry3d> SteerableCatheter::vessel_entry() const {
@@ -224,6 +229,19 @@ std::optional<Status> SteerableCatheter::check_servo(ModeId mode, const Operatin
           ErrorKind::conflict, "retraction_only",
           "robot '" + robot + "' is held after a safety limit (" + safety::to_string(s.hold_code) +
               "); only retraction (negative insertion velocity, all else 0) may move it"});
+    return Status(Done{});
+  }
+  if (mode == kImageGuidedMode) {
+    if (!bends_still || v[1] != 0.0)
+      return Status(
+          ServiceError{ErrorKind::conflict, "wrong_mode",
+                       "robot '" + robot +
+                           "' is in image_guided mode: roll and bends follow the replanned targets, so "
+                           "only the insertion velocity may be non-zero"});
+    if (state.state != safety::OperatingState::kEnabled)
+      return Status(ServiceError{ErrorKind::conflict, "not_enabled",
+                                 "robot '" + robot + "' is " + safety::to_string(state.state) +
+                                     "; enable it before streaming velocities"});
     return Status(Done{});
   }
   if (mode == kActiveComplianceMode) {
@@ -289,6 +307,24 @@ std::optional<ServiceError> SteerableCatheter::refuse_mode(ModeId mode,
     return ServiceError{
         ErrorKind::conflict, "sensor_stale",
         "robot '" + config_.name + "' has no valid spring-deflection reading; active compliance needs it"};
+  if (mode == kImageGuidedMode) {
+    if (!guidance_->tracking())
+      return ServiceError{ErrorKind::conflict, "no_tracking",
+                          "robot '" + config_.name +
+                              "' has no tip tracking: image_guided needs the bi-plane imaging with tracking "
+                              "on for this robot (server file: imaging.enabled, imaging.robot, "
+                              "imaging.tracking.enabled)"};
+    const auto path = service_ ? service_->path_following(config_.name) : Result<PathView>(ServiceError{});
+    if (!path || !path->loaded || path->vessel.size() < 2)
+      return ServiceError{ErrorKind::conflict, "no_plan",
+                          "robot '" + config_.name +
+                              "' has no loaded plan with a vessel: image_guided replans along the plan's "
+                              "vessel; load a plan first (POST /api/v1/robots/" +
+                              config_.name + "/path_following {\"plan\": \"<job id>\"})"};
+    // The replanner is built here, on the network thread, on the plan loaded now (a plan loaded later
+    // takes effect when the mode is entered again).
+    return guidance_->prepare(path->vessel);
+  }
   return std::nullopt;
 }
 
@@ -302,7 +338,10 @@ void SteerableCatheter::stop() {
 
 std::unique_ptr<RobotApiExtension> SteerableCatheter::api(RobotService& service,
                                                           std::function<bool(const PluginCommand&)> post) {
+  service_ = &service;
   return make_catheter_api(*this, service, std::move(post));
 }
+
+ImageFeedback* SteerableCatheter::image_feedback() { return guidance_.get(); }
 
 }  // namespace tendril::server

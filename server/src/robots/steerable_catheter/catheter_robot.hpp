@@ -41,6 +41,11 @@ class SteerableCatheter;
 inline constexpr ModeId kConfigurationMode = kFirstPluginMode;
 inline constexpr ModeId kActiveComplianceMode = kFirstPluginMode + 1;
 inline constexpr ModeId kTelemanipulationMode = kFirstPluginMode + 2;
+inline constexpr ModeId kImageGuidedMode = kFirstPluginMode + 3;
+
+// image_guided: without a new replanned target for this long (control time) the tracking is lost:
+// the bends hold and the operator is warned (issue 15).
+inline constexpr double kTrackingLostS = 0.5;
 
 // The type's commands (PluginCommand::id).
 enum class CatheterCommand : std::uint16_t { move_configuration, joystick, relax, withdraw };
@@ -79,6 +84,8 @@ struct CatheterSnapshot {
   bool relaxing = false;
   RelaxOutcome relax_outcome = RelaxOutcome::none;
   bool withdrawing = false;
+  bool guidance_lost = false;    // image_guided: no replanned target for kTrackingLostS
+  double guidance_age_s = -1.0;  // image_guided: control time since the last target taken (-1: none)
 };
 
 // What the simulation shows the API (any thread).
@@ -87,6 +94,8 @@ struct CatheterSimulationView {
   double contact_force_n = 0.0;      // total wall force on the catheter now
   double max_contact_force_n = 0.0;  // largest since start
   double tip_bend_rad = 0.0;         // true total bend of the simulated catheter
+  bool true_catheter = false;        // catheter.simulation.true_catheter: the plant differs from the model
+  double true_insertion_mm = 0.0;    // with it: the arc length that reached the vessel (after slack, slip)
 };
 
 // The type's part of the control cycle (control thread only).
@@ -113,6 +122,7 @@ class CatheterController final : public RobotController {
   void retraction(ControlContext& ctx) noexcept;
   void start_relax(ControlContext& ctx) noexcept;
   void relax(ControlContext& ctx) noexcept;
+  void image_guided(ControlContext& ctx) noexcept;
 
   SteerableCatheter& robot_;
   ModeId last_mode_ = kJointMode;
@@ -132,9 +142,13 @@ class CatheterController final : public RobotController {
   bool withdrawing_ = false;      // held: insertion moving back to withdraw_to_ (mm)
   double withdraw_to_ = 0.0;
   RelaxOutcome relax_outcome_ = RelaxOutcome::none;
+  std::uint64_t guided_sequence_ = 0;  // the last replanned target taken
+  double guided_fix_t_ = 0.0;          // control time it was taken (or the mode entered)
+  bool guidance_lost_ = false;
 };
 
 struct CatheterSimulation;  // catheter_simulation.cpp
+class ImageGuidance;        // image_guidance.hpp
 
 class SteerableCatheter final : public RobotPlugin {
  public:
@@ -156,6 +170,12 @@ class SteerableCatheter final : public RobotPlugin {
   void stop() override;
   std::unique_ptr<RobotApiExtension> api(RobotService& service,
                                          std::function<bool(const PluginCommand&)> post) override;
+  ImageFeedback* image_feedback() override;
+  const ImageGuidance& guidance() const noexcept { return *guidance_; }
+  // The SIMULATED true catheter's backbone (world mm) when catheter.simulation.true_catheter is on, and
+  // the arc length that reached the vessel; false / nullopt otherwise. Any thread.
+  bool true_backbone(std::vector<Eigen::Vector3d>& out) const;
+  std::optional<double> true_insertion_mm() const noexcept;
 
   const RobotConfig& config() const noexcept { return config_; }
   const CatheterSettings& settings() const noexcept { return settings_; }
@@ -201,6 +221,8 @@ class SteerableCatheter final : public RobotPlugin {
   std::unique_ptr<CatheterSimulation> simulation_;
   std::vector<Eigen::Vector3d> vessel_;  // simulated vessel centerline (mm), empty without one
   double lumen_radius_mm_ = 0.0;
+  std::unique_ptr<ImageGuidance> guidance_;
+  RobotService* service_ = nullptr;  // for the loaded plan, when image_guided is entered (network threads)
   CatheterController controller_{*this};
   hardware::LatestValue<CatheterSnapshot> published_;
 };

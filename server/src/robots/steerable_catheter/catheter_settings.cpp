@@ -224,6 +224,23 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc) {
         m.positive_or("carriage_damping_n_s_per_mm", sim.carriage_damping_n_s_per_mm);
     sim.catheter_outer_radius_mm = m.positive_or("catheter_outer_radius_mm", sim.catheter_outer_radius_mm);
     sim.analog_joystick_node = m.boolean_or("analog_joystick_node", true);
+    if (m.has("true_catheter")) {
+      const Reader t = m.child("true_catheter");
+      auto& truth = sim.true_catheter;
+      truth.enabled = t.boolean_or("enabled", true);
+      truth.bend_scale = t.positive_or("bend_scale", truth.bend_scale);
+      if (truth.bend_scale > 2.0) t.fail("bend_scale", "a scale from 0 to 2", t.raw("bend_scale"));
+      truth.distal_length_factor = t.positive_or("distal_length_factor", truth.distal_length_factor);
+      if (truth.distal_length_factor < 0.5 || truth.distal_length_factor > 2.0)
+        t.fail("distal_length_factor", "a factor from 0.5 to 2", t.raw("distal_length_factor"));
+      truth.slack_mm = t.non_negative_or("slack_mm", truth.slack_mm);
+      truth.stick_mm = t.non_negative_or("stick_mm", truth.stick_mm);
+      if (truth.slack_mm > 20.0) t.fail("slack_mm", "at most 20 mm", t.raw("slack_mm"));
+      if (truth.stick_mm > 20.0) t.fail("stick_mm", "at most 20 mm", t.raw("stick_mm"));
+      truth.slip_fraction = t.positive_or("slip_fraction", truth.slip_fraction);
+      if (truth.slip_fraction > 1.0)
+        t.fail("slip_fraction", "a fraction from 0 to 1", t.raw("slip_fraction"));
+    }
     if (m.has("vessel")) {
       const Reader v = m.child("vessel");
       VesselTubeSettings tube;
@@ -274,6 +291,20 @@ teleop::ModalCatheterParameters assembled_shape(const CatheterSettings& settings
   };
   assemble(p.proximal, settings.rates.proximal_loss);
   assemble(p.distal, settings.rates.distal_loss);
+  return p;
+}
+
+teleop::ModalCatheterParameters true_shape(const teleop::ModalCatheterParameters& assembled,
+                                           const TrueCatheterSettings& truth) {
+  // θ(s) is the tangent angle with π/2 straight: the bend so far, π/2 − θ, scaled by c is
+  // A' = c·A + (1 − c)·π/2·e₁e₁ᵀ (as assembled_shape applies a loss slope). A longer distal segment
+  // keeps its curvature per mm of actuation and so bends further in total.
+  auto p = assembled;
+  for (auto* segment : {&p.proximal, &p.distal}) {
+    segment->shape_matrix *= truth.bend_scale;
+    segment->shape_matrix(0, 0) += (1.0 - truth.bend_scale) * std::numbers::pi / 2.0;
+  }
+  p.distal.length *= truth.distal_length_factor;
   return p;
 }
 

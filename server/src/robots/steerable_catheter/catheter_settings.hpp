@@ -46,6 +46,20 @@ struct VesselTubeSettings {
   double lumen_radius_mm = 1.5875;  // the seed's phantom tubing, ID 3.175 mm
 };
 
+// catheter.simulation.true_catheter: a SIMULATED plant that differs from the model the robot plans and
+// controls with (off by default: the plant is the model). The seed gives no values; these are the
+// mismatches its §4.11 high-level controller is there to absorb.
+struct TrueCatheterSettings {
+  bool enabled = false;
+  double bend_scale = 1.0;            // the true bend (from straight) per the model's: 0.85 = 15 % weaker
+  double distal_length_factor = 1.0;  // the true distal segment's length per the model's
+  double slack_mm = 0.0;              // insertion dead band: drive travel that does not move the catheter
+  // Stick-slip in the introducer: the shaft sticks and buckles until `stick_mm` of drive travel is
+  // stored in it, then slips forward by slip_fraction of it (0: no stick-slip).
+  double stick_mm = 0.0;
+  double slip_fraction = 1.0;
+};
+
 struct CatheterSimulationSettings {
   double spring_stiffness_n_per_mm = 0.2;
   double tube_stiffness_n_per_mm = 0.0;
@@ -55,6 +69,7 @@ struct CatheterSimulationSettings {
   double catheter_outer_radius_mm = 0.6;
   std::optional<VesselTubeSettings> vessel;  // none: the catheter moves in free space
   bool analog_joystick_node = true;          // simulate the ADC joystick node as well
+  TrueCatheterSettings true_catheter;
 };
 
 struct CatheterSettings {
@@ -80,6 +95,11 @@ CatheterSettings parse_catheter_settings(const RobotConfig& rc);
 // The assembled catheter's shape for the simulated plant and the display: the tip-only model through
 // the loss lines (tip bend a_i·θ*_L + b_i), so that the plant bends as the configuration map predicts.
 teleop::ModalCatheterParameters assembled_shape(const CatheterSettings& settings);
+
+// The true catheter's shape (catheter.simulation.true_catheter) from the assembled one: the bend from
+// straight scaled by bend_scale along both segments, the distal segment's length scaled.
+teleop::ModalCatheterParameters true_shape(const teleop::ModalCatheterParameters& assembled,
+                                           const TrueCatheterSettings& truth);
 
 // The vessel centerline of the simulation (mm): loaded or built as an arc channel.
 std::vector<Eigen::Vector3d> vessel_centerline(const VesselTubeSettings& vessel);

@@ -6,6 +6,7 @@
 #include <cmath>
 
 #include "steerable_catheter/catheter_simulation.hpp"
+#include "steerable_catheter/image_guidance.hpp"
 #include "tendril/drivers/sim/catheter_vessel_contact.hpp"
 #include "tendril/drivers/sim/simulated_analog_input_node.hpp"
 #include "tendril/drivers/sim/simulated_analog_joystick.hpp"
@@ -45,7 +46,11 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
       s.rates.coupling_enabled ? s.rates.proximal_outer_radius * std::cos(s.rates.plane_offset) : 0.0;
   p.potentiometer_volts_per_mm = s.deflection.volts_per_mm;
   p.carriage_damping = s.simulation.carriage_damping_n_s_per_mm;
-  p.shape = assembled_shape(s);
+  // The plant bends as the true catheter does: the model's assembled shape, or with a true_catheter
+  // the shape that differs from it (the controller and the planner keep the model).
+  const auto& truth = s.simulation.true_catheter;
+  const auto plant_shape = truth.enabled ? true_shape(assembled_shape(s), truth) : assembled_shape(s);
+  p.shape = plant_shape;
   simulation->plant = std::make_unique<sim::SrmcPlant>(drives, p);
   simulation->plant->set_potentiometer_node(simulation->sensor_node.get());
   // "centerline": "scene" in a server whose scene has no vessel ("vessel": false, or a runtime built
@@ -93,13 +98,18 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
     }
     cp.lumen_radius = tube.lumen_radius_mm;
     try {
-      simulation->contact = std::make_unique<sim::CatheterVesselContact>(vessel_, assembled_shape(s), cp);
+      simulation->contact = std::make_unique<sim::CatheterVesselContact>(vessel_, plant_shape, cp);
     } catch (const std::invalid_argument& e) {
       throw ConfigError(key + ": " + e.what());
     }
     simulation->plant->set_vessel(simulation->contact.get());
   }
   bus.add_plant(simulation->plant.get());
+  if (truth.enabled) {
+    simulation->insertion = std::make_unique<TrueInsertion>(*simulation->plant, truth);
+    simulation->true_kinematics.emplace(plant_shape);
+    bus.add_plant(simulation->insertion.get());
+  }
   bus.add_plant(simulation->sensor_node.get());
   if (s.analog_joystick && s.simulation.analog_joystick_node) {
     sim::AnalogJoystickNodeParameters j;
@@ -112,6 +122,45 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
   simulation_ = std::move(simulation);
 }
 
+void TrueInsertion::step(double dt) noexcept {
+  (void)dt;
+  const double q = plant_.state().q[sim::SrmcPlant::kInsertion];
+  if (!started_.load(std::memory_order_relaxed)) {
+    s_ = q;  // at start the catheter sits where the drive put it, its slack still to take up
+    started_.store(true, std::memory_order_release);
+  }
+  const double pushed = q - truth_.slack_mm;  // where pushing puts the catheter with the slack taken up
+  if (pushed > s_) {
+    const double stored = pushed - s_;  // drive travel stored in the buckled shaft
+    if (truth_.stick_mm <= 0.0) {
+      s_ = pushed;
+    } else if (stored >= truth_.stick_mm) {
+      s_ += truth_.slip_fraction * stored;
+    }
+  }
+  if (q < s_) s_ = q;  // pulling back drags the catheter with the drive
+  inserted_.store(s_, std::memory_order_relaxed);
+}
+
+bool SteerableCatheter::true_backbone(std::vector<Eigen::Vector3d>& out) const {
+  if (!simulation_ || !simulation_->true_kinematics || !simulation_->insertion ||
+      !simulation_->insertion->started())
+    return false;
+  const auto st = simulation_->plant->state();
+  const teleop::ModalCatheterKinematics::JointVector q(simulation_->insertion->inserted_mm(), st.q[1],
+                                                       st.carriage[0], st.distal_actuation);
+  constexpr std::size_t kPointsPerSegment = 20;
+  const auto& kinematics = *simulation_->true_kinematics;
+  out.resize(kinematics.backbone_point_count(kPointsPerSegment));
+  out.resize(kinematics.backbone(q, kPointsPerSegment, out));
+  return !out.empty();
+}
+
+std::optional<double> SteerableCatheter::true_insertion_mm() const noexcept {
+  if (!simulation_ || !simulation_->insertion || !simulation_->insertion->started()) return std::nullopt;
+  return simulation_->insertion->inserted_mm();
+}
+
 CatheterSimulationView SteerableCatheter::simulation_view() const noexcept {
   CatheterSimulationView v;
   if (!simulation_) return v;
@@ -120,6 +169,10 @@ CatheterSimulationView SteerableCatheter::simulation_view() const noexcept {
   v.contact_force_n = st.contact_force;
   v.max_contact_force_n = st.max_contact_force;
   v.tip_bend_rad = st.tip_bend;
+  if (const auto s = true_insertion_mm()) {
+    v.true_catheter = true;
+    v.true_insertion_mm = *s;
+  }
   return v;
 }
 
