@@ -210,6 +210,7 @@ int main(int argc, char** argv) {
       const std::string vessel_source = ic.vessel_source;
       auto backbone = backbone_from(runtime, ic.robot);
       const std::string imaged = ic.robot.empty() ? config.robots.front().name : ic.robot;
+      ic.robot = imaged;  // whose lease the segmentation editor needs
       imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
       std::cerr << "tendrild: imaging: bi-plane (/imaging/ap, /imaging/lateral) " << geometry.width << "x"
                 << geometry.height << ", simulated planes at " << fps << " fps; "
@@ -226,6 +227,7 @@ int main(int argc, char** argv) {
         return !out.empty();
       });
       ho.topic_sources.push_back(imaging);
+      ho.imaging = imaging;
       imaging->start();
     }
     // Jobs of the robot types (path plans, design optimisation, calibrations) run on their own worker
