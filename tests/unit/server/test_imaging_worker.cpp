@@ -120,11 +120,13 @@ TEST(ImagingWorker, TheOverlayLiesOnTheImagedCatheterAndCarriesThePlan) {
 TEST(ImagingWorker, PublishesCompressedImagesWithCaptureTimestamp) {
   ImagingWorker worker(straight_catheter(), small_config());
   const auto topics = worker.topics();
-  ASSERT_EQ(topics.size(), 3u);  // no vessel configured: no /maps/vessel
+  ASSERT_EQ(topics.size(), 4u);  // no vessel configured: no /maps/vessel
   EXPECT_EQ(topics[0].topic, "/imaging/ap");
   EXPECT_EQ(topics[1].topic, "/imaging/lateral");
   EXPECT_EQ(topics[2].topic, "/imaging/tracking");
   EXPECT_EQ(topics[2].schema_name, "tendril.TipTracking");
+  EXPECT_EQ(topics[3].topic, "/imaging/segmentation");
+  EXPECT_EQ(topics[3].schema_name, "tendril.SegmentationParameters");
   EXPECT_EQ(topics[0].schema_name, "foxglove.CompressedImage");
   const json schema = json::parse(topics[0].schema);
   EXPECT_EQ(schema["properties"]["data"]["contentEncoding"], "base64");
@@ -219,9 +221,9 @@ TEST(ImagingWorker, VesselPointCloudHasTheWallPoints) {
   config.vessels = {tube};
   ImagingWorker worker(straight_catheter(), config);
   const auto topics = worker.topics();
-  ASSERT_EQ(topics.size(), 4u);
-  EXPECT_EQ(topics[3].topic, "/maps/vessel");
-  EXPECT_EQ(topics[3].schema_name, "foxglove.PointCloud");
+  ASSERT_EQ(topics.size(), 5u);
+  EXPECT_EQ(topics[4].topic, "/maps/vessel");
+  EXPECT_EQ(topics[4].schema_name, "foxglove.PointCloud");
   const auto cloud = worker.latest("/maps/vessel", 0);
   ASSERT_TRUE(cloud);
   EXPECT_FALSE(worker.latest("/maps/vessel", cloud->version)) << "static map: published once";
