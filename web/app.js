@@ -13,6 +13,7 @@ import {PlanPanel} from './plan.js';
 import {ProcedurePanel} from './procedure.js';
 import {arrangeImaging, wireEnlarge} from './layout.js';
 import {TimePlot} from './plot.js';
+import {TRACKING_TOPIC, TrackingPanel} from './tracking.js';
 
 const api = new Api();
 const $ = (sel) => document.querySelector(sel);
@@ -125,6 +126,7 @@ let plan = null;        // PlanPanel
 let catheter = null;    // CatheterPanel, for robots with a configuration space
 let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
+let tipTracking = null;   // TrackingPanel: the imaged tip and the segmentation editor
 const procedure = new ProcedurePanel($('[data-testid="procedure"]'));
 const images = {
   ap: new ImagePanel($('[data-testid="image-ap"]'), '/imaging/ap/compressed', 'AP', {ageMs: (stamp) => clock.ageMs(stamp)}),
@@ -797,6 +799,14 @@ function connectWebSocket(robotName) {
       chooseTimingSource();
     },
     onRaw: (topic, bytes, stampNs) => {
+      if (topic === TRACKING_TOPIC) {
+        try {
+          tipTracking?.onMessage(JSON.parse(new TextDecoder().decode(bytes)));
+        } catch {
+          // not JSON: ignored
+        }
+        return;
+      }
       if (topic === t.events) {
         // Events are never coalesced here; the server gives a slow reader only a topic's newest
         // message, so `recent` repeats the last events and a message never seen loses none.
@@ -819,9 +829,10 @@ function connectWebSocket(robotName) {
     },
     onStatus: (msg) => { if (msg.level >= 1) showStatus(`server: ${msg.message}`, msg.level >= 2 ? 'error' : 'ok'); },
   });
+  if (tipTracking?.on) conn.addTopic(TRACKING_TOPIC);  // the switch stays on across a robot change
   conn.open();
   window.tendrilConnection = conn;  // for debugging from the browser console, and the browser tests
-  window.tendrilLive = {latest, clock, state, shown, net, view: () => view};
+  window.tendrilLive = {latest, clock, state, shown, net, view: () => view, tracking: () => tipTracking};
 }
 
 // ---------------------------------------------------------------- loop timing
@@ -953,6 +964,7 @@ function selectTab(tab) {
     document.getElementById(t.getAttribute('aria-controls')).hidden = !selected;
   }
   if (tab.id === 'tab-plan') plan?.refresh();
+  if (tab.id === 'tab-tracking') tipTracking?.refresh();
 }
 
 // Asks before taking the lease from another operator; the server's token is valid for 15 s.
@@ -1219,6 +1231,9 @@ async function start() {
     commandable: () => !state.stale && state.role !== 'viewer',
     hold: () => currentHold(),
     onPathLoaded: () => updateModeBar(),
+  });
+  tipTracking = new TrackingPanel($('#panel-tracking'), {
+    api, connection: () => window.tendrilConnection ?? null, view: () => view, status: showStatus,
   });
   wireCommands();
   wireEnlarge($('main.layout'));

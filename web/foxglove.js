@@ -144,6 +144,28 @@ export class FoxgloveConnection {
 
   subscribedTopics() { return [...this.subscriptionTopic.values()]; }
 
+  // Subscribes one more topic: at once when it is advertised, else when it is (and after a reconnect).
+  addTopic(topic) {
+    this.wanted.add(topic);
+    const channel = [...this.channelsById.values()].find((c) => c.topic === topic);
+    if (!channel || this.subscribedChannels.has(channel.id)) return;
+    const id = this.nextSubscriptionId++;
+    this.subscriptionTopic.set(id, topic);
+    this.subscribedChannels.set(channel.id, id);
+    this.send({op: 'subscribe', subscriptions: [{id, channelId: channel.id}]});
+  }
+
+  // Unsubscribes a topic (the server stops producing what only this client wanted, e.g. the tracking).
+  removeTopic(topic) {
+    this.wanted.delete(topic);
+    for (const [channelId, id] of this.subscribedChannels) {
+      if (this.subscriptionTopic.get(id) !== topic) continue;
+      this.subscribedChannels.delete(channelId);
+      this.subscriptionTopic.delete(id);
+      this.send({op: 'unsubscribe', subscriptionIds: [id]});
+    }
+  }
+
   // Topics the server currently advertises (empty while disconnected).
   advertisedTopics() { return new Set([...this.channelsById.values()].map((c) => c.topic)); }
 

@@ -455,6 +455,23 @@ export class CatheterView {
     this.requestRender();
   }
 
+  // The tip as the bi-plane images see it (world mm, tendril.TipTracking's tip_mm), drawn as a magenta
+  // wire sphere (the colour of the tracked tip's ring on the images) larger than the model's white tip marker, so that both stay visible where they agree
+  // (within a millimetre, usually); null hides it (tracking off or nothing tracked).
+  setTrackedTip(position) {
+    if (!this.available) return;
+    if (!this.trackedTip) {
+      this.trackedTip = new THREE.Mesh(new THREE.SphereGeometry(3, 14, 10),
+                                       new THREE.MeshBasicMaterial({color: 0xff6ad5, wireframe: true}));
+      this.trackedTip.name = 'tracked-tip';
+      this.scene.add(this.trackedTip);
+    }
+    const shown = Array.isArray(position) && position.length === 3 && position.every(Number.isFinite);
+    if (shown) this.trackedTip.position.set(position[0], position[1], position[2]);
+    if (shown || this.trackedTip.visible) this.requestRender();
+    this.trackedTip.visible = shown;
+  }
+
   ensureGroup(name) {
     if (!this[name]) {
       this[name] = new THREE.Group();

@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -14,7 +15,13 @@ namespace perception = teleop::perception;
 
 namespace {
 
-constexpr double kCurvatureArcMm = 3.0;  // the model's tangent turn is measured over its last 3 mm
+constexpr double kCurvatureArcMm = 3.0;
+
+std::uint64_t wall_now_ns() {
+  return static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        std::chrono::system_clock::now().time_since_epoch())
+                                        .count());
+}  // the model's tangent turn is measured over its last 3 mm
 
 // Appends [a, b] with one decimal (pixels) or three (mm).
 void append_pair(std::string& out, double a, double b, int decimals) {
@@ -144,7 +151,12 @@ BiplaneTipTracker::BiplaneTipTracker(const TrackingConfig& config,
     const auto roadmap = fluoroscope.render_noiseless({});
     state_[i]->segmenter.set_roadmap(
         perception::grey_image(roadmap, fluoroscope.width(), fluoroscope.height()));
+    requests_[i].requested = requests_[i].applied = state_[i]->segmenter.parameters();
   }
+  const auto now = wall_now_ns();
+  std::lock_guard lock(request_mutex_);
+  for (auto& r : requests_) r.roadmap_ns = now;
+  publish_segmentation(now);
 }
 
 BiplaneTipTracker::~BiplaneTipTracker() = default;
@@ -159,6 +171,137 @@ Eigen::Vector2d BiplaneTipTracker::to_pixels(int plane, const Eigen::Vector2d& m
   const auto& g = planes_[plane]->options().geometry;
   const double mm_per_px = g.pixel_spacing_mm * g.sod_mm / g.sid_mm;
   return {0.5 * (g.width - 1) + mm.x() / mm_per_px, 0.5 * (g.height - 1) - mm.y() / mm_per_px};
+}
+
+perception::FluoroscopySegmentationParameters BiplaneTipTracker::request_parameters(
+    int plane, const nlohmann::json& changes) {
+  std::lock_guard lock(request_mutex_);
+  auto p = perception::segmentation_parameters_from_json(changes, requests_[plane].requested);
+  // The parameters' own validator knows ranges, not this detector's size: an ROI that starts off the
+  // frame would leave the plane with no picture to segment.
+  const auto& g = planes_[plane]->options().geometry;
+  if (p.roi.x >= g.width)
+    throw perception::SegmentationParameterError("roi.x", "roi.x must lie inside the frame (0.." +
+                                                              std::to_string(g.width - 1) + "), got " +
+                                                              std::to_string(p.roi.x));
+  if (p.roi.y >= g.height)
+    throw perception::SegmentationParameterError("roi.y", "roi.y must lie inside the frame (0.." +
+                                                              std::to_string(g.height - 1) + "), got " +
+                                                              std::to_string(p.roi.y));
+  requests_[plane].requested = p;
+  return p;
+}
+
+void BiplaneTipTracker::request_roadmap(int plane) {
+  std::lock_guard lock(request_mutex_);
+  requests_[plane].roadmap_pending = true;
+}
+
+void BiplaneTipTracker::apply_requests(int plane, std::uint64_t now_ns) {
+  std::optional<perception::FluoroscopySegmentationParameters> parameters;
+  bool roadmap = false;
+  {
+    std::lock_guard lock(request_mutex_);
+    auto& r = requests_[plane];
+    if (!(r.requested == r.applied)) parameters = r.requested;
+    roadmap = r.roadmap_pending;
+    r.roadmap_pending = false;
+  }
+  if (!parameters && !roadmap) return;
+  auto& segmenter = state_[plane]->segmenter;
+  std::string failure;
+  try {
+    if (parameters) segmenter.set_parameters(*parameters);
+    if (roadmap) {
+      auto& fluoroscope = *planes_[plane];
+      const auto image = fluoroscope.render_noiseless({});
+      segmenter.set_roadmap(perception::grey_image(image, fluoroscope.width(), fluoroscope.height()));
+    }
+  } catch (const perception::SegmentationParameterError& e) {
+    failure = e.what();  // validated when asked; kept for the operator should the frame disagree
+  }
+  {
+    std::lock_guard lock(request_mutex_);
+    auto& r = requests_[plane];
+    r.applied = segmenter.parameters();
+    if (!failure.empty()) r.requested = r.applied;  // what could not be applied is not pending forever
+    if (roadmap && failure.empty()) {
+      ++r.roadmaps;
+      r.roadmap_ns = now_ns;
+    }
+    publish_segmentation(now_ns);
+  }
+  if (!failure.empty() && warn_)
+    warn_(safety::FaultCode::kExternal, std::string("imaging: segmentation change not applied: ") + failure);
+}
+
+nlohmann::json BiplaneTipTracker::segmentation_state() const {
+  std::lock_guard lock(request_mutex_);
+  nlohmann::json out = nlohmann::json::object();
+  for (int i = 0; i < 2; ++i) {
+    const auto& r = requests_[i];
+    out[i == 0 ? "ap" : "lateral"] = {{"parameters", perception::to_json(r.requested)},
+                                      {"applied", r.requested == r.applied},
+                                      {"roadmap",
+                                       {{"count", r.roadmaps},
+                                        {"taken_unix_s", static_cast<double>(r.roadmap_ns) * 1e-9},
+                                        {"pending", r.roadmap_pending}}}};
+  }
+  return out;
+}
+
+void BiplaneTipTracker::publish_segmentation(std::uint64_t time_ns) {
+  nlohmann::json planes = nlohmann::json::object();
+  for (int i = 0; i < 2; ++i) {
+    const auto& r = requests_[i];
+    planes[i == 0 ? "ap" : "lateral"] = {
+        {"parameters", perception::to_json(r.applied)},
+        {"roadmap",
+         {{"count", r.roadmaps},
+          {"taken", {{"sec", r.roadmap_ns / 1'000'000'000ULL}, {"nsec", r.roadmap_ns % 1'000'000'000ULL}}}}}};
+  }
+  const nlohmann::json message = {
+      {"timestamp", {{"sec", time_ns / 1'000'000'000ULL}, {"nsec", time_ns % 1'000'000'000ULL}}},
+      {"planes", std::move(planes)}};
+  segmentation_message_ = std::make_shared<const std::string>(message.dump());
+  ++segmentation_version_;
+  segmentation_ns_ = std::max(segmentation_ns_, wall_now_ns());  // ready time, increasing (see fuse)
+}
+
+std::shared_ptr<const std::string> BiplaneTipTracker::latest_segmentation(std::uint64_t& version,
+                                                                          std::uint64_t& time_ns) const {
+  std::lock_guard lock(request_mutex_);
+  version = segmentation_version_;
+  time_ns = segmentation_ns_;
+  return segmentation_message_;
+}
+
+std::string BiplaneTipTracker::segmentation_schema() {
+  const nlohmann::json time = {
+      {"type", "object"}, {"properties", {{"sec", {{"type", "integer"}}}, {"nsec", {{"type", "integer"}}}}}};
+  const nlohmann::json plane = {
+      {"type", "object"},
+      {"properties",
+       {{"parameters",
+         {{"type", "object"},
+          {"description",
+           "the plane's segmentation parameters in effect (FluoroscopySegmentationParameters)"}}},
+        {"roadmap",
+         {{"type", "object"},
+          {"properties",
+           {{"count",
+             {{"type", "integer"}, {"description", "roadmaps taken since the start, the first included"}}},
+            {"taken", time}}}}}}}};
+  return nlohmann::json{
+      {"title", "tendril.SegmentationParameters"},
+      {"description",
+       "The bi-plane segmentation's parameters and empty-vessel roadmaps in effect, published whenever the "
+       "imaging threads apply a change (so a recorded session keeps them)"},
+      {"type", "object"},
+      {"properties",
+       {{"timestamp", time},
+        {"planes", {{"type", "object"}, {"properties", {{"ap", plane}, {"lateral", plane}}}}}}}}
+      .dump();
 }
 
 const PlaneTrack& BiplaneTipTracker::track(int plane, perception::GreyImageView frame,
@@ -342,7 +485,10 @@ void BiplaneTipTracker::fuse(int plane, const std::vector<Eigen::Vector3d>& mode
     out += "}";
     message_ = std::move(message);
     ++version_;
-    message_ns_ = capture_ns;
+    // The log time is when the message is ready, never earlier than the last one's: the planes finish
+    // in any order, so their capture times (inside the message) do not increase with each message, and
+    // a recording read in log-time order would see the messages shuffled.
+    message_ns_ = std::max(message_ns_, wall_now_ns());
   }
   // Not a stale sensor: the images and the model disagree, a cause reported from outside the loop.
   if (!warning.empty() && warn_) warn_(safety::FaultCode::kExternal, warning);

@@ -784,6 +784,8 @@ void ImagingWorker::read_overlay(Plane& p, bool& shape_ok) {
 }
 
 void ImagingWorker::capture(Plane& p, std::uint64_t capture_ns) {
+  // The operator's segmentation changes and roadmap, on this plane's own thread, before its frame.
+  if (tracker_) tracker_->apply_requests(p.view == sim::FluoroView::kAp ? 0 : 1, capture_ns);
   // The exposure: the backbone as the runtime snapshot has it now.
   bool shape_ok = false;
   read_overlay(p, shape_ok);
@@ -933,7 +935,11 @@ std::vector<TopicInfo> ImagingWorker::topics() const {
         {plane->topics[kCompressed], "foxglove.CompressedImage", descriptors, "protobuf", "protobuf"});
     out.push_back({plane->topics[kOverlay], "tendril.ImageOverlay", image_overlay_schema()});
   }
-  if (tracker_) out.push_back({"/imaging/tracking", "tendril.TipTracking", BiplaneTipTracker::schema()});
+  if (tracker_) {
+    out.push_back({"/imaging/tracking", "tendril.TipTracking", BiplaneTipTracker::schema()});
+    out.push_back({"/imaging/segmentation", "tendril.SegmentationParameters",
+                   BiplaneTipTracker::segmentation_schema()});
+  }
   if (vessel_cloud_) out.push_back({"/maps/vessel", "foxglove.PointCloud", point_cloud_schema()});
   return out;
 }
@@ -943,6 +949,12 @@ std::optional<TopicPayload> ImagingWorker::latest(const std::string& topic,
   if (topic == "/imaging/tracking" && tracker_) {
     std::uint64_t version = 0, time_ns = 0;
     auto payload = tracker_->latest(version, time_ns);
+    if (!payload || version <= since_version) return std::nullopt;
+    return TopicPayload{std::move(payload), version, time_ns};
+  }
+  if (topic == "/imaging/segmentation" && tracker_) {
+    std::uint64_t version = 0, time_ns = 0;
+    auto payload = tracker_->latest_segmentation(version, time_ns);
     if (!payload || version <= since_version) return std::nullopt;
     return TopicPayload{std::move(payload), version, time_ns};
   }
@@ -959,6 +971,59 @@ std::optional<TopicPayload> ImagingWorker::latest(const std::string& topic,
     }
   }
   return std::nullopt;
+}
+
+namespace {
+ApiResult unknown_plane(const std::string& plane) {
+  return ApiResult::error(404, "unknown_plane",
+                          "no imaging plane \"" + plane + "\"; the planes are ap and lateral");
+}
+ApiResult no_tracking() {
+  return ApiResult::error(
+      503, "tracking_unavailable",
+      "the tip tracking is off (imaging.tracking.enabled is false): nothing is segmented");
+}
+int plane_index(const std::string& plane) { return plane == "ap" ? 0 : plane == "lateral" ? 1 : -1; }
+}  // namespace
+
+ApiResult ImagingWorker::segmentation() const {
+  if (!tracker_) return no_tracking();
+  auto planes = tracker_->segmentation_state();
+  for (const auto& p : planes_) planes[sim::view_name(p->view)]["tracked"] = !p->source;
+  return ApiResult::success({{"robot", config_.robot}, {"planes", std::move(planes)}});
+}
+
+ApiResult ImagingWorker::set_segmentation(const std::string& plane, const nlohmann::json& changes) {
+  const int index = plane_index(plane);
+  if (index < 0) return unknown_plane(plane);
+  if (!tracker_) return no_tracking();
+  if (planes_[index]->source)
+    return ApiResult::error(
+        409, "plane_not_tracked",
+        "the " + plane + " plane is fed by a source, which is not tracked; nothing to segment");
+  if (!changes.is_object())
+    return ApiResult::error(400, "bad_request",
+                            "expected a JSON object of segmentation parameters, e.g. {\"threshold\": 40}");
+  try {
+    tracker_->request_parameters(index, changes);
+  } catch (const teleop::perception::SegmentationParameterError& e) {
+    ApiResult r = ApiResult::error(422, "invalid_parameter", e.what());
+    r.error_details = {{"field", e.field()}};
+    return r;
+  }
+  return ApiResult::success(tracker_->segmentation_state()[plane]);
+}
+
+ApiResult ImagingWorker::take_roadmap(const std::string& plane) {
+  const int index = plane_index(plane);
+  if (index < 0) return unknown_plane(plane);
+  if (!tracker_) return no_tracking();
+  if (planes_[index]->source)
+    return ApiResult::error(
+        409, "plane_not_tracked",
+        "the " + plane + " plane is fed by a source, which is not tracked; it has no roadmap");
+  tracker_->request_roadmap(index);
+  return ApiResult::success(tracker_->segmentation_state()[plane]["roadmap"], 202);
 }
 
 std::string ImagingWorker::metrics() const {

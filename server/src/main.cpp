@@ -230,6 +230,7 @@ int main(int argc, char** argv) {
       const std::string vessel_source = ic.vessel_source;
       auto backbone = backbone_from(runtime, ic.robot);
       const std::string imaged = ic.robot.empty() ? config.robots.front().name : ic.robot;
+      ic.robot = imaged;  // whose lease the segmentation editor needs
       imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
       std::cerr << "tendrild: imaging: bi-plane (/imaging/ap, /imaging/lateral) " << geometry.width << "x"
                 << geometry.height << ", simulated planes at " << fps << " fps; "
@@ -249,6 +250,7 @@ int main(int argc, char** argv) {
       // tips, and a simulated plane images its simulated plant's true shape.
       if (auto* plugin = runtime.plugin(imaged)) imaging->set_image_feedback(plugin->image_feedback());
       ho.topic_sources.push_back(imaging);
+      ho.imaging = imaging;
       imaging->start();
     }
     // Jobs of the robot types (path plans, design optimisation, calibrations) run on their own worker

@@ -136,8 +136,9 @@ void SessionRecording::start() { recorder_.start(); }
 void SessionRecording::stop() { recorder_.stop(); }
 
 bool SessionRecording::wants(const std::string& topic, bool from_source) const {
-  (void)topic;
-  return !from_source || config_.images_always;
+  // The segmentation's parameters and roadmaps are a few hundred bytes per change and produced at no
+  // cost when nobody watches: always kept, so a recorded session says how its images were segmented.
+  return !from_source || config_.images_always || topic == "/imaging/segmentation";
 }
 
 void SessionRecording::channel(std::uint32_t id, const std::string& topic, const std::string& schema_name,

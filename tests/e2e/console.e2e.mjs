@@ -132,7 +132,7 @@ test('every control has an accessible name and a data-testid', async () => {
                                'radio', 'tab', 'switch', 'menuitem', 'link', 'searchbox']);
   const offenders = new Set();
   let checked = 0;
-  for (const tab of ['tab-catheter', 'tab-plan', 'tab-events', 'tab-joints']) {
+  for (const tab of ['tab-catheter', 'tab-plan', 'tab-events', 'tab-tracking', 'tab-joints']) {
     if (!(await page.locator(tid(tab)).isVisible())) continue;
     await page.click(tid(tab));
     const {nodes} = await cdp.send('Accessibility.getFullAXTree');

@@ -201,6 +201,31 @@ RouteResult handle_api(HttpServer::Impl& server, const Request& req, const Reque
       return result_response(req, server.execute(*command, robot, body.body, who));
     }
   }
+  if (!route.empty() && route[0] == "imaging") {
+    // The segmentation editor: anyone reads; a change needs the imaged robot's lease, like a command.
+    const bool params = route.size() >= 2 && route[1] == "segmentation";
+    const bool roadmap = route.size() == 3 && route[1] == "roadmap";
+    if ((params && route.size() <= 3) || roadmap) {
+      if (params && route.size() == 2 && method != bhttp::verb::get) return method_not_allowed(req, "GET");
+      if (params && route.size() == 3 && method != bhttp::verb::put) return method_not_allowed(req, "PUT");
+      if (roadmap && method != bhttp::verb::post) return method_not_allowed(req, "POST");
+      if (!server.opts.imaging)
+        return error_response(req,
+                              ApiResult::error(503, "imaging_unavailable", "this server runs no imaging"));
+      ImagingControl& imaging = *server.opts.imaging;
+      if (route.size() == 2) return result_response(req, imaging.segmentation());
+      if (route[2] != "ap" && route[2] != "lateral")
+        return error_response(
+            req, ApiResult::error(404, "unknown_plane",
+                                  "no imaging plane \"" + route[2] + "\"; the planes are ap and lateral"));
+      const ApiResult allowed = server.execute(Command::kAuthorizeOnly, imaging.imaged_robot(), {}, who);
+      if (!allowed.ok()) return error_response(req, allowed);
+      if (roadmap) return result_response(req, imaging.take_roadmap(route[2]));
+      const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
+      if (!body.ok()) return error_response(req, body);
+      return result_response(req, imaging.set_segmentation(route[2], body.body));
+    }
+  }
   const PlanningCall planning_call{req.method_string(),
                                    route,
                                    target.query,
@@ -360,6 +385,9 @@ std::vector<HttpServer::Route> HttpServer::api_routes() {
     routes.push_back({"POST", "/api/v1/robots/{robot}/" + verb});
   routes.push_back({"POST", "/api/v1/robots/{robot}/{command}"});  // the robot types' own commands
   for (const auto& [verb, path] : planning_route_list()) routes.push_back({verb, path});
+  routes.push_back({"GET", "/api/v1/imaging/segmentation"});
+  routes.push_back({"PUT", "/api/v1/imaging/segmentation/{plane}"});
+  routes.push_back({"POST", "/api/v1/imaging/roadmap/{plane}"});
   return routes;
 }
 

@@ -39,6 +39,7 @@ test("the session recording holds every published topic and every command, final
   const schemas = {};
   const protobufTypes = {};  // topic → the type decoded from the recorded FileDescriptorSet
   let protobufImages = 0;
+  const segmentation = [];
   for (const file of files) {
     const bytes = new Uint8Array(readFileSync(join(dir, file)));
     // Indexed reading needs the footer and summary: the file was finalised at SIGTERM.
@@ -72,6 +73,7 @@ test("the session recording holds every published topic and every command, final
       }
       const body = JSON.parse(decoder.decode(message.data));  // every message is the JSON clients got
       if (topic === "/commands") commands.push(body);
+      if (topic === "/imaging/segmentation") segmentation.push(body);
     }
   }
   console.log(`recorded: ${JSON.stringify(counts)} in ${files.length} file(s); ${protobufImages} protobuf images decoded`);
@@ -80,6 +82,13 @@ test("the session recording holds every published topic and every command, final
   assert.ok(counts["/srmc/joint_states"] >= 50, `only ${counts["/srmc/joint_states"]} joint states`);
   assert.equal(schemas["/commands"], "tendril.Command");
   assert.equal(schemas["/srmc/joint_states"], "tendril.JointState", "the channel's own JSON schema");
+
+  // The segmentation's parameters, kept although no image was recorded: the start-up ones and the
+  // change imaging.test.mjs made (lateral canny_high 110), once the plane applied it.
+  assert.equal(schemas["/imaging/segmentation"], "tendril.SegmentationParameters");
+  assert.ok(segmentation.length >= 2, `segmentation messages: ${segmentation.length}`);
+  assert.ok(segmentation.some((m) => m.planes.lateral.parameters.canny_high === 110),
+            "the applied segmentation change is in the recording");
 
   // The commands the suites sent: a move that was executed, commands refused with their reason, the
   // e-stop, each with the sender's label.

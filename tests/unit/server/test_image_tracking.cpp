@@ -228,6 +228,14 @@ TEST(ImagingWorkerTracking, AnImageFeedbackDemandsTheTrackingGetsEveryTipAndHasI
   auto config = parse_imaging_config(
       json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
       "/nonexistent/server.json");
+// The segmentation editor (ImagingControl): a change is validated when asked (422 naming the field,
+// nothing changed), recorded as pending, and applied by the plane's own capture at its next frame, then
+// published on /imaging/segmentation; a roadmap likewise. capture_once() stands in for the plane threads.
+TEST(ImagingWorkerSegmentation, ChangesAreValidatedWhenAskedAndAppliedAtThePlanesNextFrame) {
+  auto config = parse_imaging_config(
+      json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
+      "/nonexistent/server.json");
+  config.robot = "srmc";
   ImagingWorker worker(
       [](std::vector<Eigen::Vector3d>& out) {
         out = bent_catheter(20.0);
@@ -261,6 +269,58 @@ TEST(ImagingWorkerTracking, AnImageFeedbackDemandsTheTrackingGetsEveryTipAndHasI
   EXPECT_GE(feedback.count(), 6u);
   feedback.demand(false);
   worker.stop();
+  EXPECT_EQ(worker.imaged_robot(), "srmc");
+  const auto topics = worker.topics();
+  ASSERT_TRUE(std::any_of(topics.begin(), topics.end(), [](const auto& t) {
+    return t.topic == "/imaging/segmentation" && t.schema_name == "tendril.SegmentationParameters";
+  }));
+  const auto first = worker.latest("/imaging/segmentation", 0);
+  ASSERT_TRUE(first) << "the start-up parameters are published";
+  const json start = json::parse(*first->payload);
+  const int threshold = start["planes"]["ap"]["parameters"]["threshold"].get<int>();
+
+  EXPECT_EQ(worker.set_segmentation("oblique", json{{"threshold", 40}}).status, 404);
+  EXPECT_EQ(worker.set_segmentation("ap", json::array()).status, 400);
+  for (const auto& [body, field] :
+       std::vector<std::pair<json, std::string>>{{json{{"threshold", 0}}, "threshold"},
+                                                 {json{{"roi", {{"x", 600}}}}, "roi.x"},
+                                                 {json{{"canny_low", 500}, {"canny_high", 100}}, "canny_low"},
+                                                 {json{{"nope", 1}}, "nope"}}) {
+    const ApiResult r = worker.set_segmentation("ap", body);
+    EXPECT_EQ(r.status, 422) << body.dump();
+    EXPECT_EQ(r.error_details.value("field", ""), field) << body.dump() << ": " << r.message;
+  }
+  EXPECT_EQ(worker.segmentation().body["planes"]["ap"]["parameters"]["threshold"].get<int>(), threshold)
+      << "refused changes change nothing";
+
+  const ApiResult asked = worker.set_segmentation("ap", json{{"threshold", threshold + 5}});
+  ASSERT_EQ(asked.status, 200) << asked.message;
+  EXPECT_EQ(asked.body["parameters"]["threshold"].get<int>(), threshold + 5);
+  EXPECT_FALSE(asked.body["applied"].get<bool>()) << "not before the plane's next frame";
+  EXPECT_FALSE(worker.latest("/imaging/segmentation", first->version))
+      << "nothing applied, nothing published";
+  EXPECT_EQ(worker.take_roadmap("lateral").status, 202);
+  EXPECT_TRUE(worker.segmentation().body["planes"]["lateral"]["roadmap"]["pending"].get<bool>());
+
+  worker.capture_once();  // both planes' next frame
+  const json state = worker.segmentation().body["planes"];
+  EXPECT_TRUE(state["ap"]["applied"].get<bool>());
+  EXPECT_EQ(state["ap"]["parameters"]["threshold"].get<int>(), threshold + 5);
+  EXPECT_FALSE(state["lateral"]["roadmap"]["pending"].get<bool>());
+  EXPECT_EQ(state["lateral"]["roadmap"]["count"].get<int>(), 2);
+  EXPECT_EQ(state["ap"]["roadmap"]["count"].get<int>(), 1);
+  const auto published = worker.latest("/imaging/segmentation", first->version);
+  ASSERT_TRUE(published);
+  const json m = json::parse(*published->payload);
+  EXPECT_EQ(m["planes"]["ap"]["parameters"]["threshold"].get<int>(), threshold + 5);
+  EXPECT_EQ(m["planes"]["lateral"]["roadmap"]["count"].get<int>(), 2);
+
+  // Tracking still finds the catheter with the new threshold and against the new roadmap.
+  worker.set_demand("/imaging/tracking", true);
+  worker.capture_once();
+  const json tracking = json::parse(*worker.latest("/imaging/tracking", 0)->payload);
+  EXPECT_TRUE(tracking["planes"]["ap"]["found"].get<bool>()) << tracking.dump();
+  EXPECT_TRUE(tracking["planes"]["lateral"]["found"].get<bool>()) << tracking.dump();
 }
 
 }  // namespace

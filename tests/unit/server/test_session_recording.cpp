@@ -72,6 +72,7 @@ TEST(SessionRecording, RecordsAdvertisedChannelsAndCommandsAndWantsImagesOnlyWhe
     SessionRecording recording(config, nullptr);
     EXPECT_TRUE(recording.wants("/srmc/joint_states", false)) << "robot topics: always";
     EXPECT_FALSE(recording.wants("/imaging/ap", true)) << "images: while watched";
+    EXPECT_TRUE(recording.wants("/imaging/segmentation", true)) << "segmentation parameters: always";
     recording.start();
     recording.channel(7, "/srmc/joint_states", "tendril.JointState", R"({"type":"object"})", "json",
                       "jsonschema");

@@ -95,6 +95,26 @@ class BiplaneTipTracker {
   std::shared_ptr<const std::string> latest(std::uint64_t& version, std::uint64_t& time_ns) const;
   static std::string schema();
 
+  // Live edits of the segmentation (the console's editor), from any thread. They are only recorded
+  // here; the plane's own thread applies them at its next frame (apply_requests), so the segmenter is
+  // never touched from two threads. request_parameters applies the keys of `changes` (partial) to the
+  // plane's latest requested parameters and validates them against the frame: throws
+  // SegmentationParameterError naming the field, and then changes nothing. Returns the new parameters.
+  teleop::perception::FluoroscopySegmentationParameters request_parameters(int plane,
+                                                                           const nlohmann::json& changes);
+  // A new empty-vessel roadmap for the plane at its next frame.
+  void request_roadmap(int plane);
+  // The plane's thread, before its frame: applies the parameters and takes the roadmap asked for.
+  // A simulated plane's roadmap is its exposure rendered without the instrument (noiseless, as an
+  // averaged acquisition would be): in a lab the catheter is pulled back out of the field first.
+  void apply_requests(int plane, std::uint64_t now_ns);
+  // Per plane: the parameters asked for, whether the plane applies them yet, its roadmap.
+  nlohmann::json segmentation_state() const;
+  // The newest /imaging/segmentation message (the parameters and roadmaps in effect; version ≥ 1).
+  std::shared_ptr<const std::string> latest_segmentation(std::uint64_t& version,
+                                                         std::uint64_t& time_ns) const;
+  static std::string segmentation_schema();
+
  private:
   struct PlaneState;
   Eigen::Vector2d to_plane_mm(int plane, const Eigen::Vector2d& px) const;
@@ -116,6 +136,19 @@ class BiplaneTipTracker {
   bool warned_ = false;
   std::shared_ptr<const std::string> message_;
   std::uint64_t version_ = 0, message_ns_ = 0;
+
+  // The live edits (request_mutex_; never held while segmenting or rendering).
+  struct Requests {
+    teleop::perception::FluoroscopySegmentationParameters requested, applied;
+    bool roadmap_pending = false;
+    std::uint64_t roadmaps = 1;  // the one taken at construction counts
+    std::uint64_t roadmap_ns = 0;
+  };
+  void publish_segmentation(std::uint64_t time_ns);  // caller holds request_mutex_
+  mutable std::mutex request_mutex_;
+  std::array<Requests, 2> requests_;
+  std::shared_ptr<const std::string> segmentation_message_;
+  std::uint64_t segmentation_version_ = 0, segmentation_ns_ = 0;
 };
 
 }  // namespace tendril::server

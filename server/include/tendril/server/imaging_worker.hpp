@@ -55,6 +55,7 @@
 #include "tendril/server/control_api.hpp"
 #include "tendril/server/image_feedback.hpp"
 #include "tendril/server/image_tracking.hpp"
+#include "tendril/server/imaging_control.hpp"
 #include "tendril/server/robot_service.hpp"
 #include "tendril/server/topic_source.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
@@ -123,7 +124,7 @@ using BackboneReader = std::function<bool(std::vector<Eigen::Vector3d>& out)>;
 // latest snapshot. Throws ConfigError for an unknown robot.
 BackboneReader backbone_from(const RobotService& service, std::string robot);
 
-class ImagingWorker final : public TopicSource {
+class ImagingWorker final : public TopicSource, public ImagingControl {
  public:
   // Throws sim::FluoroscopeError for an unusable geometry, ConfigError for a source that cannot be
   // opened (naming imaging.sources.<plane> and why).
@@ -158,6 +159,14 @@ class ImagingWorker final : public TopicSource {
 
   // Renders and publishes one frame of each simulated plane now (tests; the threads need not run).
   void capture_once();
+
+  // The segmentation editor and roadmaps (ImagingControl); 503 when the tracking is off, 409 for a
+  // plane fed by a source (it is not tracked). Changes are applied by the plane's thread at its next
+  // frame and then published on /imaging/segmentation.
+  std::string imaged_robot() const override { return config_.robot; }
+  ApiResult segmentation() const override;
+  ApiResult set_segmentation(const std::string& plane, const nlohmann::json& changes) override;
+  ApiResult take_roadmap(const std::string& plane) override;
 
  private:
   struct Plane;

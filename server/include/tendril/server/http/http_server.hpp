@@ -35,6 +35,7 @@
 
 #include "tendril/server/control_api.hpp"
 #include "tendril/server/http/publish_tap.hpp"
+#include "tendril/server/imaging_control.hpp"
 #include "tendril/server/topic_source.hpp"
 
 namespace tendril::server {
@@ -77,6 +78,8 @@ struct HttpOptions {
   // Topics from outside ControlApi (imaging, maps), advertised and published next to the robots'
   // with the same newest-only backpressure; a source's ready callback publishes its topics at once.
   std::vector<std::shared_ptr<TopicSource>> topic_sources;
+  // The segmentation editor and roadmaps (/api/v1/imaging/…); null = those routes answer 503.
+  std::shared_ptr<ImagingControl> imaging;
   // A second reader of every channel, message and command (e.g. the session recording); null = none.
   std::shared_ptr<http::PublishTap> tap;
   // Where the front end logs (refused connections, contained exceptions); null = standard error.
