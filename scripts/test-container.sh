@@ -77,6 +77,15 @@ fi
 user="$("${podman[@]}" exec "$name" id -un)"
 if [ "$user" = tendril ]; then echo "ok - tendrild runs as user '$user'"; else
   echo "not ok - tendrild runs as '$user', not the image's non-root user"; status=1; fi
+# A second DDS participant in its own container (the compose file's dds-subscriber): the image's
+# tendril-dds-probe reads five joint states of the container's tendrild over DDS.
+if "${podman[@]}" run --rm --runtime runc --network host --entrypoint /opt/tendril/bin/tendril-dds-probe \
+     "$image" --timeout 20 echo srmc joint_states --count 5 \
+     > /dev/null; then
+  echo "ok - a second container's DDS participant reads rt/srmc/joint_states"
+else
+  echo "not ok - no joint states over DDS in a second container"; status=1
+fi
 node --test --test-concurrency=1 tests/api/*.test.mjs || status=1
 check_clean_shutdown || status=1
 node --test tests/api/after_shutdown/*.test.mjs || status=1
