@@ -228,14 +228,6 @@ TEST(ImagingWorkerTracking, AnImageFeedbackDemandsTheTrackingGetsEveryTipAndHasI
   auto config = parse_imaging_config(
       json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
       "/nonexistent/server.json");
-// The segmentation editor (ImagingControl): a change is validated when asked (422 naming the field,
-// nothing changed), recorded as pending, and applied by the plane's own capture at its next frame, then
-// published on /imaging/segmentation; a roadmap likewise. capture_once() stands in for the plane threads.
-TEST(ImagingWorkerSegmentation, ChangesAreValidatedWhenAskedAndAppliedAtThePlanesNextFrame) {
-  auto config = parse_imaging_config(
-      json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
-      "/nonexistent/server.json");
-  config.robot = "srmc";
   ImagingWorker worker(
       [](std::vector<Eigen::Vector3d>& out) {
         out = bent_catheter(20.0);
@@ -269,6 +261,22 @@ TEST(ImagingWorkerSegmentation, ChangesAreValidatedWhenAskedAndAppliedAtThePlane
   EXPECT_GE(feedback.count(), 6u);
   feedback.demand(false);
   worker.stop();
+}
+
+// The segmentation editor (ImagingControl): a change is validated when asked (422 naming the field,
+// nothing changed), recorded as pending, and applied by the plane's own capture at its next frame, then
+// published on /imaging/segmentation; a roadmap likewise. capture_once() stands in for the plane threads.
+TEST(ImagingWorkerSegmentation, ChangesAreValidatedWhenAskedAndAppliedAtThePlanesNextFrame) {
+  auto config = parse_imaging_config(
+      json{{"width", 512}, {"height", 512}, {"fps", 15}, {"vessel", false}, {"isocentre_mm", {0, 0, 60}}},
+      "/nonexistent/server.json");
+  config.robot = "srmc";
+  ImagingWorker worker(
+      [](std::vector<Eigen::Vector3d>& out) {
+        out = bent_catheter(20.0);
+        return true;
+      },
+      config);
   EXPECT_EQ(worker.imaged_robot(), "srmc");
   const auto topics = worker.topics();
   ASSERT_TRUE(std::any_of(topics.begin(), topics.end(), [](const auto& t) {
