@@ -3,7 +3,9 @@
 // fed with the same messages). Reports frames/s per client, capture-to-client latency p50/p95 and
 // server CPU per client. Never a test: it reports numbers and asserts nothing about speed.
 //   node bench.mjs --tendrild build/server/tendrild [--clients 4] [--width 1024] [--fps 30]
-//                  [--state-hz 100] [--quality 80] [--duration 15] [--warmup 3]
+//                  [--state-hz 100] [--quality 80] [--duration 15] [--warmup 3] [--encoding json|protobuf]
+// --encoding protobuf: tendrild's clients read the images from /imaging/{view}/compressed (protobuf,
+// no base64) instead of the JSON /imaging/{view}; the relay is fed the JSON form either way.
 import {spawn} from 'node:child_process';
 import fs from 'node:fs';
 import net from 'node:net';
@@ -27,7 +29,9 @@ const opt = {
   quality: Number(args.quality ?? 80),
   duration: Number(args.duration ?? 15),
   warmup: Number(args.warmup ?? 3),
+  encoding: args.encoding ?? 'json',
 };
+if (!['json', 'protobuf'].includes(opt.encoding)) throw new Error(`--encoding json|protobuf, not ${opt.encoding}`);
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 const TICKS = 100;  // USER_HZ on Linux: /proc/<pid>/stat times are in 1/100 s
 
@@ -161,7 +165,7 @@ async function benchTendril(work) {
     const idle = await tendrilCpuOver(server.pid, 5000);
     const recorded = await record(wsUrl, 30);
     fs.writeFileSync(path.join(work, 'recorded.json'), JSON.stringify(recorded));
-    const clientsDone = runClients('foxglove', wsUrl);
+    const clientsDone = runClients(opt.encoding === 'protobuf' ? 'foxglove-protobuf' : 'foxglove', wsUrl);
     await sleep(opt.warmup * 1000);
     const metricsBefore = await (await fetch(`${base}/metrics`, {headers: {Authorization: `Bearer ${token}`}})).text();
     const busy = await tendrilCpuOver(server.pid, opt.duration * 1000);
@@ -216,7 +220,7 @@ async function benchRelay(work) {
 const fmt = (v, d = 1) => (Number.isFinite(v) ? v.toFixed(d) : 'n/a');
 const work = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-image-bench-'));
 console.log(`image_stream_bench: ${opt.clients} clients, state ${opt.stateHz} Hz, 2 × ${opt.width}×${opt.width} JPEG ` +
-            `(quality ${opt.quality}) at ${opt.fps} fps, ${opt.duration} s measured after ${opt.warmup} s warm-up; ` +
+            `(quality ${opt.quality}) at ${opt.fps} fps, tendrild images as ${opt.encoding}, ${opt.duration} s measured after ${opt.warmup} s warm-up; ` +
             `${os.cpus().length} CPUs, load ${os.loadavg().map((l) => l.toFixed(1)).join(' ')}`);
 const t = await benchTendril(work);
 const r = await benchRelay(work);

@@ -1,6 +1,8 @@
 // One benchmark client. Prints one JSON line with what it received during the measurement window.
 //   node client.mjs foxglove ws://127.0.0.1:PORT/ws?token=T WARMUP_S DURATION_S
 //   node client.mjs relay    ws://127.0.0.1:PORT             WARMUP_S DURATION_S
+//   node client.mjs foxglove-protobuf …: as foxglove, with the images from /imaging/{view}/compressed
+//   (protobuf foxglove.CompressedImage) instead of the JSON /imaging/{view}.
 // foxglove: subscribes with @foxglove/ws-protocol to /srmc/joint_states, /imaging/ap, /imaging/lateral.
 // relay: plain `ws`; every message is {"topic":…,"message":{…}} as the feeder sends it.
 // Image latency = receive time − the capture timestamp inside the message (same machine, same clock).
@@ -74,20 +76,49 @@ function schedule(close) {
   }, warmup);
 }
 
-if (mode === 'foxglove') {
+// The capture stamp of a protobuf foxglove.CompressedImage: field 1 (Timestamp) comes first, and
+// inside it seconds (field 1) and nanos (field 2) as varints.
+function protobufStamp(bytes) {
+  if (bytes[0] !== 0x0a) return null;
+  const end = 2 + bytes[1];
+  let pos = 2;
+  const out = {sec: 0, nsec: 0};
+  while (pos < end) {
+    const key = bytes[pos++];
+    let value = 0;
+    for (let scale = 1; pos < end; scale *= 128) {
+      const b = bytes[pos++];
+      value += (b & 0x7f) * scale;
+      if (b < 0x80) break;
+    }
+    if (key === 0x08) out.sec = value;
+    if (key === 0x10) out.nsec = value;
+  }
+  return out;
+}
+
+if (mode === 'foxglove' || mode === 'foxglove-protobuf') {
+  const binaryImages = mode === 'foxglove-protobuf';
   const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
   const client = new FoxgloveClient({ws});
   const topicsBySubscription = new Map();
   client.on('advertise', (channels) => {
     for (const channel of channels) {
-      if (channel.topic === STATE_TOPIC || IMAGE_TOPICS.includes(channel.topic))
-        topicsBySubscription.set(client.subscribe(channel.id), channel.topic);
+      const image = IMAGE_TOPICS.find((t) => channel.topic === (binaryImages ? `${t}/compressed` : t));
+      if (channel.topic === STATE_TOPIC || image) topicsBySubscription.set(client.subscribe(channel.id), image ?? channel.topic);
     }
   });
   client.on('message', ({subscriptionId, timestamp, data}) => {
     const topic = topicsBySubscription.get(subscriptionId);
     if (!topic) return;
-    const prefix = decoder.decode(new Uint8Array(data.buffer, data.byteOffset, Math.min(96, data.byteLength)));
+    const head = new Uint8Array(data.buffer, data.byteOffset, Math.min(96, data.byteLength));
+    let prefix;
+    if (binaryImages && topic !== STATE_TOPIC) {
+      const t = protobufStamp(head);
+      prefix = t ? `"timestamp":{"sec":${t.sec},"nsec":${t.nsec}}` : '';
+    } else {
+      prefix = decoder.decode(head);
+    }
     received(topic, prefix, data.byteLength, Number(timestamp) / 1e6);
   });
   client.on('error', (e) => console.error('client error', e?.message ?? e));
