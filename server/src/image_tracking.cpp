@@ -510,7 +510,7 @@ std::string BiplaneTipTracker::schema() {
       {"type", "object"},
       {"properties",
        {{"found", {{"type", "boolean"}}},
-        {"reason", {{"type", "string"}, {"description", "why no catheter was found (empty when found)"}}},
+        {"reason", {{"type", "string"}, {"description", "why no instrument was found (empty when found)"}}},
         {"tip_px", point2},
         {"filtered_px", point2},
         {"heading_deg", {{"type", {"number", "null"}}}},
@@ -518,7 +518,7 @@ std::string BiplaneTipTracker::schema() {
   return nlohmann::json{
       {"title", "tendril.TipTracking"},
       {"description",
-       "The catheter tip in the images: per plane the segmented and EKF-filtered tip (pixels, row 0 at the "
+       "The instrument tip in the images: per plane the segmented and EKF-filtered tip (pixels, row 0 at the "
        "top), and in 3D (world mm) the two planes' rays intersected, beside the model's tip"},
       {"type", "object"},
       {"properties",

@@ -78,7 +78,7 @@ std::string image_overlay_schema() {
       {"description",
        "What the console draws over the frame of the same timestamp on /imaging/{view}/compressed: the "
        "imaged robot's model backbone and the plan's path projected with the plane's geometry, and "
-       "while the tip is tracked the segmented catheter and the filtered tip; pixels [column, row], row 0 "
+       "while the tip is tracked the segmented instrument and the filtered tip; pixels [column, row], row 0 "
        "at the top"},
       {"type", "object"},
       {"properties",
@@ -983,6 +983,11 @@ ApiResult no_tracking() {
       503, "tracking_unavailable",
       "the tip tracking is off (imaging.tracking.enabled is false): nothing is segmented");
 }
+// A plane fed by a source (video, files) has no roadmap of its own, so it is not tracked.
+ApiResult plane_not_tracked(const std::string& plane, const std::string& consequence) {
+  return ApiResult::error(409, "plane_not_tracked",
+                          "the " + plane + " plane is fed by a source, which is not tracked; " + consequence);
+}
 int plane_index(const std::string& plane) { return plane == "ap" ? 0 : plane == "lateral" ? 1 : -1; }
 }  // namespace
 
@@ -997,10 +1002,7 @@ ApiResult ImagingWorker::set_segmentation(const std::string& plane, const nlohma
   const int index = plane_index(plane);
   if (index < 0) return unknown_plane(plane);
   if (!tracker_) return no_tracking();
-  if (planes_[index]->source)
-    return ApiResult::error(
-        409, "plane_not_tracked",
-        "the " + plane + " plane is fed by a source, which is not tracked; nothing to segment");
+  if (planes_[index]->source) return plane_not_tracked(plane, "nothing to segment");
   if (!changes.is_object())
     return ApiResult::error(400, "bad_request",
                             "expected a JSON object of segmentation parameters, e.g. {\"threshold\": 40}");
@@ -1018,10 +1020,7 @@ ApiResult ImagingWorker::take_roadmap(const std::string& plane) {
   const int index = plane_index(plane);
   if (index < 0) return unknown_plane(plane);
   if (!tracker_) return no_tracking();
-  if (planes_[index]->source)
-    return ApiResult::error(
-        409, "plane_not_tracked",
-        "the " + plane + " plane is fed by a source, which is not tracked; it has no roadmap");
+  if (planes_[index]->source) return plane_not_tracked(plane, "it has no roadmap");
   tracker_->request_roadmap(index);
   return ApiResult::success(tracker_->segmentation_state()[plane]["roadmap"], 202);
 }

@@ -199,19 +199,23 @@ void CatheterController::control(ControlContext& ctx) noexcept {
   }
 }
 
+// The insertion velocity the operator asks for where only insertion is theirs (image_guided, and
+// retraction while held): the servo stream while it is live, else the joysticks' insertion axis.
+double CatheterController::operator_insertion_velocity(ControlContext& ctx) noexcept {
+  if (ctx.servo_live()) return ctx.servo_velocity()[0];
+  ctx.stop_servo();
+  std::array<double, kJoints> v{};
+  joystick_velocity(ctx, v);
+  return v[0];
+}
+
 // image_guided (issue 15): insertion from the operator; roll and bends from the newest target the
 // imaging thread replanned (ImageGuidance), through the configuration controller (eq. 4.21 with the
 // coupling compensation). No new target for kTrackingLostS: the bends hold where they are and the
 // operator is warned once; the next target takes over again.
 void CatheterController::image_guided(ControlContext& ctx) noexcept {
   auto& configuration = *robot_.configuration_;
-  std::array<double, kJoints> v{};
-  if (ctx.servo_live()) {
-    v[0] = ctx.servo_velocity()[0];
-  } else {
-    ctx.stop_servo();
-    joystick_velocity(ctx, v);
-  }
+  const double insertion_velocity = operator_insertion_velocity(ctx);
   const auto target = robot_.guidance_->target().load();
   if (target.sequence != guided_sequence_) {
     guided_sequence_ = target.sequence;
@@ -246,21 +250,15 @@ void CatheterController::image_guided(ControlContext& ctx) noexcept {
     ctx.q_des[j] = q[static_cast<Eigen::Index>(j)];
     ctx.qd_des[j] = qd[static_cast<Eigen::Index>(j)];
   }
-  ctx.qd_des[0] = v[0];
-  ctx.q_des[0] = insertion + v[0] * ctx.period;
+  ctx.qd_des[0] = insertion_velocity;
+  ctx.q_des[0] = insertion + insertion_velocity * ctx.period;
 }
 
 void CatheterController::retraction(ControlContext& ctx) noexcept {
   // Held after a limit: the operator may withdraw the catheter (insertion only, never forward), from
   // the servo stream, a joystick or a requested distance; everything else stays where it is.
-  std::array<double, kJoints> v{};
-  if (ctx.servo_live()) {
-    v[0] = ctx.servo_velocity()[0];
-  } else {
-    ctx.stop_servo();
-    joystick_velocity(ctx, v);
-  }
-  double withdraw = std::min(v[0], 0.0);
+  const double insertion_velocity = operator_insertion_velocity(ctx);
+  double withdraw = std::min(insertion_velocity, 0.0);
   if (withdrawing_) {
     // A requested distance goes at the joystick's full insertion speed and stops on the millimetre.
     const double remaining = ctx.q_des[0] - withdraw_to_;

@@ -119,6 +119,7 @@ class CatheterController final : public RobotController {
  private:
   std::int64_t reading_age_ns(std::int64_t stamp_ns, std::int64_t now_ns) const noexcept;
   void joystick_velocity(const ControlContext& ctx, std::array<double, 4>& v) noexcept;
+  double operator_insertion_velocity(ControlContext& ctx) noexcept;
   void retraction(ControlContext& ctx) noexcept;
   void start_relax(ControlContext& ctx) noexcept;
   void relax(ControlContext& ctx) noexcept;
