@@ -50,6 +50,12 @@ export class CatheterPanel {
       deadman: q('deadman-button'),
       status: q('joystick-status'),
       gamepad: q('gamepad-status'),
+      guidance: q('image-guidance'),
+      guidanceStatus: q('guidance-status'),
+      guidanceDrive: q('guidance-drive'),
+      guidanceMeasured: q('guidance-measured'),
+      guidanceTarget: q('guidance-target'),
+      guidanceReplans: q('guidance-replans'),
       move: q('cfg-move-button'),
       fromCurrent: q('cfg-from-current-button'),
       preview: q('cfg-preview'),
@@ -267,13 +273,17 @@ export class CatheterPanel {
     if (this.root.hidden && !this.sending) return;  // nothing to read or send while the panel is closed
     const gamepadAxes = this.readGamepad();
     const mode = this.operating?.mode;
-    const movable = mode === 'telemanipulation' || mode === 'active_compliance' || this.operating?.retraction_only;
+    const movable = mode === 'telemanipulation' || mode === 'active_compliance' || mode === 'image_guided' ||
+        this.operating?.retraction_only;
     // Stale data or a viewer session: the deadman counts as released (one deadman:false goes out).
     const held = this.deadman && movable && !this.root.hidden && this.commandable && !this.viewer;
     this.el.deadman.setAttribute('aria-pressed', String(this.deadman));
     this.el.deadman.classList.toggle('held', this.deadman);
     if (!held && !this.sending) return;
     const axes = this.axes(gamepadAxes);
+    // Image-guided: the operator owns insertion only (the replanner steers roll and bends; the server
+    // ignores the other axes there too), so a drag on the deadman sends no bend at all.
+    if (mode === 'image_guided') axes.fill(0, 1);
     this.sending = held;
     try {
       await this.api.joystick(this.robotName, axes, held);
@@ -415,12 +425,39 @@ export class CatheterPanel {
     const hold = os.state === 'PAUSED' && os.hold && os.hold.message ? os.hold : null;
     this.el.hold.hidden = !hold;
     if (hold) this.el.hold.textContent = `Held: ${hold.message}. ${hold.next || ''}`;
+    this.renderGuidance(os.image_guidance);
     const j = os.joystick || {};
+    const guided = os.mode === 'image_guided';
     this.el.status.textContent = j.conflict ? 'two joysticks hold their deadman: nothing moves'
-        : j.source ? `moving from ${j.source} joystick` + (j.deadman ? '' : ' (deadman released)')
-        : this.deadman ? 'deadman held — waiting for the robot (telemanipulation or active compliance mode)'
+        : j.source ? `moving from ${j.source} joystick` + (guided ? ' (insertion; the replanner steers)' : '') +
+          (j.deadman ? '' : ' (deadman released)')
+        : this.deadman ? 'deadman held — waiting for the robot (telemanipulation, active compliance or image-guided mode)'
         : 'no joystick input';
     this.updateMoveButton();
+  }
+
+  // operating_state.image_guidance (null outside the mode): what the loop does and why, in words.
+  renderGuidance(g) {
+    this.el.guidance.hidden = !g;
+    if (!g) return;
+    const words = {
+      waiting: 'waiting for the first tip fix',
+      tracking: 'tracking: roll and bends follow the replanned targets',
+      not_found: 'tip not found in the images',
+      refused: 'tip fix refused',
+      lost: 'tracking lost: the bends hold; insertion stays with you',
+    };
+    const status = g.tracking_lost ? 'lost' : g.status;
+    const age = Number.isFinite(g.tracking_age_s) ? ` · last fix ${fmt(g.tracking_age_s, 1)} s ago` : '';
+    this.el.guidanceStatus.dataset.status = status;
+    this.el.guidanceStatus.textContent = `${words[status] || status}${g.reason ? ` (${g.reason})` : ''}${age}`;
+    this.el.guidanceDrive.textContent = `${fmt(g.drive_insertion_mm, 1)} mm`;
+    this.el.guidanceMeasured.textContent = Number.isFinite(g.measured_insertion_mm)
+        ? `${fmt(g.measured_insertion_mm, 1)} mm (images ${fmt(g.image_insertion_mm, 1)} mm)` : '—';
+    const t = Array.isArray(g.replanned_target) ? g.replanned_target : null;
+    this.el.guidanceTarget.textContent = t
+        ? `${fmt(t[1] / DEG, 1)}° · ${fmt(t[2] / DEG, 1)}° · ${fmt(t[3] / DEG, 1)}°` : '—';
+    this.el.guidanceReplans.textContent = String(g.replans ?? 0);
   }
 
   updateMoveButton() {

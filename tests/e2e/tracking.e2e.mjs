@@ -3,7 +3,9 @@
 // /imaging/tracking (off by default), both planes report "found", the imaged 3D tip lies within the
 // disagreement bound of the model's and is drawn in the 3D scene, a threshold edited in the form is
 // applied by the server (its GET says so), a new roadmap is taken, and the switch turns the tracking
-// off again. Screenshot: tests/e2e/artifacts/tracking.png (git-ignored).
+// off again. Then the image-guided mode from the console: with the shipped synthetic ICA planned and
+// loaded, the catheter tab shows the loop's status and the deadman's insertion inserts while the
+// replanner steers. Screenshots: tests/e2e/artifacts/tracking.png, image-guided.png (git-ignored).
 // Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh sets them); CHROMIUM (default /usr/bin/chromium).
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
@@ -182,5 +184,92 @@ test('switching the tracking off unsubscribes it and hides the imaged tip', asyn
   assert.ok(!subscribed.includes('/imaging/tracking'), `unsubscribed: ${subscribed}`);
   assert.equal(await page.evaluate(() => !!window.tendrilLive.view()?.trackedTip?.visible), false);
   assert.equal(await page.locator(tid('tracking-ap-status')).textContent(), '—');
+  assert.deepEqual(pageErrors, [], 'no errors on the page');
+});
+
+// From the page itself (its cookie session holds the lease): plan along the shipped synthetic ICA and
+// load the plan for the robot, as the Plan tab would.
+async function planAndLoad() {
+  const csv = fs.readFileSync(path.join(path.dirname(fileURLToPath(import.meta.url)), '../../config/vessels/synthetic_ica.csv'), 'utf8');
+  return page.evaluate(async (text) => {
+    const call = async (method, url, body, type = 'application/json') => {
+      const r = await fetch(`/api/v1${url}`, {method, body, credentials: 'same-origin', headers: {'Content-Type': type}});
+      const answer = await r.json().catch(() => null);
+      if (!r.ok) throw new Error(`${method} ${url}: ${r.status} ${JSON.stringify(answer)}`);
+      return answer;
+    };
+    const job = await call('POST', '/plans?robot=srmc&branch=0&ds=0.5&dq1=3', text, 'text/csv');
+    for (let i = 0; i < 600; ++i) {
+      const j = await call('GET', `/jobs/${job.id}`);
+      if (j.state === 'succeeded') break;
+      if (j.state === 'failed' || j.state === 'cancelled') throw new Error(`plan ${j.state}: ${JSON.stringify(j)}`);
+      await new Promise((r) => setTimeout(r, 100));
+    }
+    return call('POST', '/robots/srmc/path_following', JSON.stringify({plan: job.id}));
+  }, csv);
+}
+
+const operating = async () => (await rest('GET', '/robots/srmc/operating_state')).json;
+async function untilServer(predicate, what, timeoutMs = 30000) {
+  const until = Date.now() + timeoutMs;
+  for (;;) {
+    const os = await operating();
+    if (predicate(os)) return os;
+    if (Date.now() > until) {
+      assert.fail(`${what}: last ${JSON.stringify({state: os.state, mode: os.mode, hold: os.hold, joystick: os.joystick,
+                                                    image_guidance: os.image_guidance, refusal: os.mode_refusal})}`);
+    }
+    await new Promise((r) => setTimeout(r, 100));
+  }
+}
+
+test('image-guided mode from the console: the loop\'s status on the catheter tab; the deadman inserts, the replanner steers', async () => {
+  await planAndLoad();
+  await page.waitForFunction(() => !document.querySelector('[data-testid="enable-button"]').disabled, null, WAIT);
+  await page.click(tid('enable-button'));
+  await untilServer((os) => os.state === 'ENABLED' && !os.is_busy, 'enabled and holding');
+  await page.click(tid('mode-image_guided'));
+  await untilServer((os) => os.mode === 'image_guided', 'image_guided entered');
+  await page.click(tid('tab-catheter'));
+  await waitOn(() => !document.querySelector('[data-testid="image-guidance"]').hidden);
+  // The loop runs before anyone inserts: the mode demands the tracking itself.
+  await untilServer((os) => os.image_guidance?.replans > 0, 'replanned targets');
+  await waitOn(() => document.querySelector('[data-testid="guidance-status"]').dataset.status === 'tracking' &&
+                     Number(document.querySelector('[data-testid="guidance-replans"]').textContent) > 0);
+  const before = await operating();
+  // Space holds the deadman; the arrow keys set the insertion speed on the focused slider.
+  await page.locator(tid('stick-insertion')).scrollIntoViewIfNeeded();
+  await page.focus(tid('stick-insertion'));
+  await page.keyboard.down('Space');
+  await waitOn(() => document.querySelector('[data-testid="deadman-button"]').getAttribute('aria-pressed') === 'true');
+  for (let i = 0; i < 10; ++i) await page.keyboard.press('ArrowRight');
+  let moving;
+  try {
+    moving = await untilServer((os) => os.joystick?.source === 'console' &&
+        os.image_guidance.drive_insertion_mm - before.image_guidance.drive_insertion_mm > 1.0, 'insertion from the console');
+  } catch (err) {
+    const shown = await page.evaluate(() => ({
+      joystick: document.querySelector('[data-testid="joystick-status"]').textContent,
+      insertion: document.querySelector('[data-testid="stick-insertion"]').value,
+      focused: document.activeElement?.dataset?.testid,
+      badge: document.querySelector('[data-testid="state-badge"]').dataset.state,
+      status: document.querySelector('[data-testid="command-status"]').textContent}));
+    err.message += `\nthe page showed ${JSON.stringify(shown)}`;
+    throw err;
+  }
+  // The console sends insertion only; the bends are the replanner's.
+  assert.deepEqual(moving.joystick.axes.slice(1), [0, 0, 0], JSON.stringify(moving.joystick));
+  assert.match(await page.locator(tid('joystick-status')).textContent(), /the replanner steers/);
+  await page.screenshot({path: path.join(ARTIFACTS, 'image-guided.png')});
+  await page.keyboard.up('Space');
+  await page.locator(tid('stick-insertion')).blur();
+  const after = await untilServer((os) => os.image_guidance.replans > moving.image_guidance.replans, 'replanning goes on');
+  assert.ok(Number.isFinite(after.image_guidance.measured_insertion_mm), JSON.stringify(after.image_guidance));
+  assert.match(await page.locator(tid('guidance-drive')).textContent(), /^\d+\.\d mm$/);
+  // Insertion stopped: the mode can be left while the tracking still runs; the panel goes with it.
+  await untilServer((os) => !os.is_busy, 'holding after the insertion');
+  await page.click(tid('mode-joint'));
+  await untilServer((os) => os.mode === 'joint', 'back in joint mode');
+  await waitOn(() => document.querySelector('[data-testid="image-guidance"]').hidden);
   assert.deepEqual(pageErrors, [], 'no errors on the page');
 });

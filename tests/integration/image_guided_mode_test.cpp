@@ -250,6 +250,38 @@ TEST_F(ImageGuidedModeTest, TrackingLostForHalfASecondHoldsTheBendsAndWarnsInser
   EXPECT_EQ(leave.status, 200) << leave.message;
 }
 
+// The console's joystick (POST /joystick, what the browser sends) inserts in image_guided as a stream
+// does: its insertion axis at the full-stick speed, its bend and roll axes ignored (the replanner owns
+// them). Without images the bends hold, so any bend motion here would be the joystick's.
+TEST_F(ImageGuidedModeTest, TheConsoleJoystickInsertsAndItsBendAxesAreIgnored) {
+  start(nlohmann::json());
+  enable();
+  attach_tracking();
+  ASSERT_EQ(api->load_path("srmc", plan(), "p1").status, 200);
+  ASSERT_EQ(api->mode("srmc", {{"mode", "image_guided"}}).status, 200);
+  steps(600);  // no images: tracking lost after 0.5 s, the bends hold
+  ASSERT_TRUE(op()["image_guidance"]["tracking_lost"].get<bool>()) << op().dump();
+  const auto held = setpoint();
+  const auto robots = api->robots();
+  double full = 0.0;  // the insertion's full-stick speed, as GET /robots says
+  for (const auto& r : robots.is_array() ? robots : robots["robots"])
+    if (r["name"] == "srmc") full = r["telemanipulation_max_speed"][0].get<double>();
+  ASSERT_GT(full, 0.0) << robots.dump();
+  for (int i = 0; i < 50; ++i) {  // 1 s of the console's 50 Hz stream: half insertion, full bends
+    const auto r =
+        api->robot_command("srmc", "joystick", {{"axes", {0.5, 1.0, 1.0, -1.0}}, {"deadman", true}});
+    ASSERT_EQ(r.status, 200) << r.message;
+    steps(20);
+  }
+  EXPECT_EQ(op()["joystick"]["source"], "console");
+  const auto later = setpoint();
+  EXPECT_NEAR(later[0] - held[0], 0.5 * full, 0.05 * full);
+  for (std::size_t j = 1; j < 4; ++j) EXPECT_NEAR(later[j], held[j], 1e-9) << j;
+  ASSERT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0, 0}}, {"deadman", false}}).status, 200);
+  steps(200);
+  EXPECT_NEAR(setpoint()[0], later[0], 1e-3);  // released: insertion stops
+}
+
 // The headline (issue 15): with a plant that differs from the model, the tip stays nearer the plan's
 // centerline with image feedback than with the plan played open loop (path_following).
 TEST_F(ImageGuidedModeTest, WithAPerturbedPlantTheTipFollowsTheCenterlineBetterThanOpenLoop) {

@@ -396,14 +396,16 @@ class CatheterApi final : public RobotApiExtension {
     }
     c.flag = body["deadman"].get<bool>() ? 1 : 0;
     const auto s = robot_.snapshot();
+    // image_guided: the joystick's insertion axis is the operator's share of the loop (the other axes
+    // are ignored there; the replanner steers), as an evdev or analog joystick's is.
     if (c.flag != 0 && s.mode != kTelemanipulationMode && s.mode != kActiveComplianceMode &&
-        !(s.retraction_only && s.state == OperatingState::kPaused)) {
+        s.mode != kImageGuidedMode && !(s.retraction_only && s.state == OperatingState::kPaused)) {
       const auto state = service_.operating_state(robot);
       return ApiResult::error(
           409, "wrong_mode",
           "robot '" + robot + "' is in " + (state ? state->mode : std::string("another")) +
-              " mode; the joystick moves it in telemanipulation (all joints) or active_compliance "
-              "(insertion and roll)");
+              " mode; the joystick moves it in telemanipulation (all joints), active_compliance "
+              "(insertion and roll) or image_guided (insertion)");
     }
     if (!post(c)) return busy(robot);
     return ApiResult::success({{"command_timeout_ms", robot_.config().command_timeout_ms}});
