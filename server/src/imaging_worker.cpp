@@ -25,10 +25,11 @@ using SteadyClock = std::chrono::steady_clock;
 constexpr std::size_t kTimingWindow = 256;  // recent frames kept for the timing quantiles
 constexpr double kDefaultVesselRadiusMm = 2.0;
 // A plane's streams (ImagingWorker::Plane::topics).
-constexpr std::size_t kJson = 0;        // /imaging/{view}: JSON, base64 image and overlay in one message
-constexpr std::size_t kCompressed = 1;  // /imaging/{view}/compressed: protobuf foxglove.CompressedImage
-constexpr std::size_t kOverlay = 2;     // /imaging/{view}/overlay: JSON tendril.ImageOverlay
-constexpr std::size_t kStreams = 3;
+constexpr std::size_t kJson = 0;         // /imaging/{view}: JSON, base64 image and overlay in one message
+constexpr std::size_t kCompressed = 1;   // /imaging/{view}/compressed: protobuf foxglove.CompressedImage
+constexpr std::size_t kOverlay = 2;      // /imaging/{view}/overlay: JSON tendril.ImageOverlay
+constexpr std::size_t kAnnotations = 3;  // /imaging/{view}/annotations: protobuf foxglove.ImageAnnotations
+constexpr std::size_t kStreams = 4;
 
 std::uint64_t wall_ns() {
   return static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -171,17 +172,25 @@ struct KeyReader {
 
 // Points projected onto the plane's detector as [[column, row], …] (pixels, one decimal); points at
 // or behind the source are left out.
-void append_projected(const sim::SimulatedFluoroscope& fluoroscope,
-                      const std::vector<Eigen::Vector3d>& points, std::string& out) {
-  out += '[';
-  bool first = true;
-  char buf[64];
+// The points in front of the plane that project to finite pixels, [column, row].
+std::vector<std::array<double, 2>> projected(const sim::SimulatedFluoroscope& fluoroscope,
+                                             const std::vector<Eigen::Vector3d>& points) {
+  std::vector<std::array<double, 2>> out;
+  out.reserve(points.size());
   for (const auto& p : points) {
     const auto d = fluoroscope.project(p);
     if (!d.in_front || !std::isfinite(d.column) || !std::isfinite(d.row)) continue;
-    std::snprintf(buf, sizeof buf, "%s[%.1f,%.1f]", first ? "" : ",", d.column, d.row);
+    out.push_back({d.column, d.row});
+  }
+  return out;
+}
+
+void append_pixels(const std::vector<std::array<double, 2>>& pixels, std::string& out) {
+  out += '[';
+  char buf[64];
+  for (std::size_t i = 0; i < pixels.size(); ++i) {
+    std::snprintf(buf, sizeof buf, "%s[%.1f,%.1f]", i ? "," : "", pixels[i][0], pixels[i][1]);
     out += buf;
-    first = false;
   }
   out += ']';
 }
@@ -411,13 +420,16 @@ struct ImagingWorker::Plane {
     topics[kJson] = topic;
     topics[kCompressed] = topic + "/compressed";
     topics[kOverlay] = topic + "/overlay";
+    topics[kAnnotations] = topic + "/annotations";
   }
 
   const sim::FluoroView view;
   const std::string topic;
-  // The plane's three streams: kJson the JSON image with its overlay inside (the first form, for
+  // The plane's four streams: kJson the JSON image with its overlay inside (the first form, for
   // clients that read JSON only), kCompressed the image alone as protobuf foxglove.CompressedImage
-  // (no base64: what the console and Foxglove read), kOverlay the overlay alone as small JSON.
+  // (no base64: what the console and Foxglove read), kOverlay the overlay alone as small JSON, and
+  // kAnnotations the same overlay as protobuf foxglove.ImageAnnotations (what Foxglove's Image panel
+  // draws over the image of the same timestamp).
   std::array<std::string, kStreams> topics;
   const std::string frame_id;
   const char* label;
@@ -831,20 +843,22 @@ void ImagingWorker::publish(Plane& p, std::uint64_t capture_ns, const std::vecto
                             bool shape_ok, double render_s, double encode_s, const PlaneTrack* track) {
   const auto t0 = SteadyClock::now();
   // The overlay's members, shared by the JSON image and the overlay stream.
+  const auto robot_px = projected(p.fluoroscope, p.backbone);
+  const auto plan_px = projected(p.fluoroscope, p.plan);
+  std::vector<std::array<double, 2>> segmented_px;
+  if (track && track->found) {
+    segmented_px.reserve(track->backbone_px.size());
+    for (const auto& q : track->backbone_px) segmented_px.push_back({q.x(), q.y()});
+  }
   std::string overlay = "\"robot\":";
-  append_projected(p.fluoroscope, p.backbone, overlay);
+  append_pixels(robot_px, overlay);
   overlay += ",\"plan\":";
-  append_projected(p.fluoroscope, p.plan, overlay);
+  append_pixels(plan_px, overlay);
   if (track) {
     char buf[64];
-    overlay += ",\"segmented\":[";
-    bool first = true;
-    for (const auto& q : track->found ? track->backbone_px : std::vector<Eigen::Vector2d>{}) {
-      std::snprintf(buf, sizeof buf, "%s[%.1f,%.1f]", first ? "" : ",", q.x(), q.y());
-      overlay += buf;
-      first = false;
-    }
-    overlay += "],\"tip\":";
+    overlay += ",\"segmented\":";
+    append_pixels(segmented_px, overlay);
+    overlay += ",\"tip\":";
     if (track->filtered) {
       std::snprintf(buf, sizeof buf, "[%.1f,%.1f]", track->filtered_px.x(), track->filtered_px.y());
       overlay += buf;
@@ -881,6 +895,28 @@ void ImagingWorker::publish(Plane& p, std::uint64_t capture_ns, const std::vecto
     append_timestamp(capture_ns, *message);
     *message += ",\"frame_id\":\"" + p.frame_id + "\"," + overlay + "}";
     built[kOverlay] = std::move(message);
+  }
+  if (build[kAnnotations]) {
+    // The console's colours: the model backbone amber, the plan cyan, the segmented instrument
+    // magenta, the filtered tip a magenta ring.
+    std::vector<protobuf::PointsAnnotation> lines;
+    lines.push_back({protobuf::PointsType::kLineStrip, robot_px, {0.96, 0.75, 0.25, 0.9}, 2.0});
+    if (!plan_px.empty())
+      lines.push_back({protobuf::PointsType::kLineStrip, plan_px, {0.2, 0.8, 0.9, 0.9}, 2.0});
+    if (!segmented_px.empty())
+      lines.push_back({protobuf::PointsType::kLineStrip, segmented_px, {0.95, 0.3, 0.8, 1.0}, 2.0});
+    std::vector<protobuf::CircleAnnotation> circles;
+    if (track && track->filtered) {
+      protobuf::CircleAnnotation tip;
+      tip.position = {track->filtered_px.x(), track->filtered_px.y()};
+      tip.diameter = 12.0;
+      tip.thickness = 2.0;
+      tip.outline = {0.95, 0.3, 0.8, 1.0};
+      circles.push_back(tip);
+    }
+    auto message = std::make_shared<std::string>();
+    protobuf::append_image_annotations(capture_ns, circles, lines, *message);
+    built[kAnnotations] = std::move(message);
   }
   encode_s += std::chrono::duration<double>(SteadyClock::now() - t0).count();
   {
@@ -929,11 +965,14 @@ std::vector<TopicInfo> ImagingWorker::topics() const {
   std::vector<TopicInfo> out;
   const std::string image_schema = compressed_image_schema();
   const std::string descriptors = protobuf::compressed_image_descriptor_set();
+  const std::string annotations = protobuf::image_annotations_descriptor_set();
   for (const auto& plane : planes_) {
     out.push_back({plane->topics[kJson], "foxglove.CompressedImage", image_schema});
     out.push_back(
         {plane->topics[kCompressed], "foxglove.CompressedImage", descriptors, "protobuf", "protobuf"});
     out.push_back({plane->topics[kOverlay], "tendril.ImageOverlay", image_overlay_schema()});
+    out.push_back(
+        {plane->topics[kAnnotations], "foxglove.ImageAnnotations", annotations, "protobuf", "protobuf"});
   }
   if (tracker_) {
     out.push_back({"/imaging/tracking", "tendril.TipTracking", BiplaneTipTracker::schema()});

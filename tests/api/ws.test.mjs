@@ -226,3 +226,53 @@ test('the images also stream as protobuf foxglove.CompressedImage, described by 
     client.close();
   }
 });
+
+// Issue 15: foxglove.ImageAnnotations for the overlay, so Foxglove's Image panel draws the model
+// backbone, the plan and (while tracked) the segmented instrument and its tip over the image. Decoded
+// with the advertised descriptor set only; the line strips are the JSON overlay's of the same stamp.
+test('the overlay also streams as protobuf foxglove.ImageAnnotations, the same pixels as the JSON overlay', async () => {
+  const {client} = connect(`${WS_URL}?token=${encodeURIComponent(TOKEN)}`);
+  try {
+    const channels = new Map();
+    client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
+    await waitFor(client, 'serverInfo', (i) => i);
+    for (const topic of ['/imaging/lateral/overlay', '/imaging/lateral/annotations']) {
+      if (!channels.has(topic)) await waitFor(client, 'advertise', (list) => list.find((c) => c.topic === topic));
+    }
+    const channel = channels.get('/imaging/lateral/annotations');
+    assert.equal(channel.encoding, 'protobuf');
+    assert.equal(channel.schemaName, 'foxglove.ImageAnnotations');
+    const root = protobuf.Root.fromDescriptor(descriptor.FileDescriptorSet.decode(Buffer.from(channel.schema, 'base64')));
+    const ImageAnnotations = root.lookupType('foxglove.ImageAnnotations');
+    const stamp = (t) => `${t.sec ?? t.seconds ?? 0}.${t.nsec ?? t.nanos ?? 0}`;
+    const overlays = new Map();
+    const annotations = new Map();
+    const subs = {
+      [client.subscribe(channels.get('/imaging/lateral/overlay').id)]: 'overlay',
+      [client.subscribe(channel.id)]: 'annotations',
+    };
+    const bytesOf = (m) => new Uint8Array(m.data.buffer, m.data.byteOffset, m.data.byteLength);
+    const pair = await waitFor(client, 'message', (m) => {
+      if (subs[m.subscriptionId] === 'overlay') {
+        const msg = JSON.parse(new TextDecoder().decode(bytesOf(m)));
+        overlays.set(stamp(msg.timestamp), msg);
+      } else if (subs[m.subscriptionId] === 'annotations') {
+        const msg = ImageAnnotations.toObject(ImageAnnotations.decode(bytesOf(m)), {longs: Number, enums: String, defaults: true});
+        annotations.set(stamp(msg.points[0].timestamp), msg);
+      }
+      for (const [key, a] of annotations) if (overlays.has(key)) return {annotations: a, overlay: overlays.get(key)};
+      return undefined;
+    }, 20000);
+    const robot = pair.annotations.points[0];
+    assert.equal(robot.type, 'LINE_STRIP');
+    assert.ok(robot.thickness > 0 && robot.outline_color.a > 0, JSON.stringify(robot.outline_color));
+    assert.equal(robot.points.length, pair.overlay.robot.length);
+    assert.ok(robot.points.length > 10, 'the projected model backbone');
+    robot.points.forEach((p, i) => {
+      assert.ok(Math.abs(p.x - pair.overlay.robot[i][0]) <= 0.051 && Math.abs(p.y - pair.overlay.robot[i][1]) <= 0.051,
+                `point ${i}: ${JSON.stringify(p)} vs ${JSON.stringify(pair.overlay.robot[i])}`);
+    });
+  } finally {
+    client.close();
+  }
+});

@@ -121,17 +121,21 @@ TEST(ImagingWorker, TheOverlayLiesOnTheImagedCatheterAndCarriesThePlan) {
 TEST(ImagingWorker, PublishesCompressedImagesWithCaptureTimestamp) {
   ImagingWorker worker(straight_catheter(), small_config());
   const auto topics = worker.topics();
-  // Per plane the JSON image, the protobuf image and the overlay; then the tracking and the
-  // segmentation parameters (no vessel configured: no /maps/vessel).
-  ASSERT_EQ(topics.size(), 8u);
+  // Per plane the JSON image, the protobuf image, the overlay and the overlay as protobuf
+  // annotations; then the tracking and the segmentation parameters (no vessel configured: no
+  // /maps/vessel).
+  ASSERT_EQ(topics.size(), 10u);
   EXPECT_EQ(topics[0].topic, "/imaging/ap");
   EXPECT_EQ(topics[1].topic, "/imaging/ap/compressed");
   EXPECT_EQ(topics[2].topic, "/imaging/ap/overlay");
-  EXPECT_EQ(topics[3].topic, "/imaging/lateral");
-  EXPECT_EQ(topics[6].topic, "/imaging/tracking");
-  EXPECT_EQ(topics[6].schema_name, "tendril.TipTracking");
-  EXPECT_EQ(topics[7].topic, "/imaging/segmentation");
-  EXPECT_EQ(topics[7].schema_name, "tendril.SegmentationParameters");
+  EXPECT_EQ(topics[3].topic, "/imaging/ap/annotations");
+  EXPECT_EQ(topics[3].schema_name, "foxglove.ImageAnnotations");
+  EXPECT_EQ(topics[3].encoding, "protobuf");
+  EXPECT_EQ(topics[4].topic, "/imaging/lateral");
+  EXPECT_EQ(topics[8].topic, "/imaging/tracking");
+  EXPECT_EQ(topics[8].schema_name, "tendril.TipTracking");
+  EXPECT_EQ(topics[9].topic, "/imaging/segmentation");
+  EXPECT_EQ(topics[9].schema_name, "tendril.SegmentationParameters");
   EXPECT_EQ(topics[0].schema_name, "foxglove.CompressedImage");
   EXPECT_EQ(topics[0].encoding, "json");
   const json schema = json::parse(topics[0].schema);
@@ -266,9 +270,9 @@ TEST(ImagingWorker, VesselPointCloudHasTheWallPoints) {
   config.vessels = {tube};
   ImagingWorker worker(straight_catheter(), config);
   const auto topics = worker.topics();
-  ASSERT_EQ(topics.size(), 9u);
-  EXPECT_EQ(topics[8].topic, "/maps/vessel");
-  EXPECT_EQ(topics[8].schema_name, "foxglove.PointCloud");
+  ASSERT_EQ(topics.size(), 11u);
+  EXPECT_EQ(topics[10].topic, "/maps/vessel");
+  EXPECT_EQ(topics[10].schema_name, "foxglove.PointCloud");
   const auto cloud = worker.latest("/maps/vessel", 0);
   ASSERT_TRUE(cloud);
   EXPECT_FALSE(worker.latest("/maps/vessel", cloud->version)) << "static map: published once";
