@@ -8,9 +8,11 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <cstring>
 #include <iostream>
 #include <map>
 #include <mutex>
@@ -20,6 +22,7 @@
 #include <utility>
 #include <vector>
 
+#include <Eigen/Geometry>
 #include "tendril/dds/wire.hpp"
 #include "tendril/safety/safety_types.hpp"
 
@@ -109,9 +112,16 @@ struct DdsBridge::Impl {
     std::string name;
     std::string base_frame;
     Entity js_topic, js_writer, os_topic, os_writer, pose_topic, pose_writer, result_topic, result_writer;
+    Entity shape_topic, shape_writer;
     std::uint64_t last_tick = 0;
     bool has_tick = false;
+    double last_shape_time = -1.0;
   };
+  struct MapIo {
+    std::size_t index = 0;  // in opts.maps
+    Entity topic, writer;
+  };
+  std::vector<MapIo> map_io;
   std::vector<RobotIo> robot_io;
   std::vector<CommandReader> readers;
   std::uint64_t events_seen = 0;
@@ -127,7 +137,8 @@ struct DdsBridge::Impl {
   std::unordered_map<dds_instance_handle_t, Bucket> buckets;  // command thread only
 
   // Metrics.
-  std::atomic<std::uint64_t> published_state{0}, published_events{0}, publish_errors{0}, commands_lost{0};
+  std::atomic<std::uint64_t> published_state{0}, published_events{0}, published_maps{0}, publish_errors{0},
+      commands_lost{0};
   mutable std::mutex counts_mutex;
   std::map<int, std::uint64_t> commands_by_status;
   std::map<std::string, std::uint64_t> refused_by_code;
@@ -178,9 +189,21 @@ struct DdsBridge::Impl {
                   robot_topic(io.name, kOperatingState), TopicKind::kState);
       make_writer(io.pose_topic, io.pose_writer, &geometry_msgs_msg_dds__PoseStamped__desc,
                   robot_topic(io.name, kTipPose), TopicKind::kState);
+      make_writer(io.shape_topic, io.shape_writer, &geometry_msgs_msg_dds__PoseArray__desc,
+                  robot_topic(io.name, kBackbone), TopicKind::kState);
       make_writer(io.result_topic, io.result_writer, &tendril_msgs_msg_dds__CommandResult__desc,
                   robot_topic(io.name, kCommandResult), TopicKind::kResult);
       robot_io.push_back(std::move(io));
+    }
+    for (std::size_t m = 0; m < opts.maps.size(); ++m) {
+      const auto& map = opts.maps[m];
+      if (map.name.empty() || map.name.find_first_of("/ ") != std::string::npos)
+        throw DdsError("DDS map name '" + map.name + "' must be a non-empty topic leaf (no '/' or space)");
+      MapIo io;
+      io.index = m;
+      make_writer(io.topic, io.writer, &sensor_msgs_msg_dds__PointCloud2__desc, map_topic(map.name),
+                  TopicKind::kMap);
+      map_io.push_back(std::move(io));
     }
     readers.reserve(robot_io.size() * 3);
     for (std::size_t r = 0; r < robot_io.size(); ++r) {
@@ -276,6 +299,69 @@ struct DdsBridge::Impl {
     }
   }
 
+  // The backbone as geometry_msgs/PoseArray in metres: each pose at a backbone point, its z axis along
+  // the backbone towards the tip (the last pose keeps the previous direction).
+  void publish_shape(RobotIo& io) {
+    const auto shape = robots.shape(io.name);
+    if (!shape.ok() || shape->points.size() < 2 || shape->timestamp == io.last_shape_time) return;
+    io.last_shape_time = shape->timestamp;
+    const auto& points = shape->points;
+    std::vector<geometry_msgs_msg_dds__Pose_> poses(points.size());
+    Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      if (i + 1 < points.size()) {
+        const Eigen::Vector3d along = points[i + 1] - points[i];
+        if (along.norm() > 1e-9)
+          orientation = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), along);
+      }
+      auto& pose = poses[i];
+      pose.position.x = points[i].x() * 1e-3;
+      pose.position.y = points[i].y() * 1e-3;
+      pose.position.z = points[i].z() * 1e-3;
+      pose.orientation.x = orientation.x();
+      pose.orientation.y = orientation.y();
+      pose.orientation.z = orientation.z();
+      pose.orientation.w = orientation.w();
+    }
+    const std::string frame = shape->frame.empty() ? io.base_frame : shape->frame;
+    geometry_msgs_msg_dds__PoseArray_ m{};
+    m.header.stamp = to_time(shape->timestamp);
+    m.header.frame_id = text(frame);
+    m.poses._length = m.poses._maximum = static_cast<std::uint32_t>(poses.size());
+    m.poses._buffer = poses.data();
+    count_write(dds_write(io.shape_writer.get(), &m), published_state);
+  }
+
+  // Each map once, as sensor_msgs/PointCloud2: one row of x, y, z float32 (metres, little-endian).
+  void publish_maps() {
+    for (const auto& io : map_io) {
+      const auto& map = opts.maps[io.index];
+      std::vector<std::uint8_t> data(map.points_mm.size() * 12);
+      for (std::size_t i = 0; i < map.points_mm.size(); ++i) {
+        const float xyz[3] = {map.points_mm[i].x() * 1e-3f, map.points_mm[i].y() * 1e-3f,
+                              map.points_mm[i].z() * 1e-3f};
+        std::memcpy(data.data() + i * 12, xyz, 12);
+      }
+      char x[] = "x", y[] = "y", z[] = "z";
+      sensor_msgs_msg_dds__PointField_ fields[3] = {{x, 0, 7, 1}, {y, 4, 7, 1}, {z, 8, 7, 1}};  // FLOAT32
+      sensor_msgs_msg_dds__PointCloud2_ m{};
+      const auto now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch());
+      m.header.stamp = to_time(now.count());
+      m.header.frame_id = text(map.frame_id);
+      m.height = 1;
+      m.width = static_cast<std::uint32_t>(map.points_mm.size());
+      m.fields._length = m.fields._maximum = 3;
+      m.fields._buffer = fields;
+      m.is_bigendian = std::endian::native == std::endian::big;
+      m.point_step = 12;
+      m.row_step = static_cast<std::uint32_t>(data.size());
+      m.data._length = m.data._maximum = static_cast<std::uint32_t>(data.size());
+      m.data._buffer = data.data();
+      m.is_dense = true;
+      count_write(dds_write(io.writer.get(), &m), published_maps);
+    }
+  }
+
   void publish_events() {
     std::uint64_t total = 0;
     auto events = robots.events_since(events_seen, total);
@@ -303,7 +389,10 @@ struct DdsBridge::Impl {
   }
 
   void publish_once() {
-    for (auto& io : robot_io) publish_robot(io);
+    for (auto& io : robot_io) {
+      publish_robot(io);
+      publish_shape(io);
+    }
     publish_events();
   }
 
@@ -506,6 +595,7 @@ void DdsBridge::start() {
   std::lock_guard lock(s.lifecycle_mutex);
   if (s.running || s.stopping) return;
   s.running = true;
+  s.publish_maps();  // once: transient-local keeps them for whoever subscribes later
   s.publisher = std::thread([&s] { s.publisher_loop(); });
   s.commander = std::thread([&s] { s.command_loop(); });
 }
@@ -532,10 +622,11 @@ std::string DdsBridge::metrics() const {
   const Impl& s = *impl_;
   std::ostringstream out;
   out << "# HELP tendril_dds_samples_published_total DDS samples written, by kind (state: joint states, "
-         "operating state, tip pose; event: safety events).\n"
+         "operating state, tip pose, backbone; event: safety events; map: maps).\n"
          "# TYPE tendril_dds_samples_published_total counter\n"
       << "tendril_dds_samples_published_total{kind=\"state\"} " << s.published_state.load() << '\n'
       << "tendril_dds_samples_published_total{kind=\"event\"} " << s.published_events.load() << '\n'
+      << "tendril_dds_samples_published_total{kind=\"map\"} " << s.published_maps.load() << '\n'
       << "# HELP tendril_dds_write_errors_total DDS writes that failed.\n"
          "# TYPE tendril_dds_write_errors_total counter\n"
       << "tendril_dds_write_errors_total " << s.publish_errors.load() << '\n'

@@ -26,6 +26,11 @@ dds_qos_t* make_qos(TopicKind kind) {
       dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 64);
       dds_qset_durability(qos, DDS_DURABILITY_VOLATILE);
       break;
+    case TopicKind::kMap:
+      dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+      dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 1);
+      dds_qset_durability(qos, DDS_DURABILITY_TRANSIENT_LOCAL);
+      break;
   }
   return qos;
 }
@@ -33,6 +38,8 @@ dds_qos_t* make_qos(TopicKind kind) {
 std::string robot_topic(const std::string& robot, const std::string& leaf) {
   return "rt/" + robot + "/" + leaf;
 }
+
+std::string map_topic(const std::string& name) { return "rt/maps/" + name; }
 
 builtin_interfaces_msg_dds__Time_ to_time(double unix_seconds) {
   builtin_interfaces_msg_dds__Time_ t{};

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <functional>
 #include <iostream>
 #include <map>
@@ -33,7 +34,8 @@ talks to tendrild over DDS only.
 commands:
   echo ROBOT TOPIC [--count N]
       print N samples (default 1) of rt/ROBOT/TOPIC as JSON lines; TOPIC is joint_states,
-      operating_state, measured_cp or command_result; ROBOT "safety" with TOPIC "events" prints
+      operating_state, measured_cp, backbone or command_result; ROBOT "maps" with TOPIC "vessel"
+      prints rt/maps/vessel (a PointCloud2: its layout and bounds); ROBOT "safety" with TOPIC "events" prints
       rt/safety/events
   send ROBOT servo_jv|move_jp V1,V2,... [--lease TOKEN] [--client NAME] [--count N] [--rate HZ]
   send ROBOT state_command enable|disable|pause|resume|home [--lease TOKEN] [--client NAME]
@@ -94,6 +96,53 @@ json to_json(const geometry_msgs_msg_dds__PoseStamped_& m) {
           {"frame_id", str(m.header.frame_id)},
           {"position_m", {p.x, p.y, p.z}},
           {"orientation", {q.x, q.y, q.z, q.w}}};
+}
+json to_json(const geometry_msgs_msg_dds__PoseArray_& m) {
+  json positions = json::array();
+  for (std::uint32_t i = 0; i < m.poses._length; ++i) {
+    const auto& p = m.poses._buffer[i].position;
+    positions.push_back({p.x, p.y, p.z});
+  }
+  const auto& q =
+      m.poses._length ? m.poses._buffer[0].orientation : geometry_msgs_msg_dds__Quaternion_{0, 0, 0, 1};
+  return {{"stamp", stamp(m.header.stamp)},
+          {"frame_id", str(m.header.frame_id)},
+          {"positions_m", positions},
+          {"first_orientation", {q.x, q.y, q.z, q.w}}};
+}
+// A PointCloud2 summarised: its layout, and the bounding box of the x, y, z float32 points it holds.
+json to_json(const sensor_msgs_msg_dds__PointCloud2_& m) {
+  json fields = json::array();
+  for (std::uint32_t i = 0; i < m.fields._length; ++i) {
+    const auto& f = m.fields._buffer[i];
+    fields.push_back(
+        {{"name", str(f.name)}, {"offset", f.offset}, {"datatype", f.datatype}, {"count", f.count}});
+  }
+  json box = nullptr;
+  if (m.point_step >= 12 && m.data._length >= static_cast<std::uint64_t>(m.width) * m.point_step &&
+      m.width > 0) {
+    float lo[3] = {1e30f, 1e30f, 1e30f}, hi[3] = {-1e30f, -1e30f, -1e30f};
+    for (std::uint32_t i = 0; i < m.width; ++i) {
+      float xyz[3];
+      std::memcpy(xyz, m.data._buffer + static_cast<std::size_t>(i) * m.point_step, sizeof xyz);
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = std::min(lo[k], xyz[k]);
+        hi[k] = std::max(hi[k], xyz[k]);
+      }
+    }
+    box = {{"min_m", {lo[0], lo[1], lo[2]}}, {"max_m", {hi[0], hi[1], hi[2]}}};
+  }
+  return {{"stamp", stamp(m.header.stamp)},
+          {"frame_id", str(m.header.frame_id)},
+          {"height", m.height},
+          {"width", m.width},
+          {"fields", fields},
+          {"is_bigendian", m.is_bigendian},
+          {"point_step", m.point_step},
+          {"row_step", m.row_step},
+          {"data_bytes", m.data._length},
+          {"is_dense", m.is_dense},
+          {"bounds", box}};
 }
 json to_json(const tendril_msgs_msg_dds__SafetyEvent_& m) {
   return {{"stamp", stamp(m.header.stamp)},
@@ -376,6 +425,12 @@ int main(int argc, char** argv) {
       status =
           echo<geometry_msgs_msg_dds__PoseStamped_>(participant, &geometry_msgs_msg_dds__PoseStamped__desc,
                                                     robot_topic(robot, leaf), TopicKind::kState, o);
+    else if (robot == "maps")
+      status = echo<sensor_msgs_msg_dds__PointCloud2_>(participant, &sensor_msgs_msg_dds__PointCloud2__desc,
+                                                       map_topic(leaf), TopicKind::kMap, o);
+    else if (leaf == kBackbone)
+      status = echo<geometry_msgs_msg_dds__PoseArray_>(participant, &geometry_msgs_msg_dds__PoseArray__desc,
+                                                       robot_topic(robot, leaf), TopicKind::kState, o);
     else if (leaf == kCommandResult)
       status =
           echo<tendril_msgs_msg_dds__CommandResult_>(participant, &tendril_msgs_msg_dds__CommandResult__desc,

@@ -523,6 +523,7 @@ ImagingWorker::ImagingWorker(BackboneReader read_backbone, ImagingConfig config)
     }
     vessel_time_ns_ = wall_ns();
     vessel_cloud_ = std::make_shared<const std::string>(vessel_cloud_message(wall, vessel_time_ns_));
+    vessel_wall_ = std::move(wall);
   }
 }
 

@@ -285,6 +285,9 @@ int main(int argc, char** argv) {
       tendril::dds::DdsOptions dopts;
       dopts.domain = dds_domain;
       dopts.publish_rate_hz = dds_rate_hz;
+      // The maps the WebSocket serves, as sensor_msgs/PointCloud2 (rt/maps/vessel, world frame).
+      if (imaging && !imaging->vessel_wall().empty())
+        dopts.maps.push_back({"vessel", "world", imaging->vessel_wall()});
       try {
         dds = std::make_unique<tendril::dds::DdsBridge>(
             runtime,

@@ -45,6 +45,25 @@ os="$(p --timeout 10 echo srmc operating_state)"
 pose="$(p --timeout 10 echo srmc measured_cp)"
 [ "$(field "$pose" '.orientation.length')" = 4 ] && ok "tip pose on rt/srmc/measured_cp" ||
   not_ok "tip pose over DDS: $pose"
+shape="$(p --timeout 10 echo srmc backbone)"
+# The catheter's backbone in metres: points from the base to the tip, the last one at the tip pose.
+if [ "$(field "$shape" '.positions_m.length >= 10')" = true ] &&
+   [ "$(field "$shape" '.positions_m.every((p) => p.every((v) => Math.abs(v) < 1))')" = true ] &&
+   [ "$(field "$shape" '.first_orientation.length')" = 4 ]; then
+  ok "backbone on rt/srmc/backbone ($(field "$shape" '.positions_m.length') poses, metres)"
+else
+  not_ok "backbone over DDS: ${shape:0:400}"
+fi
+# The vessel map, written once at start (transient-local): this subscriber comes later and still gets it.
+map="$(p --timeout 10 echo maps vessel)"
+if [ "$(field "$map" '.width > 100 && v.point_step === 12 && v.data_bytes === v.width * 12')" = true ] &&
+   [ "$(field "$map" '.fields.map((f) => f.name + f.offset + ":" + f.datatype).join()')" = "x0:7,y4:7,z8:7" ] &&
+   [ "$(field "$map" '.frame_id')" = world ] &&
+   [ "$(field "$map" '.bounds.max_m[2] - v.bounds.min_m[2] > 0.01 && v.bounds.max_m[2] < 1')" = true ]; then
+  ok "vessel map on rt/maps/vessel ($(field "$map" '.width') points, x y z float32 in metres, frame world)"
+else
+  not_ok "vessel map over DDS: ${map:0:400}"
+fi
 
 # 2. Without the lease: refused, nothing moves.
 out="$(p --timeout 10 send srmc state_command enable --client no-lease)"

@@ -1,5 +1,6 @@
 // DdsBridge: tendrild's DDS participant (Cyclone DDS C API). It publishes every robot's joint states,
-// operating state and tip pose and the safety events, and takes servo_jv, move_jp and state_command
+// operating state, tip pose and backbone shape, the safety events and the maps it is given, and takes
+// servo_jv, move_jp and state_command
 // samples as commands. README, "DDS", lists the topics, types and QoS.
 //
 // Threads: one publisher thread reads the runtime's snapshots (the RobotService read-outs the
@@ -22,13 +23,22 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
+#include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
 #include "tendril/server/control_api.hpp"
 #include "tendril/server/robot_service.hpp"
 
 namespace tendril::dds {
+
+// A static map published once on rt/maps/<name> as sensor_msgs/PointCloud2 (x, y, z float32, metres).
+struct PointMap {
+  std::string name;      // the topic leaf: "vessel" -> rt/maps/vessel
+  std::string frame_id;  // e.g. "world"
+  std::vector<Eigen::Vector3f> points_mm;
+};
 
 struct DdsOptions {
   std::uint32_t domain = 0;     // DDS domain id (0-232; ROS 2's ROS_DOMAIN_ID means the same)
@@ -38,6 +48,7 @@ struct DdsOptions {
   // 64 samples, so a burst of 400 would never be reached by a flood, only by a stream of stale ones.
   double command_rate_hz = 200;
   double command_burst = 50;
+  std::vector<PointMap> maps;  // written at start(), transient-local: late subscribers get them too
   std::function<void(const std::string&)> log;  // set-up and contained errors; null = standard error
 };
 

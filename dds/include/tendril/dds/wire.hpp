@@ -23,7 +23,9 @@ namespace tendril::dds {
 //   kCommand: reliable, keep-last 64: a command is not lost on the way, a flood is cut by the rate
 //             limit of the bridge, not by the network.
 //   kResult:  reliable, keep-last 64, volatile: the answer to each command sample.
-enum class TopicKind { kState, kEvent, kCommand, kResult };
+//   kMap:     reliable, keep-last 1, transient-local: a map is written when it is made and a late
+//             subscriber still gets it (as ROS 2's latched maps).
+enum class TopicKind { kState, kEvent, kCommand, kResult, kMap };
 
 // The QoS of `kind`; the caller owns it (dds_delete_qos).
 dds_qos_t* make_qos(TopicKind kind);
@@ -31,11 +33,14 @@ dds_qos_t* make_qos(TopicKind kind);
 // "rt/<robot>/<leaf>", e.g. robot_topic("srmc", "joint_states") = "rt/srmc/joint_states".
 std::string robot_topic(const std::string& robot, const std::string& leaf);
 inline constexpr const char* kSafetyEventsTopic = "rt/safety/events";
+// "rt/maps/<name>", e.g. map_topic("vessel") = "rt/maps/vessel" (the WebSocket's /maps/vessel).
+std::string map_topic(const std::string& name);
 
 // Topic leaves per robot.
 inline constexpr const char* kJointStates = "joint_states";        // sensor_msgs/JointState, kState
 inline constexpr const char* kOperatingState = "operating_state";  // tendril_msgs OperatingState, kState
 inline constexpr const char* kTipPose = "measured_cp";             // geometry_msgs/PoseStamped, kState
+inline constexpr const char* kBackbone = "backbone";               // geometry_msgs/PoseArray, kState
 inline constexpr const char* kServoJv = "servo_jv";                // tendril_msgs JointCommand, kCommand
 inline constexpr const char* kMoveJp = "move_jp";                  // tendril_msgs JointCommand, kCommand
 inline constexpr const char* kStateCommand = "state_command";      // tendril_msgs StateCommand, kCommand

@@ -150,6 +150,8 @@ class ImagingWorker final : public TopicSource, public ImagingControl {
   void stop();  // joins the threads; safe to call twice
 
   std::vector<TopicInfo> topics() const override;
+  // The vessel wall points of /maps/vessel (mm, world frame); empty without a configured vessel.
+  const std::vector<Eigen::Vector3f>& vessel_wall() const noexcept { return vessel_wall_; }
   std::optional<TopicPayload> latest(const std::string& topic, std::uint64_t since_version) const override;
   void set_ready_callback(std::function<void()> ready) override;
   // A plane renders only while wanted; when it stops being wanted its last frame is dropped, so that a
@@ -190,6 +192,7 @@ class ImagingWorker final : public TopicSource, public ImagingControl {
   ImageFeedback* feedback_ = nullptr;
   ImagingConfig config_;
   std::array<std::unique_ptr<Plane>, 2> planes_;
+  std::vector<Eigen::Vector3f> vessel_wall_;  // set in the constructor, then constant
   std::shared_ptr<const std::string> vessel_cloud_;
   std::uint64_t vessel_time_ns_ = 0;
 
