@@ -120,7 +120,8 @@ export class TrackingPanel {
     const taken = Number.isFinite(r.taken_unix_s) ? new Date(r.taken_unix_s * 1000).toLocaleTimeString() : '—';
     this.$('roadmap-info').textContent =
       `roadmaps: ${r.count ?? '—'}, last at ${taken}${r.pending ? ' (pending: taken at the next tracked frame)' : ''}`;
-    this.setSegStatus(plane.tracked === false ? `${PLANE_LABEL[this.editPlane.value]} is fed by a source: not tracked`
+    this.setSegStatus(plane.roadmap_from === 'source_frame' && !r.count
+        ? `${PLANE_LABEL[this.editPlane.value]} is fed by a source: pull the catheter out of the field and take a roadmap`
       : plane.applied ? `${PLANE_LABEL[this.editPlane.value]}: parameters applied` : 'pending: applied at the plane\'s next tracked frame',
     plane.applied ? 'ok' : 'pending');
   }

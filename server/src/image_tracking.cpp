@@ -135,23 +135,28 @@ struct BiplaneTipTracker::PlaneState {
 
 BiplaneTipTracker::BiplaneTipTracker(const TrackingConfig& config,
                                      std::array<sim::SimulatedFluoroscope*, 2> planes, double period_s,
-                                     TrackingWarning warn)
+                                     TrackingWarning warn, std::array<bool, 2> simulated)
     : config_(config),
       planes_(planes),
       max_skew_ns_(static_cast<std::uint64_t>(1.5 * period_s * 1e9)),
       ekf_(config.vessel_scale_noise ? perception::TipEkfNoise::vessel_scale()
                                      : perception::TipEkfNoise::fine_scale()),
-      warn_(std::move(warn)) {
+      warn_(std::move(warn)),
+      simulated_(simulated) {
   for (int i = 0; i < 2; ++i) {
     state_[i] = std::make_unique<PlaneState>();
     state_[i]->segmenter.set_parameters(i == 0 ? config_.segmentation.ap : config_.segmentation.lateral);
+    requests_[i].requested = requests_[i].applied = state_[i]->segmenter.parameters();
+    if (!simulated_[i]) {
+      requests_[i].roadmaps = 0;  // segments nothing ("no_roadmap") until one is taken from its frames
+      continue;
+    }
     // The empty-vessel roadmap: the plane's exposure without the catheter, noiseless (as an averaged
     // roadmap acquisition would be).
     auto& fluoroscope = *planes_[i];
     const auto roadmap = fluoroscope.render_noiseless({});
     state_[i]->segmenter.set_roadmap(
         perception::grey_image(roadmap, fluoroscope.width(), fluoroscope.height()));
-    requests_[i].requested = requests_[i].applied = state_[i]->segmenter.parameters();
   }
   const auto now = wall_now_ns();
   std::lock_guard lock(request_mutex_);
@@ -197,7 +202,8 @@ void BiplaneTipTracker::request_roadmap(int plane) {
   requests_[plane].roadmap_pending = true;
 }
 
-void BiplaneTipTracker::apply_requests(int plane, std::uint64_t now_ns) {
+void BiplaneTipTracker::apply_requests(int plane, std::uint64_t now_ns,
+                                       const perception::GreyImageView* frame) {
   std::optional<perception::FluoroscopySegmentationParameters> parameters;
   bool roadmap = false;
   {
@@ -208,11 +214,20 @@ void BiplaneTipTracker::apply_requests(int plane, std::uint64_t now_ns) {
     r.roadmap_pending = false;
   }
   if (!parameters && !roadmap) return;
+  if (roadmap && !simulated_[plane] && frame == nullptr) {
+    // A source plane's roadmap is one of its frames: still pending until the next one arrives.
+    std::lock_guard lock(request_mutex_);
+    requests_[plane].roadmap_pending = true;
+    roadmap = false;
+    if (!parameters) return;
+  }
   auto& segmenter = state_[plane]->segmenter;
   std::string failure;
   try {
     if (parameters) segmenter.set_parameters(*parameters);
-    if (roadmap) {
+    if (roadmap && !simulated_[plane]) {
+      segmenter.set_roadmap(*frame);
+    } else if (roadmap) {
       auto& fluoroscope = *planes_[plane];
       const auto image = fluoroscope.render_noiseless({});
       segmenter.set_roadmap(perception::grey_image(image, fluoroscope.width(), fluoroscope.height()));

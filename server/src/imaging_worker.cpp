@@ -508,12 +508,14 @@ ImagingWorker::ImagingWorker(BackboneReader read_backbone, ImagingConfig config)
     }
   }
   if (config_.tracking.enabled) {
-    // Segmentation needs an empty-vessel roadmap: a simulated plane renders its own. A plane fed by a
-    // source has none (a roadmap acquisition for sources is not built yet), so it is not tracked.
+    // Segmentation needs an empty-vessel roadmap: a simulated plane renders its own; a plane fed by a
+    // source takes one of its frames when the operator asks (POST /imaging/roadmap/{plane}), and
+    // segments nothing before ("no_roadmap"). Either way the configured geometry maps its pixels.
     tracker_ = std::make_unique<BiplaneTipTracker>(
         config_.tracking,
         std::array<sim::SimulatedFluoroscope*, 2>{&planes_[0]->fluoroscope, &planes_[1]->fluoroscope},
-        1.0 / config_.fps, [this](safety::FaultCode code, const std::string& text) { warn(code, text); });
+        1.0 / config_.fps, [this](safety::FaultCode code, const std::string& text) { warn(code, text); },
+        std::array<bool, 2>{!planes_[0]->source, !planes_[1]->source});
   }
   if (!config_.vessels.empty()) {
     std::vector<Eigen::Vector3f> wall;
@@ -617,10 +619,24 @@ void ImagingWorker::run_source(Plane& p) {
     if (result.status == imaging::GrabStatus::kFrame) {
       bool shape_ok = false;
       read_overlay(p, shape_ok);
+      // The operator's segmentation changes and roadmap (this frame, when one was asked for), then the
+      // tracking of this frame while someone watches it, as for a simulated plane.
+      const int index = p.view == sim::FluoroView::kAp ? 0 : 1;
+      const auto view = teleop::perception::grey_image(p.frame.pixels, p.frame.width, p.frame.height);
+      const PlaneTrack* track = nullptr;
+      if (tracker_) {
+        tracker_->apply_requests(index, received_ns, &view);
+        bool tracking = false;
+        {
+          std::lock_guard lock(run_mutex_);
+          tracking = tracking_wanted_ || feedback_wanted_;
+        }
+        if (tracking) track = &tracker_->track(index, view, p.backbone, received_ns);
+      }
       const auto t1 = SteadyClock::now();
       imaging::encode_jpeg(p.frame, config_.jpeg_quality, p.jpeg);
       publish(p, received_ns, p.jpeg, shape_ok, std::chrono::duration<double>(t1 - t0).count(),
-              std::chrono::duration<double>(SteadyClock::now() - t1).count(), nullptr);
+              std::chrono::duration<double>(SteadyClock::now() - t1).count(), track);
       continue;
     }
     if (result.status == imaging::GrabStatus::kEnded) {
@@ -722,7 +738,7 @@ void ImagingWorker::set_image_feedback(ImageFeedback* feedback) {
 
 void ImagingWorker::update_wanted() {
   for (auto& plane : planes_) {
-    bool wanted = (tracking_wanted_ || feedback_wanted_) && tracker_ && !plane->source;
+    bool wanted = (tracking_wanted_ || feedback_wanted_) && tracker_;
     for (const auto& stream : plane->stream_wanted) wanted = wanted || stream.load(std::memory_order_relaxed);
     if (wanted && !plane->wanted) {
       std::lock_guard stats(plane->stats_mutex);
@@ -1023,18 +1039,17 @@ ApiResult no_tracking() {
       503, "tracking_unavailable",
       "the tip tracking is off (imaging.tracking.enabled is false): nothing is segmented");
 }
-// A plane fed by a source (video, files) has no roadmap of its own, so it is not tracked.
-ApiResult plane_not_tracked(const std::string& plane, const std::string& consequence) {
-  return ApiResult::error(409, "plane_not_tracked",
-                          "the " + plane + " plane is fed by a source, which is not tracked; " + consequence);
-}
 int plane_index(const std::string& plane) { return plane == "ap" ? 0 : plane == "lateral" ? 1 : -1; }
 }  // namespace
 
 ApiResult ImagingWorker::segmentation() const {
   if (!tracker_) return no_tracking();
   auto planes = tracker_->segmentation_state();
-  for (const auto& p : planes_) planes[sim::view_name(p->view)]["tracked"] = !p->source;
+  // Every plane is tracked; a source plane's roadmap is one of its own frames (none until asked for).
+  for (const auto& p : planes_) {
+    planes[sim::view_name(p->view)]["tracked"] = true;
+    planes[sim::view_name(p->view)]["roadmap_from"] = p->source ? "source_frame" : "simulation";
+  }
   return ApiResult::success({{"robot", config_.robot}, {"planes", std::move(planes)}});
 }
 
@@ -1042,7 +1057,6 @@ ApiResult ImagingWorker::set_segmentation(const std::string& plane, const nlohma
   const int index = plane_index(plane);
   if (index < 0) return unknown_plane(plane);
   if (!tracker_) return no_tracking();
-  if (planes_[index]->source) return plane_not_tracked(plane, "nothing to segment");
   if (!changes.is_object())
     return ApiResult::error(400, "bad_request",
                             "expected a JSON object of segmentation parameters, e.g. {\"threshold\": 40}");
@@ -1060,7 +1074,6 @@ ApiResult ImagingWorker::take_roadmap(const std::string& plane) {
   const int index = plane_index(plane);
   if (index < 0) return unknown_plane(plane);
   if (!tracker_) return no_tracking();
-  if (planes_[index]->source) return plane_not_tracked(plane, "it has no roadmap");
   tracker_->request_roadmap(index);
   return ApiResult::success(tracker_->segmentation_state()[plane]["roadmap"], 202);
 }

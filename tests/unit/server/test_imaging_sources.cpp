@@ -9,7 +9,9 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <mutex>
+#include <span>
 #include <string>
 #include <string_view>
 #include <thread>
@@ -353,6 +355,96 @@ TEST(ImagingWorkerSources, ConfigurationMistakesNameTheKey) {
           "imaging.sources.lateral: video device /dev/video-tendril-none");
   EXPECT_THROW(config_with(json::array(), 1.0, dir.path), ConfigError);
   EXPECT_THROW(config_with({{"ap", {{"kind", "simulated"}}}}, 0.0, dir.path), ConfigError) << "stale_after_s";
+}
+
+// Issue 15: segmentation on the images a lab has. A plane fed by image files (here frames the simulator
+// rendered beforehand, written as PNG: the empty vessel, then a bent catheter) segments nothing until a
+// roadmap is taken from its own frames; taken from the empty-vessel frame, it finds the catheter in the
+// frames after, and with the simulated AP plane the 3D tip lands on the catheter's.
+std::vector<Eigen::Vector3d> bent_catheter() {
+  std::vector<Eigen::Vector3d> points;
+  for (double s = 0; s <= 40.0; s += 0.5) {
+    const double bend = std::max(0.0, s - 20.0);
+    points.emplace_back(0.004 * bend * bend * bend / 3.0, -0.002 * bend * bend * bend / 3.0, 40.0 + s);
+  }
+  return points;
+}
+
+ImagingConfig tracked_files_config(const fs::path& dir) {
+  return parse_imaging_config(
+      json{{"width", 512},
+           {"height", 512},
+           {"fps", 15},
+           {"vessel", false},
+           {"isocentre_mm", {0, 0, 60}},
+           {"stale_after_s", 5.0},
+           {"sources", {{"lateral", {{"kind", "files"}, {"path", "frames"}, {"fps", 15}}}}}},
+      dir / "server.json");
+}
+
+// Polls the tracking message until `pred` holds for it (a count of polls: up to 15 s, not a timing test).
+json wait_tracking(ImagingWorker& worker, const std::function<bool(const json&)>& pred) {
+  json last;
+  for (int i = 0; i < 750; ++i) {
+    if (const auto m = worker.latest("/imaging/tracking", 0)) {
+      last = json::parse(*m->payload);
+      if (pred(last)) return last;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ADD_FAILURE() << "the tracking never showed it; last " << last.dump();
+  return last;
+}
+
+TEST(ImagingWorkerSources, AFilesPlaneIsTrackedOnceARoadmapIsTakenFromItsOwnFrames) {
+  TempDir dir;
+  fs::create_directories(dir.path / "frames");
+  {
+    const auto probe = tracked_files_config(dir.path);
+    sim::SimulatedFluoroscope lateral(sim::FluoroView::kLateral, probe.fluoroscope, {});
+    const auto write = [&](const std::string& name, std::span<const std::uint8_t> pixels) {
+      const cv::Mat image(lateral.height(), lateral.width(), CV_8U, const_cast<std::uint8_t*>(pixels.data()));
+      ASSERT_TRUE(cv::imwrite((dir.path / "frames" / name).string(), image));
+    };
+    write("a_empty.png", lateral.render_noiseless({}));
+    const auto catheter = bent_catheter();
+    for (int i = 0; i < 40; ++i)
+      write("b_catheter_" + std::to_string(10 + i) + ".png", lateral.render(catheter));
+  }
+  const BackboneReader model = [](std::vector<Eigen::Vector3d>& out) {
+    out = bent_catheter();
+    return true;
+  };
+  {
+    // No roadmap asked for: the files plane segments nothing and says why.
+    ImagingWorker worker(model, tracked_files_config(dir.path));
+    const json state = worker.segmentation().body;
+    EXPECT_EQ(state["planes"]["lateral"]["roadmap_from"], "source_frame");
+    EXPECT_EQ(state["planes"]["lateral"]["roadmap"]["count"], 0);
+    EXPECT_EQ(state["planes"]["ap"]["roadmap_from"], "simulation");
+    worker.set_demand("/imaging/tracking", true);
+    worker.start();
+    const json m = wait_tracking(worker, [](const json& t) {
+      return t["planes"]["lateral"]["reason"].get<std::string>().find("roadmap") != std::string::npos;
+    });
+    EXPECT_FALSE(m["planes"]["lateral"]["found"].get<bool>());
+    worker.stop();
+  }
+  // The roadmap asked for before the first frame: the empty-vessel frame becomes it.
+  ImagingWorker worker(model, tracked_files_config(dir.path));
+  const auto asked = worker.take_roadmap("lateral");
+  EXPECT_EQ(asked.status, 202) << asked.message;
+  worker.set_demand("/imaging/tracking", true);
+  worker.start();
+  const json found = wait_tracking(worker, [](const json& t) {
+    return t["planes"]["lateral"]["found"].get<bool>() && t["raw_tip_mm"].is_array();
+  });
+  const auto& tip = found["raw_tip_mm"];
+  ASSERT_TRUE(tip.is_array()) << found.dump();
+  const Eigen::Vector3d imaged(tip[0].get<double>(), tip[1].get<double>(), tip[2].get<double>());
+  EXPECT_LT((imaged - bent_catheter().back()).norm(), 1.5) << found.dump();
+  EXPECT_EQ(worker.segmentation().body["planes"]["lateral"]["roadmap"]["count"], 1);
+  worker.stop();
 }
 
 }  // namespace

@@ -75,10 +75,12 @@ using TipListener = std::function<void(const ImagedTip& tip)>;
 class BiplaneTipTracker {
  public:
   // `planes`: the two planes' fluoroscopes (AP, lateral), for their geometry (project, ray; read-only
-  // and safe from any thread) and, for a simulated plane, to render its roadmap now. `period_s`: the
-  // frame period. Throws SegmentationParameterError / TipEkfConfigError on bad parameters.
+  // and safe from any thread) and, for a simulated plane, to render its roadmap now. `simulated`: per
+  // plane, whether its images are the simulator's; a plane fed by a source (video, files) has no
+  // roadmap until one is taken from its own frames (request_roadmap). `period_s`: the frame period.
+  // Throws SegmentationParameterError / TipEkfConfigError on bad parameters.
   BiplaneTipTracker(const TrackingConfig& config, std::array<sim::SimulatedFluoroscope*, 2> planes,
-                    double period_s, TrackingWarning warn);
+                    double period_s, TrackingWarning warn, std::array<bool, 2> simulated = {true, true});
   ~BiplaneTipTracker();
   BiplaneTipTracker(const BiplaneTipTracker&) = delete;
   BiplaneTipTracker& operator=(const BiplaneTipTracker&) = delete;
@@ -106,8 +108,11 @@ class BiplaneTipTracker {
   void request_roadmap(int plane);
   // The plane's thread, before its frame: applies the parameters and takes the roadmap asked for.
   // A simulated plane's roadmap is its exposure rendered without the instrument (noiseless, as an
-  // averaged acquisition would be): in a lab the catheter is pulled back out of the field first.
-  void apply_requests(int plane, std::uint64_t now_ns);
+  // averaged acquisition would be): in a lab the catheter is pulled back out of the field first. A
+  // plane fed by a source takes `frame`, the frame it is about to track, as its roadmap (the operator
+  // pulls the catheter back out of the field, as for the seed's roadmap, and then asks for it).
+  void apply_requests(int plane, std::uint64_t now_ns,
+                      const teleop::perception::GreyImageView* frame = nullptr);
   // Per plane: the parameters asked for, whether the plane applies them yet, its roadmap.
   nlohmann::json segmentation_state() const;
   // The newest /imaging/segmentation message (the parameters and roadmaps in effect; version ≥ 1).
@@ -128,6 +133,7 @@ class BiplaneTipTracker {
   TrackingWarning warn_;
   TipListener listener_;
   std::array<std::unique_ptr<PlaneState>, 2> state_;
+  std::array<bool, 2> simulated_;
 
   mutable std::mutex fuse_mutex_;  // the planes' published results, the disagreement count, the message
   std::array<PlaneTrack, 2> shared_;
@@ -141,7 +147,7 @@ class BiplaneTipTracker {
   struct Requests {
     teleop::perception::FluoroscopySegmentationParameters requested, applied;
     bool roadmap_pending = false;
-    std::uint64_t roadmaps = 1;  // the one taken at construction counts
+    std::uint64_t roadmaps = 1;  // the one taken at construction counts (a source plane: 0, none yet)
     std::uint64_t roadmap_ns = 0;
   };
   void publish_segmentation(std::uint64_t time_ns);  // caller holds request_mutex_
