@@ -79,7 +79,10 @@ if [ "$user" = tendril ]; then echo "ok - tendrild runs as user '$user'"; else
   echo "not ok - tendrild runs as '$user', not the image's non-root user"; status=1; fi
 # A second DDS participant in its own container (the compose file's dds-subscriber): the image's
 # tendril-dds-probe reads five joint states of the container's tendrild over DDS.
-if "${podman[@]}" run --rm --runtime runc --network host --entrypoint /opt/tendril/bin/tendril-dds-probe \
+# The same rlimits as the server's container (tests/container/tendrild-in-container.sh): runc on this
+# kind of virtual machine cannot raise them to the engine's defaults ("error setting rlimit type 7").
+if "${podman[@]}" run --rm --network host --ulimit nofile=8192:8192 --ulimit nproc=8192:8192 \
+     --entrypoint /opt/tendril/bin/tendril-dds-probe \
      "$image" --timeout 20 echo srmc joint_states --count 5 \
      > /dev/null; then
   echo "ok - a second container's DDS participant reads rt/srmc/joint_states"
