@@ -20,6 +20,9 @@ ImageGuidedReplanner::ImageGuidedReplanner(const ConstantCurvatureCatheter& mode
     throw PlannerOptionsError(
         "ImageGuidedReplanner: max_tip_correction and max_tip_innovation must be > 0 mm");
   }
+  if (!(std::isfinite(o.roll_hold_bend) && o.roll_hold_bend >= 0.0)) {
+    throw PlannerOptionsError("ImageGuidedReplanner: roll_hold_bend must be a finite angle ≥ 0 rad");
+  }
   const auto& P = model.parameters();
   if (P.proximal_curvature_gain == 0.0 || P.distal_curvature_gain == 0.0) {
     throw PlannerOptionsError(
@@ -82,11 +85,25 @@ ReplanResult ImageGuidedReplanner::replan(ReplannerState& state, const ReplanInp
 
   const auto& P = planner_.model().parameters();
   // The roll nearest the commanded one, so a wrap at ±π does not send the catheter round a full turn.
-  const double roll = commanded[1] + std::remainder(out.step.q[1] - commanded[1], 2.0 * std::numbers::pi);
-  out.configuration = {commanded[0] + advance, roll, P.proximal_curvature_gain * out.step.q[2],
-                       P.distal_curvature_gain * out.step.q[3]};
+  double roll = commanded[1] + std::remainder(out.step.q[1] - commanded[1], 2.0 * std::numbers::pi);
+  double q2 = out.step.q[2], q3 = out.step.q[3];
+  const double bend1 = P.proximal_curvature_gain * q2, bend2 = P.distal_curvature_gain * q3;
+  const double largest = std::max(std::abs(bend1), std::abs(bend2));
+  const bool hold =
+      state.roll_held ? largest < 2.0 * options_.roll_hold_bend : largest < options_.roll_hold_bend;
+  if (hold) {
+    // Nearly straight: keep the commanded roll; both bend planes turn with the roll, so each bend's
+    // component in the commanded planes is its cosine share.
+    const double share = std::cos(roll - commanded[1]);
+    q2 *= share;
+    q3 *= share;
+    roll = commanded[1];
+  }
+  out.configuration = {commanded[0] + advance, roll, P.proximal_curvature_gain * q2,
+                       P.distal_curvature_gain * q3};
   out.tip_error = tip_error;
-  state.warm_start = {out.step.q[1], out.step.q[2], out.step.q[3], out.step.flexure};
+  state.warm_start = {roll, q2, q3, out.step.flexure};
+  state.roll_held = hold;
   state.tip_error = tip_error;
   ++state.replans;
   return out;

@@ -334,8 +334,8 @@ TEST_F(ImageGuidedModeTest, WithAPerturbedPlantTheTipFollowsTheCenterlineBetterT
   runtime->stop();
 
   // Image-guided without stops: the operator inserts at 1 mm/s throughout; measured as the drive passes
-  // the same insertions. Reported, not asserted: the replanner's solution sometimes changes branch
-  // (another roll) while the catheter moves, and the swing to it shows (README, image-guided mode).
+  // the same insertions. (Before the replanner held the roll of a nearly straight catheter, the roll
+  // wandered with the image noise along the straight part and this ranged 0.86–2.09 mm over five runs.)
   start(truth);
   enable();
   attach_tracking();
@@ -357,6 +357,7 @@ TEST_F(ImageGuidedModeTest, WithAPerturbedPlantTheTipFollowsTheCenterlineBetterT
   EXPECT_GE(open.n, 14);
   EXPECT_EQ(closed.n, open.n);
   EXPECT_LT(closed.value(), 0.7 * open.value());
+  EXPECT_LT(moving.value(), 0.7 * open.value());
 }
 
 TEST_F(ImageGuidedModeTest, UnderStickSlipTheMeasuredInsertionFollowsTheTrueOneNotTheDrive) {

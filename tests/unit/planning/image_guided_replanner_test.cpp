@@ -6,6 +6,8 @@
 
 #include <cmath>
 #include <limits>
+#include <random>
+#include <vector>
 
 namespace tendril::teleop {
 namespace {
@@ -106,6 +108,57 @@ TEST(ImageGuidedReplanner, AMeasuredTipErrorShiftsTheNextTarget) {
       full.predicted_tip(f.configuration(f.plan.steps[21]), next.target_insertion) +
       next_base * next.tip_error;
   EXPECT_LT((corrected - target).norm(), (uncorrected - target).norm() - 0.3);
+}
+
+// A nearly straight catheter has no roll to follow. Along the straight part of a vessel, with the tip
+// imaged with 0.25 mm noise, the target keeps the commanded roll (the solver's own roll jumped by up to
+// ±3 rad from frame to frame there, and the roll drive swung for nothing); where the vessel bends, the
+// roll follows the solver again. With the hold off (roll_hold_bend 0) the same frames move the roll.
+TEST(ImageGuidedReplanner, AlongAStraightVesselTheRollStaysWhereItIs) {
+  std::vector<Eigen::Vector3d> points;
+  for (double z = 0.0; z < 40.0; z += 0.5) points.emplace_back(0.0, 0.0, z);
+  const double radius = 30.0;
+  for (double a = 0.0; a <= 70.0 * M_PI / 180.0; a += 0.5 / radius)
+    points.emplace_back(radius * (1.0 - std::cos(a)), 0.0, 40.0 + radius * std::sin(a));
+  const auto vessel = VesselCenterline::from_polyline({points, {}}, 0.5);
+  const ConstantCurvatureCatheter model{nominal_planning_design()};
+  const ShapeErrorPlannerOptions options;
+
+  const auto run = [&](double hold, int& rolls_moved, bool& followed_in_bend) {
+    const ImageGuidedReplanner replanner(model, options, vessel, {.roll_hold_bend = hold});
+    ReplannerState state = replanner.make_state();
+    std::mt19937 rng(5);
+    std::normal_distribution<double> noise(0.0, 0.25);
+    Eigen::Vector4d commanded(5.0, 0.3, 0.0, 0.0);
+    rolls_moved = 0;
+    followed_in_bend = false;
+    for (double s = 5.0; s <= 70.0; s += 1.0) {
+      ReplanInput in;
+      in.commanded_configuration = commanded;
+      in.measured_insertion = s;
+      in.measured_tip =
+          replanner.predicted_tip(commanded, s) + Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+      const ReplanResult out = replanner.replan(state, in);
+      EXPECT_EQ(out.status, ReplanStatus::kOk) << s;
+      if (out.status != ReplanStatus::kOk) return;
+      if (s <= 25.0) {
+        // The catheter's 40 mm steerable section is inside the straight part up to here.
+        if (std::abs(out.configuration[1] - commanded[1]) > 1e-12) ++rolls_moved;
+        EXPECT_LT(std::max(std::abs(out.configuration[2]), std::abs(out.configuration[3])), 0.1) << s;
+      } else if (!state.roll_held) {
+        followed_in_bend = true;
+      }
+      commanded = out.configuration;
+    }
+  };
+  int moved = 0;
+  bool followed = false;
+  run(0.05, moved, followed);
+  EXPECT_EQ(moved, 0) << "the roll stayed at the commanded 0.3 rad along the straight part";
+  EXPECT_TRUE(followed) << "in the bend the roll is the solver's again";
+  run(0.0, moved, followed);
+  EXPECT_GT(moved, 5) << "without the hold the noise moves the roll";
+  EXPECT_THROW(ImageGuidedReplanner(model, options, vessel, {.roll_hold_bend = -0.1}), PlannerOptionsError);
 }
 
 }  // namespace

@@ -15,7 +15,9 @@
 //  3. The result is a configuration-space target ψ = [q1, q2, θ_L1, θ_L2] for the configuration mode
 //     (θ_Li = k_i·q_i, the planning model's bend angles), its insertion advanced by the same step from
 //     the commanded one (so insertion slack does not accumulate into the shape), the roll unwrapped to
-//     the one nearest the commanded roll.
+//     the one nearest the commanded roll; when every bend of the solution is under roll_hold_bend, the
+//     commanded roll itself, with the bends projected onto its planes (a straight catheter has no roll
+//     to follow).
 //
 // Model/data split: ImageGuidedReplanner is immutable after construction (the catheter model, the
 // planner's options and the prepared vessel); ReplannerState holds the preallocated workspace, the
@@ -32,6 +34,14 @@ struct ImageGuidedReplannerOptions {
   double tip_error_gain = 0.5;       // fraction of a new tip-error measurement taken into the estimate
   double max_tip_correction = 5.0;   // mm: cap on the estimated tip error (an implausible fix is bounded)
   double max_tip_innovation = 15.0;  // mm: a measured tip this far from the prediction is refused
+  // rad: a solution whose bends are all smaller than this keeps the commanded roll (its bends projected
+  // onto that roll's planes). A nearly straight catheter's roll is undetermined: the solver's roll then
+  // follows the image noise from frame to frame (measured: jumps of up to ±3 rad every frame along a
+  // straight vessel), and the roll drive swings for nothing. 0.05 rad (≈ 3°) is above the bends that
+  // noise produced there (≤ 0.02 rad) and below those of a vessel's bends. Hysteresis: once held, the
+  // roll follows the solver again only when a bend reaches twice this (else the target roll alternated
+  // between the held one and the solver's from frame to frame as the bends grew through 0.05 rad).
+  double roll_hold_bend = 0.05;
 };
 
 enum class ReplanStatus {
@@ -63,6 +73,7 @@ struct ReplannerState {
   ShapeErrorPlanner::StepWorkspace workspace;
   ShapeErrorPlanner::StepVector warm_start = ShapeErrorPlanner::StepVector::Zero();
   Eigen::Vector3d tip_error = Eigen::Vector3d::Zero();  // filtered, section base frame (mm)
+  bool roll_held = true;  // the last target kept the commanded roll (nearly straight; a run starts so)
   int replans = 0;
 };
 
