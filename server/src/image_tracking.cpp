@@ -421,10 +421,11 @@ void BiplaneTipTracker::fuse(int plane, const std::vector<Eigen::Vector3d>& mode
     if (fresh_pair) {
       evaluated_at_ = updates_;
       ImagedTip tip;
-      // The filtered tip where both EKFs run (less noise); the raw triangulation while they start.
-      const auto best = filtered_tip ? filtered_tip : raw_tip;
-      tip.found = best.has_value() && ap.found && lateral.found;
-      if (best) tip.position = *best;
+      // The raw triangulation of this exposure (see ImagedTip), and the filtered tip beside it.
+      tip.found = raw_tip.has_value() && ap.found && lateral.found;
+      if (raw_tip) tip.position = *raw_tip;
+      tip.has_filtered = filtered_tip.has_value();
+      if (filtered_tip) tip.filtered = *filtered_tip;
       tip.capture_ns = capture_ns;
       evaluated = tip;
     }
