@@ -66,11 +66,11 @@ EllipseSliceSegmenter::EllipseSliceSegmenter(const BModeGeometry& geometry,
   }
   const int half = std::max(1, static_cast<int>(std::ceil(3.0 * p.blur_sigma)));
   if (half > 64) throw UltrasoundSetupError("ellipse EKF: blur_sigma above 21 pixels");
-  kernel_.resize(static_cast<std::size_t>(2 * half + 1));
+  kernel_.resize(2 * static_cast<std::size_t>(half) + 1);
   double sum = 0.0;
   for (int i = -half; i <= half; ++i) {
     const double w = std::exp(-0.5 * i * i / (p.blur_sigma * p.blur_sigma));
-    kernel_[static_cast<std::size_t>(i + half)] = static_cast<float>(w);
+    kernel_[static_cast<std::size_t>(i) + static_cast<std::size_t>(half)] = static_cast<float>(w);
     sum += w;
   }
   for (float& w : kernel_) w = static_cast<float>(w / sum);
@@ -89,8 +89,9 @@ void EllipseSliceSegmenter::blur(const BModeImage& image) noexcept {
     float* out = &scratch_[static_cast<std::size_t>(r) * static_cast<std::size_t>(w)];
     for (int c = 0; c < w; ++c) {
       float acc = 0.0f;
-      for (int k = -half; k <= half; ++k)
-        acc += kernel_[static_cast<std::size_t>(k + half)] * in[std::clamp(c + k, 0, w - 1)];
+      for (std::size_t j = 0; j < kernel_.size(); ++j) {
+        acc += kernel_[j] * in[std::clamp(c + static_cast<int>(j) - half, 0, w - 1)];
+      }
       out[c] = acc;
     }
   }
@@ -98,10 +99,10 @@ void EllipseSliceSegmenter::blur(const BModeImage& image) noexcept {
     float* out = &blurred_[static_cast<std::size_t>(r) * static_cast<std::size_t>(w)];
     for (int c = 0; c < w; ++c) {
       float acc = 0.0f;
-      for (int k = -half; k <= half; ++k) {
-        acc += kernel_[static_cast<std::size_t>(k + half)] *
-               scratch_[static_cast<std::size_t>(std::clamp(r + k, 0, h - 1)) * static_cast<std::size_t>(w) +
-                        static_cast<std::size_t>(c)];
+      for (std::size_t j = 0; j < kernel_.size(); ++j) {
+        const int row = std::clamp(r + static_cast<int>(j) - half, 0, h - 1);
+        acc += kernel_[j] * scratch_[static_cast<std::size_t>(row) * static_cast<std::size_t>(w) +
+                                     static_cast<std::size_t>(c)];
       }
       out[c] = acc;
     }

@@ -127,7 +127,7 @@ FbgShapeReconstructor::FbgShapeReconstructor(const MulticoreFiber& fiber, const 
     : fiber_(fiber) {
   fiber_.validate();
   if (reference.gratings != fiber_.gratings || reference.cores != MulticoreFiber::cores ||
-      reference.wavelengths.size() != static_cast<std::size_t>(fiber_.gratings * MulticoreFiber::cores)) {
+      reference.wavelengths.size() != static_cast<std::size_t>(fiber_.gratings) * MulticoreFiber::cores) {
     throw std::invalid_argument("FBG reconstruction: the reference frame has " +
                                 std::to_string(reference.gratings) + " x " + std::to_string(reference.cores) +
                                 " wavelengths; the fibre needs " + std::to_string(fiber_.gratings) + " x 4");
@@ -186,7 +186,7 @@ const FbgShape& FbgShapeReconstructor::reconstruct(const FbgFrame& frame) noexce
   for (int g = 0; g < g_count; ++g) {
     Eigen::Vector4d strain;
     for (int k = 0; k < MulticoreFiber::cores; ++k) {
-      const std::size_t i = static_cast<std::size_t>(g * MulticoreFiber::cores + k);
+      const std::size_t i = static_cast<std::size_t>(g) * MulticoreFiber::cores + static_cast<std::size_t>(k);
       strain[k] = (frame.wavelengths[i] - reference_[i]) / reference_[i] / (1.0 - fiber_.photoelastic);
     }
     const Eigen::Vector3d solution = solver_ * strain;
@@ -351,7 +351,7 @@ FbgFrame SimulatedFbgInterrogator::measure(const FiberTruth& truth, double tempe
       const double u2 = (static_cast<double>(engine_() >> 11) + 0.5) * 0x1.0p-53;
       const double noise = noise_pm_ * 1e-3 * std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
       const double lambda = reference_wavelength(g);
-      frame.wavelengths[static_cast<std::size_t>(g * MulticoreFiber::cores + c)] =
+      frame.wavelengths[static_cast<std::size_t>(g) * MulticoreFiber::cores + static_cast<std::size_t>(c)] =
           lambda * (1.0 + (1.0 - fiber_.photoelastic) * strain + kThermoOptic * temperature_change) + noise;
     }
   }
