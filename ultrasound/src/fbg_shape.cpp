@@ -1,11 +1,14 @@
 // FBG catheter shape: frame codec, reconstruction, Eq. 2 and the SIMULATED interrogator (seed 002 §9).
 #include "tendril/ultrasound/fbg_shape.hpp"
 
+#include "tendril/ultrasound/preoperative_plan.hpp"
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 
 namespace tendril::ultrasound {
 namespace {
@@ -245,6 +248,98 @@ void fbg_to_global(const Eigen::Isometry3d& catheter_base_in_global, const Eigen
   const Eigen::Isometry3d fiber_in_global = catheter_base_in_global * fiber_in_base;
   out.resize(in.size());
   for (std::size_t i = 0; i < in.size(); ++i) out[i] = fiber_in_global * in[i];
+}
+
+std::vector<Eigen::Vector3d> sample_at_arc_lengths(const std::vector<Eigen::Vector3d>& polyline,
+                                                   double spacing, int count) {
+  if (polyline.size() < 2 || count < 1 || !std::isfinite(spacing) || spacing <= 0.0) {
+    throw std::invalid_argument(
+        "arc-length sampling: needs a polyline of 2 points or more, count >= 1, spacing > 0");
+  }
+  std::vector<Eigen::Vector3d> samples;
+  samples.reserve(static_cast<std::size_t>(count));
+  double arc = 0.0;
+  std::size_t i = 0;
+  for (int g = 0; g < count; ++g) {
+    const double s = g * spacing;
+    for (;;) {
+      if (i + 1 >= polyline.size()) {
+        throw std::invalid_argument("arc-length sampling: the polyline (" + std::to_string(arc) +
+                                    " mm) is shorter than " + std::to_string(s) + " mm");
+      }
+      const double length = (polyline[i + 1] - polyline[i]).norm();
+      if (!std::isfinite(length)) throw std::invalid_argument("arc-length sampling: a point is not finite");
+      if (arc + length >= s && length > 0.0) {
+        samples.push_back(polyline[i] + (s - arc) / length * (polyline[i + 1] - polyline[i]));
+        break;
+      }
+      arc += length;
+      ++i;
+    }
+  }
+  return samples;
+}
+
+FiberCalibration calibrate_fiber_in_base(const std::vector<Eigen::Vector3d>& shape_in_fiber,
+                                         const std::vector<Eigen::Vector3d>& samples) {
+  if (shape_in_fiber.size() < 3 || samples.size() != shape_in_fiber.size()) {
+    throw std::invalid_argument("mold calibration: needs one channel point per grating (at least 3), got " +
+                                std::to_string(samples.size()) + " for " +
+                                std::to_string(shape_in_fiber.size()));
+  }
+  for (const auto& p : samples) {
+    if (!p.allFinite()) throw std::invalid_argument("mold calibration: a channel point is not finite");
+  }
+  // Collinear samples leave the roll about the line free.
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : samples) mean += p;
+  mean /= static_cast<double>(samples.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const auto& p : samples) scatter += (p - mean) * (p - mean).transpose();
+  const Eigen::Vector3d spread = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter).eigenvalues();
+  if (spread[1] < 1e-6 * spread[2] || spread[1] < 1.0) {
+    throw std::invalid_argument(
+        "mold calibration: the channel is (nearly) straight; its bend is what fixes the roll");
+  }
+  FiberCalibration result;
+  result.fiber_in_base = rigid_fit(shape_in_fiber, samples);
+  double sum = 0.0;
+  for (std::size_t g = 0; g < samples.size(); ++g) {
+    const double e = (result.fiber_in_base * shape_in_fiber[g] - samples[g]).norm();
+    sum += e * e;
+    result.max = std::max(result.max, e);
+  }
+  result.rms = std::sqrt(sum / static_cast<double>(samples.size()));
+  return result;
+}
+
+ChannelValidation validate_on_channel(const std::vector<Eigen::Vector3d>& points,
+                                      const std::vector<Eigen::Vector3d>& channel) {
+  if (points.empty() || channel.size() < 2) {
+    throw std::invalid_argument(
+        "channel validation: needs points and a channel polyline of 2 points or more");
+  }
+  std::vector<double> distances;
+  distances.reserve(points.size());
+  for (const auto& p : points) {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i + 1 < channel.size(); ++i) {
+      const Eigen::Vector3d d = channel[i + 1] - channel[i];
+      const double t =
+          d.squaredNorm() > 0.0 ? std::clamp((p - channel[i]).dot(d) / d.squaredNorm(), 0.0, 1.0) : 0.0;
+      best = std::min(best, (channel[i] + t * d - p).norm());
+    }
+    distances.push_back(best);
+  }
+  ChannelValidation v;
+  for (const double d : distances) {
+    v.mean += d / static_cast<double>(distances.size());
+    v.max = std::max(v.max, d);
+  }
+  for (const double d : distances) v.standard_deviation += (d - v.mean) * (d - v.mean);
+  v.standard_deviation =
+      std::sqrt(v.standard_deviation / static_cast<double>(std::max<std::size_t>(1, distances.size() - 1)));
+  return v;
 }
 
 FiberTruth fiber_truth(const MulticoreFiber& fiber, const std::vector<Eigen::Vector3d>& polyline) {

@@ -111,6 +111,37 @@ class FbgShapeReconstructor {
 void fbg_to_global(const Eigen::Isometry3d& catheter_base_in_global, const Eigen::Isometry3d& fiber_in_base,
                    const std::vector<Eigen::Vector3d>& in, std::vector<Eigen::Vector3d>& out);
 
+// Mold calibration of H_F^C (spec §4.1 [SUPPLEMENT] recipe, REQ-TF-3): the catheter lies in a curved
+// mold channel (channel II) whose centerline is known in the catheter base frame {C} (design
+// coordinates through H_M^G, H_L^M and the tracked H_C^G), starting at grating 1 (the known
+// base-to-sensor-1 offset). sample_at_arc_lengths() takes the channel's points at the gratings' arc
+// lengths from its dense centerline; calibrate_fiber_in_base() fits the FBG shape Φ_F to them by
+// Kabsch. A straight channel cannot fix the roll about the fibre (any roll fits), so the channel must
+// bend; the fit refuses samples that are (nearly) collinear.
+struct FiberCalibration {
+  Eigen::Isometry3d fiber_in_base = Eigen::Isometry3d::Identity();  // H_F^C
+  double rms = 0.0;                                                 // mm over the gratings
+  double max = 0.0;                                                 // mm
+};
+// Points every `spacing` mm of arc along a polyline from its first point, `count` of them. Throws
+// std::invalid_argument when the polyline is too short or not finite, or the arguments are not positive.
+std::vector<Eigen::Vector3d> sample_at_arc_lengths(const std::vector<Eigen::Vector3d>& polyline,
+                                                   double spacing, int count);
+// Throws std::invalid_argument when there are fewer than 3 pairs, the sizes differ, a point is not
+// finite, or the channel samples are (nearly) collinear.
+FiberCalibration calibrate_fiber_in_base(const std::vector<Eigen::Vector3d>& shape_in_fiber,
+                                         const std::vector<Eigen::Vector3d>& channel_at_gratings);
+
+// Validation on another channel (channel III): each point's distance to the channel's centerline
+// polyline (same frame), mean, standard deviation and max (the paper: 0.82 ± 0.21 mm, max 1.52 mm).
+struct ChannelValidation {
+  double mean = 0.0;
+  double standard_deviation = 0.0;
+  double max = 0.0;
+};
+ChannelValidation validate_on_channel(const std::vector<Eigen::Vector3d>& points,
+                                      const std::vector<Eigen::Vector3d>& channel);
+
 // The fibre's truth for a shape given as a dense polyline (first point = grating 1): the pose of {F}
 // in the polyline's frame (z along the first segment), each grating's position in {F} and its
 // curvature in the fibre's (parallel-transported, untwisted) frame.
