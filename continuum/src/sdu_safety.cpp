@@ -321,7 +321,10 @@ const SduSafetyDecision& SduSupervisor::step(std::int64_t now_ns, std::span<cons
 
 void SduSupervisor::log_change(std::int64_t now_ns, const SduSafetyDecision& before) noexcept {
   const auto& d = decision_;
-  if (d.state == before.state && d.cause == before.cause && d.disk == before.disk && d.slot == before.slot)
+  const bool first = !logged_any_;
+  logged_any_ = true;
+  if (!first && d.state == before.state && d.cause == before.cause && d.disk == before.disk &&
+      d.slot == before.slot)
     return;
   safety::SafetyEvent e;
   e.time = now_ns * 1e-9;
@@ -367,7 +370,7 @@ Eigen::Vector3d apply_sdu_safety(const SduSafetyDecision& d, const SduSupervisor
       if (!n.allFinite() || n.norm() < 1e-9) return Eigen::Vector3d::Zero();
       const Eigen::Vector3d u = n.normalized();
       const double away = -v.dot(u);
-      if (away <= 0.0) return Eigen::Vector3d::Zero();
+      if (away <= 1e-9) return Eigen::Vector3d::Zero();  // rounding of a sideways command is not a retreat
       return -u * std::min(away, p.retreat_speed_mm_s);
     }
     default:

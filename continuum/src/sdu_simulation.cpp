@@ -176,6 +176,9 @@ SduSample SimulatedSduNode::sense(const Scene& scene, const Eigen::Isometry3d& d
     const Eigen::Vector3d axis = sensor.linear().col(2), u = sensor.linear().col(0),
                           v = sensor.linear().col(1);
     double best = std::numeric_limits<double>::infinity();
+    // A window covered by an object (pressed into the sleeve) reads zero, as a covered VL6180X does; a
+    // ray starting inside a solid would otherwise see nothing and call the way clear.
+    if (scene.penetration(origin) > 0.0) best = 0.0;
     auto ray = [&](double off, double around) {
       const Eigen::Vector3d dir =
           (std::cos(off) * axis + std::sin(off) * (std::cos(around) * u + std::sin(around) * v)).normalized();

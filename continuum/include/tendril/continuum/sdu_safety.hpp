@@ -151,6 +151,7 @@ class SduSupervisor {
   int drift_disk_ = -1, drift_slot_ = -1;
   double drift_value_ = 0.0;
   bool in_contact_ = false;
+  bool logged_any_ = false;  // the first cycle's state is logged whatever it is
   std::int64_t last_step_ns_ = 0;
   safety::SafetyEventLog events_;
 };
