@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -376,6 +377,38 @@ Eigen::Vector3d apply_sdu_safety(const SduSafetyDecision& d, const SduSupervisor
     default:
       return Eigen::Vector3d::Zero();
   }
+}
+
+double apply_sdu_roll(const SduSafetyDecision& d, const SduSupervisorParameters& p, double omega) noexcept {
+  if (d.state != SduSafetyState::kContact || !std::isfinite(omega)) return 0.0;
+  const double lever = d.contact.from_centre.norm();
+  if (!std::isfinite(lever) || lever <= 0.0) return 0.0;
+  const double limit = p.retreat_speed_mm_s / lever;
+  return std::clamp(omega, -limit, limit);
+}
+
+double guidance_command(GuidanceMode mode, const GuidanceParameters& g, const GuidancePair& pair,
+                        const SduSample& top, const HallBias& bias) noexcept {
+  if (!top.received) return 0.0;
+  switch (mode) {
+    case GuidanceMode::kOff:
+      return 0.0;
+    case GuidanceMode::kContactless: {
+      if (pair.tof_right >= kTofPerSdu || pair.tof_left >= kTofPerSdu) return 0.0;
+      auto range = [&](std::size_t j) {
+        return top.tof_status[j] == TofStatus::kValid ? top.tof_mm[j]
+                                                      : std::numeric_limits<double>::quiet_NaN();
+      };
+      return contactless_guidance(g, range(pair.tof_right), range(pair.tof_left));
+    }
+    case GuidanceMode::kContactBased: {
+      if (pair.hall_right >= kHallPerSdu || pair.hall_left >= kHallPerSdu) return 0.0;
+      if (!top.hall_ok[pair.hall_right] || !top.hall_ok[pair.hall_left]) return 0.0;
+      return contact_guidance(g, top.hall_mT[pair.hall_right][2] - bias.b0_mT[pair.hall_right][2],
+                              top.hall_mT[pair.hall_left][2] - bias.b0_mT[pair.hall_left][2]);
+    }
+  }
+  return 0.0;
 }
 
 }  // namespace tendril::continuum

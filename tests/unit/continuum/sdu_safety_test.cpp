@@ -62,6 +62,30 @@ TEST(SduLaws, GuidanceMovesAwayFromAHandAndYieldsToAPush) {
   EXPECT_STREQ(to_string(GuidanceMode::kContactBased), "contact_based");
 }
 
+TEST(SduLaws, GuidanceModesFromTheTopDisksSample) {
+  GuidanceParameters g;
+  const GuidancePair pair;
+  HallBias bias;
+  SduSample top;
+  top.received = true;
+  top.tof_status.fill(TofStatus::kNoTarget);
+  top.hall_ok.fill(true);
+  for (std::size_t j = 0; j < kHallPerSdu; ++j) top.hall_mT[j] = bias.b0_mT[j] = {0.1, -0.2, 9.0};
+  // A hand 40 mm from the left window (slot 2): contactless guidance moves right, at most 20 mm/s.
+  top.tof_status[pair.tof_left] = TofStatus::kValid;
+  top.tof_mm[pair.tof_left] = 40.0;
+  EXPECT_DOUBLE_EQ(guidance_command(GuidanceMode::kContactless, g, pair, top, bias), 20.0);
+  EXPECT_DOUBLE_EQ(guidance_command(GuidanceMode::kOff, g, pair, top, bias), 0.0);
+  // A push on the right window: contact-based guidance yields, to the left.
+  top.hall_mT[pair.hall_right][2] += 0.4;
+  EXPECT_DOUBLE_EQ(guidance_command(GuidanceMode::kContactBased, g, pair, top, bias), -8.0);
+  top.hall_ok[pair.hall_left] = false;
+  EXPECT_DOUBLE_EQ(guidance_command(GuidanceMode::kContactBased, g, pair, top, bias), 0.0);
+  GuidancePair bad;
+  bad.tof_right = 8;
+  EXPECT_DOUBLE_EQ(guidance_command(GuidanceMode::kContactless, g, bad, top, bias), 0.0);
+}
+
 // Samples from 5 SIMULATED nodes in an empty scene, unbiased, then one thing at a time goes wrong.
 class SduSupervisorTest : public ::testing::Test {
  protected:
@@ -237,6 +261,10 @@ TEST_F(SduSupervisorTest, ContactStopsInTheCycleItIsSeenAndOnlyRetreatIsAllowed)
   EXPECT_EQ(apply_sdu_safety(d, params_, 10 * tangent), Eigen::Vector3d::Zero());   // sliding
   EXPECT_NEAR((apply_sdu_safety(d, params_, -20 * n) + 5 * n).norm(), 0.0, 1e-12);  // away, at 5 mm/s
   EXPECT_FALSE(supervisor_->request_unbias());  // never re-zero under a load
+  // The no-slip roll about the contact: the disk centre at most 5 mm/s (r_c = 79 mm).
+  EXPECT_NEAR(apply_sdu_roll(d, params_, 1.0), 5.0 / 79.0, 1e-9);
+  EXPECT_NEAR(apply_sdu_roll(d, params_, -0.01), -0.01, 1e-12);
+  EXPECT_EQ(apply_sdu_roll(d, params_, std::nan("")), 0.0);
   char buf[96];
   EXPECT_STREQ(describe(d, buf, sizeof buf), "contact on SDU 4 Hall 2 (112.5 deg), 1.00 N: stopped");
   // Hysteresis: 0.3 N keeps the contact, 0.1 N releases it.
@@ -257,6 +285,7 @@ TEST_F(SduSupervisorTest, ProximityScalesTheCommandedSpeed) {
   EXPECT_NEAR(d.nearest_d_e_mm, 65.0, 2.0);
   EXPECT_NEAR(d.speed_limit_mm_s, 25.125, 0.8);
   EXPECT_NEAR(apply_sdu_safety(d, params_, {100, 0, 0}).norm(), d.speed_limit_mm_s, 1e-12);
+  EXPECT_EQ(apply_sdu_roll(d, params_, 0.1), 0.0);  // no contact, nothing to roll about
 }
 
 TEST_F(SduSupervisorTest, StepNeverAllocates) {

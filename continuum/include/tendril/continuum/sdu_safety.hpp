@@ -162,4 +162,23 @@ class SduSupervisor {
 Eigen::Vector3d apply_sdu_safety(const SduSafetyDecision& d, const SduSupervisorParameters& p,
                                  const Eigen::Vector3d& v_cmd) noexcept;
 
+// The no-slip roll's rate after the supervisor: allowed only in contact (it rolls about the contact the
+// decision names), with the disk centre's speed |ω_z|·|r_c| at most the retreat speed; zero otherwise.
+double apply_sdu_roll(const SduSafetyDecision& d, const SduSupervisorParameters& p,
+                      double omega_z_rad_s) noexcept;
+
+// Which windows of the top SDU are the operator's right and left (seed §3.11 leaves the choice open):
+// tendril's default looks across the bending plane's y axis, ToF slots 6 (270°) and 2 (90°) and the
+// Hall windows beside them, 5 (247.5°) and 1 (67.5°).
+struct GuidancePair {
+  std::size_t tof_right = 6, tof_left = 2;
+  std::size_t hall_right = 5, hall_left = 1;
+};
+// The guidance speed of the selected mode from the top disk's sample (positive towards the right):
+// contactless from the two ranges (a side without a valid range counts as seeing nothing), contact-based
+// from the two windows' ΔB_z against the baseline; 0 when off, for an unusable Hall reading or slots
+// out of range.
+double guidance_command(GuidanceMode mode, const GuidanceParameters& g, const GuidancePair& pair,
+                        const SduSample& top, const HallBias& bias) noexcept;
+
 }  // namespace tendril::continuum
