@@ -180,7 +180,8 @@ bool SduSupervisor::request_unbias() noexcept {
 const SduSafetyDecision& SduSupervisor::step(std::int64_t now_ns, std::span<const Eigen::Isometry3d> poses,
                                              std::span<const SduSample> samples) noexcept {
   const SduSafetyDecision before = decision_;
-  const double dt = last_step_ns_ != 0 ? std::max(0.0, (now_ns - last_step_ns_) * 1e-9) : 0.0;
+  const double dt =
+      last_step_ns_ != 0 ? std::max(0.0, static_cast<double>(now_ns - last_step_ns_) * 1e-9) : 0.0;
   last_step_ns_ = now_ns;
   SduSafetyDecision d;
   d.nearest_d_e_mm = p_.proximity.d_max_mm;
@@ -201,7 +202,7 @@ const SduSafetyDecision& SduSupervisor::step(std::int64_t now_ns, std::span<cons
       decided = true;
     } else if (now_ns - samples[i].stamp_ns > p_.stale_after_ns) {
       set(SduSafetyState::kHold, SduCause::kSduSilent, static_cast<int>(i), -1,
-          (now_ns - samples[i].stamp_ns) * 1e-6);
+          static_cast<double>(now_ns - samples[i].stamp_ns) * 1e-6);
       decided = true;
     }
   }
@@ -328,7 +329,7 @@ void SduSupervisor::log_change(std::int64_t now_ns, const SduSafetyDecision& bef
       d.slot == before.slot)
     return;
   safety::SafetyEvent e;
-  e.time = now_ns * 1e-9;
+  e.time = static_cast<double>(now_ns) * 1e-9;
   switch (d.state) {
     case SduSafetyState::kClear:
       e.kind = safety::EventKind::kRecovery;
