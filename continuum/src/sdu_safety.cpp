@@ -169,6 +169,18 @@ SduSupervisor::SduSupervisor(const SduSegmentModel& model, std::size_t disks,
   decision_.cause = SduCause::kUnbiasing;
 }
 
+void SduSupervisor::set_planes(std::span<const Plane> planes, double inlier_distance_mm) noexcept {
+  plane_count_ = 0;
+  plane_inlier_mm_ =
+      std::isfinite(inlier_distance_mm) && inlier_distance_mm > 0.0 ? inlier_distance_mm : 40.0;
+  for (const auto& p : planes) {
+    if (plane_count_ == kMaxPlanes) break;
+    if (!p.normal.allFinite() || !std::isfinite(p.offset_mm) || std::abs(p.normal.norm() - 1.0) > 1e-6)
+      continue;
+    planes_[plane_count_++] = p;
+  }
+}
+
 bool SduSupervisor::request_unbias() noexcept {
   if (decision_.state == SduSafetyState::kContact) return false;
   unbiased_ = false;
@@ -298,7 +310,22 @@ const SduSafetyDecision& SduSupervisor::step(std::int64_t now_ns, std::span<cons
           tof_bad = true;
           continue;
         }
-        d.nearest_d_e_mm = std::min(d.nearest_d_e_mm, effective_distance(r, 0.0));
+        double d_e = r;
+        if (plane_count_ > 0 && i < poses.size()) {
+          // The seed's (3.5): the sensor's angle to the normal of the mapped surface its range lands on.
+          const Eigen::Isometry3d sensor = poses[i] * tof_sensor_in_disk(model_, j);
+          const Eigen::Vector3d axis = sensor.linear().col(2);
+          const Eigen::Vector3d hit = sensor.translation() + r * axis;
+          double nearest = plane_inlier_mm_;
+          for (std::size_t k = 0; k < plane_count_; ++k) {
+            const double off = std::abs(planes_[k].distance(hit));
+            if (off <= nearest) {
+              nearest = off;
+              d_e = r * std::abs(axis.dot(planes_[k].normal));
+            }
+          }
+        }
+        d.nearest_d_e_mm = std::min(d.nearest_d_e_mm, d_e);
       }
     }
     if (tof_bad) decided = true;

@@ -291,6 +291,30 @@ TEST_F(SduSupervisorTest, ProximityScalesTheCommandedSpeed) {
   EXPECT_EQ(apply_sdu_roll(d, params_, 0.1), 0.0);  // no contact, nothing to roll about
 }
 
+// (3.5) with the map's planes: a wall leaning 60° from the lowest disk's slot 0 line of sight (and
+// farther from every other sensor) is read along that line, d_e = d·cos 60° once the plane is mapped.
+TEST_F(SduSupervisorTest, MappedPlanesGiveTheEffectiveDistanceItsAngle) {
+  unbias();
+  const Eigen::Vector3d n(std::cos(M_PI / 3), 0.0, -std::sin(M_PI / 3));  // towards the wall, from the robot
+  const double offset = n.dot(Eigen::Vector3d(79.0, 0.0, 74.0)) + 40.0;   // 40 mm from disk 0's window
+  scene_.add(ScenePlane{offset * n, -n});
+  sense();
+  const double without = step().nearest_d_e_mm;
+  EXPECT_GT(without, 55.0);  // read along the tilted line of sight (the cone's nearest return)
+  const Plane mapped{n, offset};
+  supervisor_->set_planes(std::span(&mapped, 1));
+  sense();
+  const auto& d = step();
+  EXPECT_NEAR(d.nearest_d_e_mm, 0.5 * without, 1.5);
+  EXPECT_LT(d.nearest_d_e_mm, 40.0);
+  EXPECT_NEAR(d.speed_limit_mm_s, proximity_speed_limit(params_.proximity, d.nearest_d_e_mm), 1e-12);
+  std::printf("a wall 40 mm away, leaning 60 deg: d_e %.1f mm without the mapped plane, %.1f mm with it\n",
+              without, d.nearest_d_e_mm);
+  supervisor_->set_planes({});
+  sense();
+  EXPECT_NEAR(step().nearest_d_e_mm, without, 1.5);
+}
+
 TEST_F(SduSupervisorTest, StepNeverAllocates) {
   unbias();
   scene_.add(ScenePlane{Eigen::Vector3d(79 + 65, 0, 0), -Eigen::Vector3d::UnitX()});
@@ -304,6 +328,8 @@ TEST_F(SduSupervisorTest, StepNeverAllocates) {
     if (k % 50 == 40) s[4].stamp_ns -= 100'000'000;
     inputs.push_back(s);
   }
+  const Plane wall{-Eigen::Vector3d::UnitX(), -(79.0 + 65.0)};
+  supervisor_->set_planes(std::span(&wall, 1));
   std::int64_t t = now_ns_ - 300LL * 10'000'000;
   const long before = tendril::testing::allocation_count.load();
   for (const auto& s : inputs) {

@@ -26,7 +26,7 @@ struct ProximityParameters {
   double d_max_mm = 130.0;
 };
 
-// (3.5) d_e = d·cos θ, θ the sensor's angle to the surface normal (0 when the normal is unknown).
+// (3.5) d_e = d·cos θ, θ the sensor's angle to the surface normal.
 double effective_distance(double range_mm, double angle_to_normal_rad) noexcept;
 // (3.4) ‖v‖ = (d_e/d_max)(v_max − v_min) + v_min for d_e < d_max, else v_max. A d_e that is negative
 // or not finite gives v_min (the safe speed).
@@ -126,6 +126,12 @@ class SduSupervisor {
                                 std::span<const SduSample> samples) noexcept;
   // Starts a new unbiasing (operator command, e.g. after a drift hold). Refused (false) in contact.
   bool request_unbias() noexcept;
+  // The mapped planes (from the map's RANSAC, on a worker) that give (3.5) its θ: a range whose point
+  // lies within the inlier distance of a plane counts as d_e = d·|cos θ|, θ between the sensor's line
+  // of sight and the plane's normal; other ranges count as d_e = d. Keeps the first kMaxPlanes; copies,
+  // no allocation. An empty span forgets them.
+  static constexpr std::size_t kMaxPlanes = 8;
+  void set_planes(std::span<const Plane> planes, double inlier_distance_mm = 40.0) noexcept;
 
   const SduSafetyDecision& decision() const noexcept { return decision_; }
   const std::array<HallBias, kSdusPerSegment>& bias() const noexcept { return bias_; }
@@ -151,7 +157,10 @@ class SduSupervisor {
   int drift_disk_ = -1, drift_slot_ = -1;
   double drift_value_ = 0.0;
   bool in_contact_ = false;
-  bool logged_any_ = false;  // the first cycle's state is logged whatever it is
+  bool logged_any_ = false;
+  std::array<Plane, kMaxPlanes> planes_{};
+  std::size_t plane_count_ = 0;
+  double plane_inlier_mm_ = 40.0;  // the first cycle's state is logged whatever it is
   std::int64_t last_step_ns_ = 0;
   safety::SafetyEventLog events_;
 };
