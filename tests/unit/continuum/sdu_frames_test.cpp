@@ -50,7 +50,9 @@ TEST(SduFrames, RoundTripKeepsEveryValueToItsResolution) {
   EXPECT_EQ(out.stamp_ns, 42);
   for (std::size_t j = 0; j < kTofPerSdu; ++j) {
     EXPECT_EQ(out.tof_status[j], in.tof_status[j]) << j;
-    if (in.tof_status[j] == TofStatus::kValid) EXPECT_NEAR(out.tof_mm[j], in.tof_mm[j], 0.5);
+    if (in.tof_status[j] == TofStatus::kValid) {
+      EXPECT_NEAR(out.tof_mm[j], in.tof_mm[j], 0.5);
+    }
   }
   for (std::size_t j = 0; j < kHallPerSdu; ++j) {
     EXPECT_EQ(out.hall_ok[j], in.hall_ok[j]) << j;

@@ -149,8 +149,11 @@ TEST(SduHallModel, PressingASleeveWindowIsFeltByThatWindowMost) {
   node.sense(scene, Eigen::Isometry3d::Identity(), 0.0);
   const auto& f = node.true_force();
   EXPECT_NEAR(f[2], 5.0, 0.3);  // 1 mm × 5 N/mm
-  for (std::size_t j = 0; j < kHallPerSdu; ++j)
-    if (j != 2) EXPECT_LT(f[j], f[2]) << j;
+  for (std::size_t j = 0; j < kHallPerSdu; ++j) {
+    if (j != 2) {
+      EXPECT_LT(f[j], f[2]) << j;
+    }
+  }
 }
 
 }  // namespace

@@ -129,7 +129,8 @@ class SduSupervisor {
   // The mapped planes (from the map's RANSAC, on a worker) that give (3.5) its θ: a range whose point
   // lies within the inlier distance of a plane counts as d_e = d·|cos θ|, θ between the sensor's line
   // of sight and the plane's normal; other ranges count as d_e = d. Keeps the first kMaxPlanes; copies,
-  // no allocation. An empty span forgets them.
+  // no allocation. An empty span forgets them. Call it on the control thread, between steps (the
+  // plug-in hands the worker's planes over through a latest-value slot).
   static constexpr std::size_t kMaxPlanes = 8;
   void set_planes(std::span<const Plane> planes, double inlier_distance_mm = 40.0) noexcept;
 
