@@ -186,7 +186,7 @@ else
 fi
 
 # The translation units clang-tidy looks at: the project's library sources (not tests).
-tidy_scope='^(teleop(/perception)?|safety|drivers/[a-z_]+(/imaging)?|record|server|dds)/src/.*\.cpp$'
+tidy_scope='^(teleop(/perception)?|safety|drivers/[a-z_]+(/imaging)?|record|server|dds|continuum|ultrasound)/src/.*\.cpp$'
 run_tidy() {  # run_tidy <log> <files...>
   local log=$1
   shift
