@@ -166,7 +166,7 @@ TEST(DiskInterference, DimensionalAndPackingFractionFormsAgreeT26) {
     EXPECT_LT(interference_outer_radius_limit(disks, bend + 0.05), b) << "more bending, less room";
   }
   EXPECT_TRUE(std::isinf(interference_outer_radius_limit(disks, 0.0)));
-  // A bend of 90° leaves ~77 mm; the linkage's 52.3 mm reaches the limit only beyond ~126°.
+  // A bend of 90° leaves ~77 mm; the linkage's 52.3 mm reaches the limit only beyond ~132° (2.31 rad).
   EXPECT_NEAR(interference_outer_radius_limit(disks, -kPi / 2), 76.58, 0.01);
   DiskInterferenceParameters crowded = disks;
   crowded.disk_height = 30.0;
@@ -405,7 +405,7 @@ TEST(VariableDiameterRobot, DiameterLimitsFollowTheBend) {
   EXPECT_LT(limits.upper, linkage.inner_radius_max());
   EXPECT_NEAR(linkage.outer_radius(linkage.configuration_radius(limits.upper)), b_limit, 1e-9);
   EXPECT_FALSE(limits.interference_unavoidable);
-  // Past ~3.12 rad even the folded linkage's disks touch.
+  // Past ~3.13 rad (179°) even the folded linkage's disks touch.
   psi[4] = kStraightTangentAngle - 3.2;
   limits = robot.diameter_limits(psi);
   EXPECT_TRUE(limits.interference_unavoidable);
@@ -548,7 +548,7 @@ TEST(VariableDiameterCircle, HookBranchGrowsShrinksNearInterferenceAndGrowsAgain
   EXPECT_LT(out.forces.rms_reduction, 48.3 + 2 * 17.6);
 
   // Limits: a and the backbones stay inside theirs at every step. Where no diameter avoids disk
-  // interference (the middle segment bends past ~3.12 rad at the bottom of the circle), both runs hold
+  // interference (the middle segment bends past ~3.13 rad at the bottom of the circle), both runs hold
   // a = a_min; those steps are the same in both, so the task causes them, not the redundancy resolution.
   expect_limits_respected(robot, out.fixed);
   expect_limits_respected(robot, out.variable);

@@ -51,7 +51,7 @@ double solve_tip_pose(const VariableDiameterRobot& robot, const Eigen::Isometry3
 
 // The two inverse-kinematics branches that reach the circle's start with the end disk facing +y.
 enum class CircleBranch {
-  kHook,    // segments bent ≈ 46°, 87°, 131° at the start and up to 186° at the bottom: disks interfere
+  kHook,    // segments bent ≈ 46°, 87°, 131° at the start and up to 187° at the bottom: disks interfere
   kSShape,  // segments bent ≈ 10°, 29°, 71° at the start and at most 123°: disks never interfere
 };
 
