@@ -30,7 +30,9 @@ void require_non_negative(const std::string& name, double value) {
   require(std::isfinite(value) && value >= 0.0, name, value, "non-negative and finite");
 }
 
-SegmentConfiguration segment(const StackConfiguration& psi, int k) noexcept { return psi.segment<2>(2 * k); }
+SegmentConfiguration segment(const StackConfiguration& psi, Eigen::Index k) noexcept {
+  return psi.segment<2>(2 * k);
+}
 
 }  // namespace
 
@@ -69,13 +71,13 @@ Eigen::Isometry3d VariableDiameterRobot::tip_pose(const StackConfiguration& psi,
                                                   VariableDiameterData& data) const noexcept {
   const double length = parameters_.disks.segment_length;
   data.frames[0].setIdentity();
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     data.frames[k + 1] = data.frames[k] * segment_end_pose(segment(psi, k), length);
   }
   const Eigen::Vector3d tip = data.frames[kVariableDiameterSegments].translation();
   // Twist transformation of each segment's J_xψ to the tip, in the base frame: rotate it from the
   // segment's base frame and carry the end-disk velocity to the tip along the rest of the robot.
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     const SegmentTwistJacobian local = segment_twist_jacobian(segment(psi, k), length);
     const Eigen::Matrix3d rotation = data.frames[k].linear();
     const Eigen::Vector3d lever = tip - data.frames[k + 1].translation();
@@ -92,7 +94,7 @@ Eigen::Isometry3d VariableDiameterRobot::tip_pose(const StackConfiguration& psi,
 StackJoints VariableDiameterRobot::joints(const StackConfiguration& psi, double a) const noexcept {
   const double r = linkage_.configuration_radius(a);
   StackJoints q;
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     q.segment<2>(2 * k) = backbone_displacements(segment(psi, k), r).head<2>();
   }
   q[6] = a;
@@ -104,7 +106,7 @@ Eigen::Matrix<double, 6, 7> VariableDiameterRobot::augmentation_matrix(const Sta
   const double dr_da = linkage_.configuration_radius_rate(a);
   Eigen::Matrix<double, 6, 7> m = Eigen::Matrix<double, 6, 7>::Zero();
   m.leftCols<6>().setIdentity();
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     m.block<2, 1>(2 * k, 6) = -diameter_column(segment(psi, k), dr_da).head<2>();  // A_k of (2.33)
   }
   return m;
@@ -114,7 +116,7 @@ Eigen::Matrix<double, 6, 6> VariableDiameterRobot::backbone_jacobian(const Stack
                                                                      double a) const noexcept {
   const double r = linkage_.configuration_radius(a);
   Eigen::Matrix<double, 6, 6> j = Eigen::Matrix<double, 6, 6>::Zero();
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     j.block<2, 2>(2 * k, 2 * k) = tendril::teleop::backbone_jacobian(segment(psi, k), r).topRows<2>();
   }
   return j;
@@ -124,7 +126,7 @@ StackJoints VariableDiameterRobot::null_space_direction(const StackConfiguration
                                                         double a) const noexcept {
   const double dr_da = linkage_.configuration_radius_rate(a);
   StackJoints n;
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     n.segment<2>(2 * k) = diameter_column(segment(psi, k), dr_da).head<2>();
   }
   n[6] = 1.0;
@@ -135,7 +137,7 @@ DiameterLimits VariableDiameterRobot::diameter_limits(const StackConfiguration& 
   DiameterLimits limits;
   limits.lower = linkage_.inner_radius_min();
   double b_limit = kInfinity;
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     b_limit =
         std::min(b_limit, interference_outer_radius_limit(parameters_.disks, segment_bend(segment(psi, k))));
   }
@@ -175,7 +177,7 @@ bool VariableDiameterRobot::actuation(const StackConfiguration& psi, double a, c
   data.backbone_jacobian.setZero();
   data.generalized_load.setZero();
   double radius_gradient = 0.0;
-  for (int k = 0; k < kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
     const SegmentConfiguration psi_k = segment(psi, k);
     data.backbone_jacobian.block<4, 2>(4 * k, 2 * k) = tendril::teleop::backbone_jacobian(psi_k, r);
     data.diameter_column.segment<4>(4 * k) = diameter_column(psi_k, dr_da);
@@ -299,7 +301,7 @@ VariableDiameterStepReport VariableDiameterRobot::step(VariableDiameterState& st
     // (2.34): q̃̇ = A_s⁺·J_qψs·ψ̇_s + (I − A_s⁺A_s)·λ∇g, with A_s = [I | −c] and I − A_s⁺A_s = nnᵀ.
     const double dr_da = linkage_.configuration_radius_rate(a);
     Eigen::Matrix<double, 6, 1> c;
-    for (int k = 0; k < kVariableDiameterSegments; ++k) {
+    for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
       c.segment<2>(2 * k) = diameter_column(segment(psi, k), dr_da).head<2>();
     }
     const Eigen::Matrix<double, 6, 1> w = jq * psi_rate;

@@ -173,7 +173,7 @@ bool segment_statics(const SegmentConfiguration& psi, double r, double dr_da, do
   // (J_q̃ψᵀ)⁺ = J_q̃ψ·(J_q̃ψᵀJ_q̃ψ)⁺; the 2×2 Gram matrix is inverted on its non-negligible eigenvalues.
   const Eigen::Matrix2d gram = out.augmented_jacobian.transpose() * out.augmented_jacobian;
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(gram);
-  const Eigen::Vector2d values = eig.eigenvalues();
+  const Eigen::Vector2d& values = eig.eigenvalues();
   const double cutoff = 1e-12 * std::max(values.maxCoeff(), 1e-300);
   Eigen::Vector2d inverse_values;
   for (int i = 0; i < 2; ++i) inverse_values[i] = values[i] > cutoff ? 1.0 / values[i] : 0.0;

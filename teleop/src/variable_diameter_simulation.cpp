@@ -82,7 +82,7 @@ CircleRun simulate_circle(const VariableDiameterRobot& robot, const CircleTrajec
     sample.interference = report.limits.interference;
     sample.force_norm = report.force_norm;
     sample.tracking_error = report.tracking_error;
-    for (int k = 0; k < kVariableDiameterSegments; ++k) {
+    for (Eigen::Index k = 0; k < kVariableDiameterSegments; ++k) {
       sample.largest_bend = std::max(sample.largest_bend, std::abs(psi[2 * k] - kStraightTangentAngle));
     }
     sample.joints = robot.joints(psi, a);
