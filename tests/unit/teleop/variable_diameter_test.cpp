@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/QR>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -606,6 +607,24 @@ TEST(VariableDiameterCircle, PrintedModulusGivesTheSameStoryS21) {
   EXPECT_GE(out.forces.min_reduction, -1e-6);
   EXPECT_GT(out.forces.rms_reduction, 48.3 - 2 * 17.6);
   EXPECT_LT(out.forces.rms_reduction, 48.3 + 2 * 17.6);
+}
+
+// Why the objective is evaluated in SI: read in mm, the gradient term is too weak to move a at all
+// while the segments curl, and the first growth of Fig. 2.12 is missing.
+TEST(VariableDiameterCircle, ObjectiveInMillimetresMissesTheFirstGrowth) {
+  VariableDiameterRobotParameters params;
+  params.redundancy.objective_length_scale = 1.0;
+  const VariableDiameterRobot robot(params);
+  const CircleOutcome out = run_circle(params, CircleBranch::kHook, "hook, objective in mm");
+  const std::size_t n = out.variable.samples.size();
+  double first_third_max = 0.0;
+  for (std::size_t i = 0; i < n / 3; ++i) {
+    first_third_max = std::max(first_third_max, out.variable.samples[i].diameter_joint);
+  }
+  std::printf("[hook, objective in mm] a: largest in the first third %.2f mm, end %.2f mm\n", first_third_max,
+              out.variable.samples[n - 1].diameter_joint);
+  EXPECT_LT(first_third_max, robot.linkage().inner_radius_min() + 0.5);
+  EXPECT_GE(out.forces.min_reduction, -1e-6);
 }
 
 TEST(VariableDiameterCircle, SShapeBranchNeverMeetsInterference) {

@@ -28,15 +28,15 @@
 //   straight, where ψ(q̃) is not differentiable. ∇H is analytic (seed-000.md §2.10 [DERIVED]).
 // - Units of the objective. The model works in mm, N, s, but the seed's λ = 0.05 carries no unit, and
 //   g mixes newtons (‖τ̃_s‖) with an inverse length (H), so the units of g decide both how fast a moves
-//   and where the force and limit terms balance. Read in mm (λ in mm²/(N·s)) the null-space speed of
-//   a is ~0.02 mm/s and H holds a within ~0.4 mm of a_min for the whole circle: no visible
-//   redundancy resolution at all. Read in SI (m, N, s, what a MATLAB model of the seed's era uses;
-//   its E is also printed in SI prefixes) the force and limit terms balance ~10 mm inside the limit
-//   of a, which is the behaviour the seed describes (a grows, is pushed back by the interference
-//   limit, grows again). We therefore evaluate g and λ∇g in SI (objective_length_scale = 1000 model
-//   units per metre) and convert η back to mm/s. In SI the explicit 1 ms step of λ∇g is stiff near a
-//   limit, so the null-space motion of a is capped at max_diameter_rate (10 mm/s, our choice for the
-//   diameter drive), which keeps the step stable and physical.
+//   and where the force and limit terms balance. Read in mm (λ in mm²/(N·s)) the gradient moves a by
+//   ~0.02 mm/s and H holds it within ~0.2 mm of a_min, so a follows only the minimum-norm part of
+//   (2.34): it stays at a_min while the segments curl and grows as they unwind, with no first growth. Read in
+//   SI (m, N, s, what a MATLAB model of the seed's era uses; its E is also printed in SI prefixes) the force
+//   and limit terms balance ~10 mm inside the limit of a, which is the behaviour the seed describes (a grows,
+//   is pushed back by the interference limit, grows again). We therefore evaluate g and λ∇g in SI
+//   (objective_length_scale = 1000 model units per metre) and convert η back to mm/s. In SI the explicit 1 ms
+//   step of λ∇g is stiff near a limit, so the null-space motion of a is capped at max_diameter_rate (10 mm/s,
+//   our choice for the diameter drive), which keeps the step stable and physical.
 // - The diameter limits are [a_min, min(a_max, a_interference(ψ_s))] with a_interference the inner radius
 //   at which the first segment's outer radius b reaches its interference limit (2.16); recomputed every
 //   step before (2.34) as the seed says. H is evaluated with a floor of `limit_floor` on the distance to
