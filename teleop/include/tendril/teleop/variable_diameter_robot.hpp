@@ -30,20 +30,20 @@
 //   g mixes newtons (‖τ̃_s‖) with an inverse length (H), so the units of g decide both how fast a moves
 //   and where the force and limit terms balance. Read in mm (λ in mm²/(N·s)) the gradient moves a by
 //   ~0.02 mm/s and H holds it within ~0.2 mm of a_min, so a follows only the minimum-norm part of
-//   (2.34): it stays at a_min while the segments curl and grows as they unwind, with no first growth. Read in
-//   SI (m, N, s, what a MATLAB model of the seed's era uses; its E is also printed in SI prefixes) the force
-//   and limit terms balance ~10 mm inside the limit of a, which is the behaviour the seed describes (a grows,
-//   is pushed back by the interference limit, grows again). We therefore evaluate g and λ∇g in SI
-//   (objective_length_scale = 1000 model units per metre) and convert η back to mm/s. In SI the explicit 1 ms
-//   step of λ∇g is stiff near a limit, so the null-space motion of a is capped at max_diameter_rate (10 mm/s,
-//   our choice for the diameter drive), which keeps the step stable and physical.
+//   (2.34): it stays at a_min while the segments curl and grows as they unwind, with no first growth.
+//   Read in SI (m, N, s; the units a MATLAB model is usually written in) the force and limit terms
+//   balance ~10 mm inside the limit of a, which is the behaviour the seed describes (a grows, is pushed
+//   back by the interference limit, grows again). We therefore evaluate g and λ∇g in SI
+//   (objective_length_scale = 1000 model units per metre) and convert η back to mm/s. In SI the
+//   explicit 1 ms step of λ∇g is stiff near a limit, so the null-space motion of a is capped at
+//   max_diameter_rate (10 mm/s, our choice for the diameter drive), which keeps the step stable.
 // - The diameter limits are [a_min, min(a_max, a_interference(ψ_s))] with a_interference the inner radius
 //   at which the first segment's outer radius b reaches its interference limit (2.16); recomputed every
 //   step before (2.34) as the seed says. H is evaluated with a floor of `limit_floor` on the distance to
 //   a limit so that a limit that moves past a in one step gives a large, finite push back; after the
 //   step a is clamped into its limits and the step reports that it clamped.
 // - ψ̇_s = J_xψs^#·(ẋ_d + K·e) (closed-loop resolved rates, e the pose error) with a singularity-robust
-//   inverse: damped least squares on J scaled to metres-free units (linear rows divided by L), with
+//   inverse: damped least squares on J made dimensionless (linear rows divided by L), with
 //   damping ρ² = ρ_max²·(1 − (σ_min/σ₀)²) below σ₀ and none above (Maciejewski & Klein 1988).
 #pragma once
 
