@@ -30,14 +30,16 @@ a="tendril-lat-a-$$"
 b="tendril-lat-b-$$"
 work="$(mktemp -d /tmp/tendril-dds-latency.XXXXXX)"
 pids=()
+stop() {  # PID: SIGTERM, then SIGKILL after 5 s (a ddsperf pong was seen to hang on its way out)
+  if kill -0 "$1" 2>/dev/null; then
+    kill -TERM "$1" 2>/dev/null
+    for _ in $(seq 50); do kill -0 "$1" 2>/dev/null || break; sleep 0.1; done
+    kill -KILL "$1" 2>/dev/null
+  fi
+  wait "$1" 2>/dev/null
+}
 cleanup() {
-  for pid in "${pids[@]}"; do
-    if kill -0 "$pid" 2>/dev/null; then
-      kill -TERM "$pid" 2>/dev/null
-      for _ in $(seq 50); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
-      kill -KILL "$pid" 2>/dev/null
-    fi
-  done
+  for pid in "${pids[@]}"; do stop "$pid"; done
   ip netns del "$a" 2>/dev/null
   ip netns del "$b" 2>/dev/null
   [ -z "${KEEP_NETNS_LOG:-}" ] && rm -rf "$work"
@@ -67,7 +69,9 @@ XML
 }
 cyclone_config "tlA$n" "10.78.$n.2" > "$work/a.xml"
 cyclone_config "tlB$n" "10.78.$n.1" > "$work/b.xml"
-in_a() { CYCLONEDDS_URI="file://$work/a.xml" ip netns exec "$a" "$@"; }
+# Programs in host B run in the foreground; those in host A in the background as
+# (... exec ip netns exec ...) &, so that $! is the program itself (ip netns exec execs it) and can be
+# stopped.
 in_b() { CYCLONEDDS_URI="file://$work/b.xml" ip netns exec "$b" "$@"; }
 domain=$((n % 200 + 1))
 
@@ -108,16 +112,15 @@ JSON
     echo "not ok - $label: $(tail -n 3 "$work/$label.err"); tendrild: $(tail -n 3 "$work/tendrild-$rate.log")"
     failures=$((failures + 1))
   fi
-  kill -TERM "$pid" 2>/dev/null
-  wait "$pid" 2>/dev/null
+  stop "$pid"
 }
 
 tendrild_stream tendrild-50 50
 tendrild_stream tendrild-1000 1000
 
 # The synthetic 1 kHz stream: the publisher runs until the subscriber has its window.
-in_a "$latency" --domain "$domain" --timeout 30 pub srmc --rate 1000 --seconds $((seconds + warmup + 4)) \
-  > "$work/pub.json" 2> "$work/pub.err" &
+(CYCLONEDDS_URI="file://$work/a.xml" exec ip netns exec "$a" "$latency" --domain "$domain" --timeout 30 \
+  pub srmc --rate 1000 --seconds $((seconds + warmup + 4))) > "$work/pub.json" 2> "$work/pub.err" &
 pub_pid=$!
 pids+=("$pub_pid")
 if in_b "$latency" --domain "$domain" --timeout 30 sub srmc --seconds "$seconds" --warmup "$warmup" \
@@ -135,14 +138,14 @@ echo "   publisher: $(cat "$work/pub.json" 2>/dev/null) $(tail -n 2 "$work/pub.e
 # tendril's state topics; ping at 1 kHz from host B, pong in host A. It prints the round trip's
 # percentiles once a second; one-way = RTT/2.
 if [ -n "$ddsperf" ]; then
-  in_a "$ddsperf" -i "$domain" -u -D $((seconds + warmup + 8)) pong > "$work/pong.log" 2>&1 &
+  (CYCLONEDDS_URI="file://$work/a.xml" exec ip netns exec "$a" "$ddsperf" -i "$domain" -u \
+    -D $((seconds + warmup + 8)) pong) > "$work/pong.log" 2>&1 &
   pong_pid=$!
   pids+=("$pong_pid")
   sleep 1
   in_b "$ddsperf" -i "$domain" -u -D $((seconds + warmup + 1)) ping 1kHz size 208 > "$work/ping.log" 2>&1
   status=$?
-  kill -TERM "$pong_pid" 2>/dev/null
-  wait "$pong_pid" 2>/dev/null
+  stop "$pong_pid"
   if [ $status = 0 ] && grep -q ' 99% ' "$work/ping.log"; then
     echo "ok - ddsperf ping/pong: $(grep -c ' 99% ' "$work/ping.log") one-second reports"
   else
