@@ -20,7 +20,8 @@
 #     8. clang-tidy over the whole tree (and, when clean, the commit to record in .ci/clang-tidy-base)
 #     9. long fuzzing (TENDRIL_FUZZ_SECONDS, default 300 in --full)
 #    10. the console's 4K screenshots in the browser tests (TENDRIL_E2E_FULL=1)
-#    11. DDS between two hosts made of network namespaces (tests/dds/netns_test.sh; needs root)
+#    11. DDS between two hosts made of network namespaces (tests/dds/netns_test.sh; needs root), and
+#        the one-way latency bench of the joint states beside ddsperf (tests/bench/dds_latency.sh)
 #   scripts/test.sh --quick   stages 1-4 only (for a quick local check)
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -229,6 +230,7 @@ stage "gcc RelWithDebInfo build with benchmarks (build-gcc)"
 if cmake -S . -B build-gcc -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_BUILD_BENCHMARKS=ON \
      -DTENDRIL_CAN_VM_TESTS=OFF "${launcher[@]}" >/dev/null && cmake --build build-gcc -j "$jobs"; then
   record gcc-build 0 0 0
+  gcc_built=1
   stage "ctest (gcc RelWithDebInfo)"
   ctest --test-dir build-gcc --output-on-failure -j "$jobs" --timeout 600 2>&1 | tee build-gcc/ctest.log
   status=${PIPESTATUS[0]}
@@ -236,5 +238,20 @@ if cmake -S . -B build-gcc -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTENDRIL_
   record ctest-gcc "$status" "$p" "$f"
 else
   record gcc-build 1 0 1
+fi
+
+# ---- DDS latency between two network namespaces, beside ddsperf (needs root) ----------------------
+# The gcc RelWithDebInfo build's tendrild when this run built it (unsanitized: the numbers of a
+# release), else the sanitized one.
+stage "DDS latency across two network namespaces, beside ddsperf (tests/bench/dds_latency.sh)"
+bench_tree=build
+[ "${gcc_built:-0}" = 1 ] && bench_tree=build-gcc
+bash tests/bench/dds_latency.sh $bench_tree/server/tendrild $bench_tree/dds/tendril-dds-latency 2>&1 |
+  tee build/dds-latency.log
+status=${PIPESTATUS[0]}
+if [ "$status" = 77 ]; then
+  record dds-latency 0 0 0  # skipped: no root or no network namespaces here
+else
+  record dds-latency "$status" "$(grep -c '^ok - ' build/dds-latency.log)" "$(grep -c '^not ok - ' build/dds-latency.log)"
 fi
 finish

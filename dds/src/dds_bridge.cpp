@@ -246,24 +246,9 @@ struct DdsBridge::Impl {
     if (const auto js = robots.measured_js(io.name); js.ok() && (!io.has_tick || js->tick != io.last_tick)) {
       io.has_tick = true;
       io.last_tick = js->tick;
-      std::vector<char*> names;
-      names.reserve(js->name.size());
-      for (const auto& n : js->name) names.push_back(text(n));
-      auto doubles = [](const std::vector<double>& v) {
-        dds_sequence_double s{};
-        s._length = s._maximum = static_cast<std::uint32_t>(v.size());
-        s._buffer = const_cast<double*>(v.data());
-        return s;
-      };
-      sensor_msgs_msg_dds__JointState_ m{};
-      m.header.stamp = to_time(js->timestamp);
-      m.header.frame_id = text(io.base_frame);
-      m.name._length = m.name._maximum = static_cast<std::uint32_t>(names.size());
-      m.name._buffer = names.data();
-      m.position = doubles(js->position);
-      m.velocity = doubles(js->velocity);
-      m.effort = doubles(js->effort);
-      count_write(dds_write(io.js_writer.get(), &m), published_state);
+      count_write(write_joint_state(io.js_writer.get(), js->timestamp, io.base_frame, js->name, js->position,
+                                    js->velocity, js->effort),
+                  published_state);
     }
     if (const auto os = robots.operating_state(io.name); os.ok()) {
       const std::string state = safety::to_string(os->state);

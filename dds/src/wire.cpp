@@ -1,6 +1,7 @@
 // Topic names, QoS and time stamps of tendril's DDS topics (wire.hpp).
 #include "tendril/dds/wire.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace tendril::dds {
@@ -33,6 +34,30 @@ dds_qos_t* make_qos(TopicKind kind) {
       break;
   }
   return qos;
+}
+
+dds_return_t write_joint_state(dds_entity_t writer, double stamp_unix_s, const std::string& frame_id,
+                               const std::vector<std::string>& name, const std::vector<double>& position,
+                               const std::vector<double>& velocity, const std::vector<double>& effort) {
+  // The sample only borrows the strings and arrays: Cyclone serialises them during dds_write.
+  std::vector<char*> names;
+  names.reserve(name.size());
+  for (const auto& n : name) names.push_back(const_cast<char*>(n.c_str()));
+  auto doubles = [](const std::vector<double>& v) {
+    dds_sequence_double s{};
+    s._length = s._maximum = static_cast<std::uint32_t>(v.size());
+    s._buffer = const_cast<double*>(v.data());
+    return s;
+  };
+  sensor_msgs_msg_dds__JointState_ m{};
+  m.header.stamp = to_time(stamp_unix_s);
+  m.header.frame_id = const_cast<char*>(frame_id.c_str());
+  m.name._length = m.name._maximum = static_cast<std::uint32_t>(names.size());
+  m.name._buffer = names.data();
+  m.position = doubles(position);
+  m.velocity = doubles(velocity);
+  m.effort = doubles(effort);
+  return dds_write(writer, &m);
 }
 
 std::string robot_topic(const std::string& robot, const std::string& leaf) {

@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "ros2_msgs.h"
 #include "tendril_msgs.h"
@@ -45,6 +46,14 @@ inline constexpr const char* kServoJv = "servo_jv";                // tendril_ms
 inline constexpr const char* kMoveJp = "move_jp";                  // tendril_msgs JointCommand, kCommand
 inline constexpr const char* kStateCommand = "state_command";      // tendril_msgs StateCommand, kCommand
 inline constexpr const char* kCommandResult = "command_result";    // tendril_msgs CommandResult, kResult
+
+// Writes one sensor_msgs/JointState sample (header stamp and frame, then the joints) to `writer` and
+// returns dds_write's code. tendrild's bridge writes its joint states through this function and so
+// does the latency bench's synthetic stream (tendril-dds-latency pub), so that the bench measures the
+// bridge's own writer path. Not for the control thread: it allocates the array of name pointers.
+dds_return_t write_joint_state(dds_entity_t writer, double stamp_unix_s, const std::string& frame_id,
+                               const std::vector<std::string>& name, const std::vector<double>& position,
+                               const std::vector<double>& velocity, const std::vector<double>& effort);
 
 // builtin_interfaces/Time from unix seconds.
 builtin_interfaces_msg_dds__Time_ to_time(double unix_seconds);
