@@ -155,6 +155,21 @@ void SessionReplay::run() {
   std::map<std::string, const TopicInfo*> advertised;
   for (const auto& t : topics_) advertised[t.topic] = &t;
   std::map<std::string, bool> warned;  // topics whose later files changed encoding or schema
+  // A message is replayed on its advertised channel only if it has that channel's encoding and schema.
+  const auto publishable = [&](const record::McapMessageCursor::Item& item) {
+    const std::string& topic = item.channel->topic;
+    const auto info = advertised.find(topic);
+    if (info != advertised.end() && info->second->encoding == item.channel->message_encoding &&
+        info->second->schema_name == (item.schema ? item.schema->name : "")) {
+      return true;
+    }
+    if (topic != kStatusTopic && !warned[topic]) {
+      warned[topic] = true;
+      log("topic " + topic + " changes encoding or schema in " + files_[item.reader].filename().string() +
+          "; its messages there are not replayed");
+    }
+    return false;
+  };
 
   std::unique_lock lock(mutex_);
   record::McapMessageCursor cursor(readers, anchor_position_);
@@ -164,10 +179,38 @@ void SessionReplay::run() {
   auto next_status = SteadyClock::now();
   std::uint64_t status_changes = ~std::uint64_t{0};
   while (!stopping_) {
+    bool ready = false;
     if (seek_pending_) {
-      cursor.seek(anchor_position_);
-      pending.reset();
       seek_pending_ = false;
+      pending.reset();
+      // The state at the new position: each topic's last message in the lookback before it, published at
+      // once, so that a client paused after a seek shows where the recording is (on-change topics older
+      // than the lookback are not found).
+      const std::uint64_t target = anchor_position_;
+      const std::uint64_t from = target - std::min(target - start_ns_, options_.seek_lookback_ns);
+      std::map<std::string, std::shared_ptr<const std::string>> state;
+      try {
+        cursor.seek(from);
+        record::McapMessageCursor::Item item;
+        while (cursor.next(item)) {
+          if (item.message.log_time >= target) {
+            pending = std::move(item);
+            break;
+          }
+          if (publishable(item)) {
+            state[item.channel->topic] =
+                std::make_shared<const std::string>(item.message.data.begin(), item.message.data.end());
+          }
+        }
+      } catch (const std::exception& e) {
+        error_ = e.what();
+        playing_ = false;
+        ++changes_;
+        log("stopped: " + error_);
+      }
+      for (auto& [topic, payload] : state) publish(topic, std::move(payload));
+      messages_sent_ += state.size();
+      ready = !state.empty();
     }
     if (!pending && !ended_ && error_.empty()) {
       record::McapMessageCursor::Item item;
@@ -190,22 +233,12 @@ void SessionReplay::run() {
       }
     }
     const auto now = SteadyClock::now();
-    bool ready = false;
     if (pending && playing_ && pending->message.log_time <= position_at(now)) {
-      const std::string& topic = pending->channel->topic;
-      const auto info = advertised.find(topic);
-      const bool same_kind = info != advertised.end() &&
-                             info->second->encoding == pending->channel->message_encoding &&
-                             info->second->schema_name == (pending->schema ? pending->schema->name : "");
-      if (same_kind) {
+      if (publishable(*pending)) {
         const auto& data = pending->message.data;
-        publish(topic, std::make_shared<const std::string>(data.begin(), data.end()));
+        publish(pending->channel->topic, std::make_shared<const std::string>(data.begin(), data.end()));
         ++messages_sent_;
         ready = true;
-      } else if (topic != kStatusTopic && !warned[topic]) {
-        warned[topic] = true;
-        log("topic " + topic + " changes encoding or schema in " +
-            files_[pending->reader].filename().string() + "; its messages there are not replayed");
       }
       pending.reset();
     }

@@ -160,14 +160,21 @@ TEST_F(SessionReplayTest, ReplaysEveryMessageInOrderAtTheRecordedPaceTimesTheRat
   EXPECT_EQ(j.at("messages_sent").get<std::uint64_t>(), 2U * (kJoints + 5));
 }
 
-TEST_F(SessionReplayTest, PauseHoldsThePositionAndSeekContinuesFromThere) {
+TEST_F(SessionReplayTest, ASeekPublishesTheStateThereAndPlayContinuesFromIt) {
   ReplayOptions options;
   options.start_playing = false;
   SessionReplay replay(path_, options);
   Collector seen;
   seen.attach(replay);
   replay.start();
-  replay.seek(kT0 + 50 * kJointPeriod);  // 1 s in
+  replay.seek(kT0 + 50 * kJointPeriod);  // 1 s in, paused
+  ASSERT_TRUE(wait_for([&] { return seen.size() >= 1; }, std::chrono::seconds(20)));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  {
+    std::lock_guard lock(seen.mutex);
+    ASSERT_EQ(seen.joints.size(), 1U) << "paused: only the state at the position";
+    EXPECT_EQ(seen.joints.front().second, 49) << "the last joint state before the seek position";
+  }
   replay.set_rate(10);
   replay.set_playing(true);
   ASSERT_TRUE(wait_for([&] { return seen.size() >= 10; }, std::chrono::seconds(20)));
@@ -178,7 +185,9 @@ TEST_F(SessionReplayTest, PauseHoldsThePositionAndSeekContinuesFromThere) {
   EXPECT_EQ(replay.status().position_ns, held);
   EXPECT_LE(seen.size(), count + 1);  // at most the one being published when paused
   std::lock_guard lock(seen.mutex);
-  EXPECT_EQ(seen.joints.front().second, 50) << "the first message replayed is the one at the seek position";
+  for (std::size_t i = 1; i < seen.joints.size(); ++i) {
+    EXPECT_EQ(seen.joints[i].second, 49 + static_cast<int>(i)) << "played on from the seek position";
+  }
 }
 
 TEST_F(SessionReplayTest, RefusesBadControlsWithAMessageAndChangesNothing) {

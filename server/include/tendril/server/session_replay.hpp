@@ -9,7 +9,9 @@
 // and publishes each message when the position reaches its log time, never before; under load it is
 // late, not early. Message headers carry the wall-clock time at which the message is replayed (as a
 // live server's do, so the console's staleness check works); the recorded time is in the payloads and
-// in /replay/status. A topic's messages are offered newest-only, like every topic of the server.
+// in /replay/status. A topic's messages are offered newest-only, like every topic of the server. After a
+// seek the state at the new position (each topic's last message within seek_lookback_ns) is published
+// at once, playing or paused.
 #pragma once
 
 #include <chrono>
@@ -39,6 +41,9 @@ struct ReplayOptions {
   std::function<void(std::string_view)> log;
   double status_rate_hz = 10;  // /replay/status while playing (and at every change)
   bool start_playing = true;   // false: paused at the first message until PUT {"playing": true}
+  // After a seek each topic's last message within this much log time before the new position is
+  // published at once (the state there); 0: nothing until the replay plays on.
+  std::uint64_t seek_lookback_ns = 5'000'000'000;
   // The data-section CRC is not checked at open (about 2 s per 270 MB, README): every chunk's own CRC
   // is checked as it is played, and the summary's at open.
   record::McapReaderOptions reader{.check_data_crc = false};
