@@ -116,7 +116,9 @@ TEST_P(ReaderRoundTrip, AFinalisedFileIsReadThroughItsSummaryInLogTimeOrder) {
   ASSERT_EQ(items.size(), w.count);
   std::uint32_t next_joint = 0, next_event = 0;
   for (std::size_t i = 0; i < items.size(); ++i) {
-    if (i > 0) ASSERT_LE(items[i - 1].message.log_time, items[i].message.log_time) << i;
+    if (i > 0) {
+      ASSERT_LE(items[i - 1].message.log_time, items[i].message.log_time) << i;
+    }
     const auto& m = items[i].message;
     if (m.channel_id == w.joints) {
       EXPECT_EQ(items[i].channel->topic, "/srmc/joint_states");
@@ -209,7 +211,9 @@ TEST_F(McapReaderTest, ARotatedSetMergesInLogTimeOrderWithContinuousSequences) {
   constexpr std::uint64_t kJoint = 1000;
   for (std::uint64_t i = 0; i < kJoint; ++i) {
     ASSERT_TRUE(recorder.record(joints, i * 1'000'000, joint_state(i)));
-    if (i % 100 == 0) ASSERT_TRUE(recorder.record(events, i * 1'000'000, bytes_of("{}")));
+    if (i % 100 == 0) {
+      ASSERT_TRUE(recorder.record(events, i * 1'000'000, bytes_of("{}")));
+    }
   }
   recorder.start();
   recorder.stop();
@@ -224,7 +228,9 @@ TEST_F(McapReaderTest, ARotatedSetMergesInLogTimeOrderWithContinuousSequences) {
   ASSERT_EQ(items.size(), kJoint + 10);
   std::map<std::string, std::uint32_t> next;
   for (std::size_t i = 0; i < items.size(); ++i) {
-    if (i > 0) ASSERT_LE(items[i - 1].message.log_time, items[i].message.log_time);
+    if (i > 0) {
+      ASSERT_LE(items[i - 1].message.log_time, items[i].message.log_time);
+    }
     EXPECT_EQ(items[i].message.sequence, next[items[i].channel->topic]++) << items[i].channel->topic;
     EXPECT_EQ(items[i].reader, items[i].message.log_time / 200'000'000);
   }
