@@ -6,7 +6,7 @@
 // Data End CRC of a finalised file is checked at open (one read of the whole file).
 //
 // McapMessageCursor yields the messages of one file or of several (a rotated set) in log-time order
-// (equal times in file order), decompressing a chunk only when the merge reaches its start time, so
+// (equal times in chunk order), decompressing a chunk only when the merge reaches its start time, so
 // it holds the chunks that overlap in time, not the recording.
 //
 // Bad input (outside files: this parses them) ends in McapFormatError with a message naming the file,
@@ -139,8 +139,9 @@ class McapReader {
   std::uint64_t message_count_ = 0, start_time_ = 0, end_time_ = 0;
 };
 
-// Messages of one or more readers in log-time order; equal log times keep the readers' order, then
-// file order. The readers must outlive the cursor.
+// Messages of one or more readers in log-time order; equal log times come in the order of their chunks
+// (by the chunks' start times, then the readers' order, then file order) and, within a chunk, in the
+// order written. The readers must outlive the cursor.
 class McapMessageCursor {
  public:
   struct Item {
