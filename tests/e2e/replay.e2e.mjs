@@ -68,11 +68,11 @@ after(async () => {
 });
 
 test('the replay bar controls the server\'s replay: pause, play, rate, position; no commands offered', async () => {
-  const first = await replay();
-  // Slow and from the start, so the recording of a few seconds lasts through the test.
-  await replay('PUT', {position_ns: first.start_ns, rate: 0.25, playing: true});
   await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
   await page.waitForSelector(`${tid('replay-bar')}:not([hidden])`, WAIT);
+  // Slow and from the start once the page is there, so the recording of a few seconds lasts the test.
+  const first = await replay();
+  await replay('PUT', {position_ns: first.start_ns, rate: 0.25, playing: true});
   await page.waitForFunction(() => document.querySelector('[data-testid="replay-play"]').textContent === 'Pause',
                              null, WAIT);
 
