@@ -14,6 +14,7 @@ import {ProcedurePanel} from './procedure.js';
 import {arrangeImaging, wireEnlarge} from './layout.js';
 import {TimePlot} from './plot.js';
 import {TRACKING_TOPIC, TrackingPanel} from './tracking.js';
+import {ReplayBar} from './replay.js';
 
 const api = new Api();
 const $ = (sel) => document.querySelector(sel);
@@ -677,6 +678,8 @@ let pollTick = 0;
 async function poll() {
   const robot = state.robot?.name;
   if (!robot || wsStreaming() || !net.reachable) return;
+  // A replaying server has no live state to poll (409 replay_mode): the recording is on the stream.
+  if (document.body.classList.contains('replaying')) return;
   pollTick++;
   const jobs = [];
   jobs.push(api.measuredJs(robot).then((js) => {
@@ -1261,6 +1264,8 @@ async function start() {
     // events are a convenience; the stream brings new ones
   }
   connectWebSocket(state.robot.name);
+  // A server replaying a recording shows its replay bar (and drives no robot: commands answer 409).
+  new ReplayBar($('[data-testid="replay-bar"]'), {api, status: showStatus}).start();
   startPolling();
   setInterval(refreshConnectionIndicator, 500);
   setInterval(syncClock, 60000);

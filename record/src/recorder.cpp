@@ -1,9 +1,11 @@
 #include "tendril/record/recorder.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cstdio>
 #include <ctime>
 #include <stdexcept>
+#include <string_view>
 
 namespace tendril::record {
 namespace {
@@ -232,8 +234,80 @@ void Recorder::open_file() {
   file_schema_.assign(file_schema_.size(), 0);
   written_in_file_ = 0;
   file_count_.fetch_add(1, std::memory_order_relaxed);
-  const std::lock_guard lock(status_mutex_);
-  files_.push_back(path);
+  {
+    const std::lock_guard lock(status_mutex_);
+    files_.push_back(path);
+  }
+  apply_retention();
+}
+
+namespace {
+// <prefix>_YYYYMMDDTHHMMSSZ_<digits>.mcap: what a recorder with this prefix names its files, and
+// nothing else (retention must not delete a file someone put next to the recordings).
+bool recorder_file_name(std::string_view name, std::string_view prefix) {
+  const auto digits = [](std::string_view s) {
+    return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+  };
+  if (name.size() < prefix.size() + 1 || name.substr(0, prefix.size()) != prefix ||
+      name[prefix.size()] != '_')
+    return false;
+  name.remove_prefix(prefix.size() + 1);
+  constexpr std::string_view kExtension = ".mcap";
+  if (name.size() < 17 + 1 + kExtension.size() || name.substr(name.size() - kExtension.size()) != kExtension)
+    return false;
+  return digits(name.substr(0, 8)) && name[8] == 'T' && digits(name.substr(9, 6)) && name[15] == 'Z' &&
+         name[16] == '_' && digits(name.substr(17, name.size() - 17 - kExtension.size()));
+}
+}  // namespace
+
+void Recorder::apply_retention() {
+  if (options_.keep_total_bytes == 0 && options_.keep_age.count() == 0) return;
+  struct Found {
+    std::filesystem::path path;
+    std::uint64_t size;
+    std::filesystem::file_time_type written;
+  };
+  std::vector<Found> found;
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator(options_.directory, ec)) {
+    std::error_code entry_ec;
+    if (!entry.is_regular_file(entry_ec) ||
+        !recorder_file_name(entry.path().filename().string(), options_.file_prefix))
+      continue;
+    const auto size = entry.file_size(entry_ec);
+    const auto written = entry.last_write_time(entry_ec);
+    if (!entry_ec) found.push_back({entry.path(), size, written});
+  }
+  if (ec) {
+    log("recorder: retention: cannot list " + options_.directory.string() + ": " + ec.message());
+    return;
+  }
+  // Names start with the UTC time the file was opened, then its index: by name is oldest first.
+  std::sort(found.begin(), found.end(),
+            [](const Found& a, const Found& b) { return a.path.filename() < b.path.filename(); });
+  std::uint64_t total = 0;
+  for (const auto& f : found) total += f.size;
+  const auto open_name = writer_ ? writer_->path().filename() : std::filesystem::path();
+  const auto now = std::filesystem::file_time_type::clock::now();
+  for (const auto& f : found) {
+    if (f.path.filename() == open_name) continue;
+    const bool too_old = options_.keep_age.count() > 0 && now - f.written > options_.keep_age;
+    const bool over_budget = options_.keep_total_bytes > 0 && total > options_.keep_total_bytes;
+    if (!too_old && !over_budget) continue;
+    std::error_code remove_ec;
+    if (!std::filesystem::remove(f.path, remove_ec)) {
+      log("recorder: retention: cannot delete " + f.path.string() + ": " +
+          (remove_ec ? remove_ec.message() : std::string("it is gone")));
+      continue;
+    }
+    total -= f.size;
+    files_deleted_.fetch_add(1, std::memory_order_relaxed);
+    log("recorder: retention: deleted " + f.path.string() + " (" + std::to_string(f.size) + " bytes, " +
+        (too_old
+             ? "older than the " + std::to_string(options_.keep_age.count()) + " s kept"
+             : "the recordings were over the " + std::to_string(options_.keep_total_bytes) + " bytes kept") +
+        ")");
+  }
 }
 
 void Recorder::close_file() {
@@ -338,6 +412,7 @@ RecorderStats Recorder::stats() const {
   s.flushed = flushed_.load(std::memory_order_relaxed);
   s.bytes = bytes_.load(std::memory_order_relaxed);
   s.files = file_count_.load(std::memory_order_relaxed);
+  s.files_deleted = files_deleted_.load(std::memory_order_relaxed);
   s.queue_high_water = high_water_.load(std::memory_order_relaxed);
   const std::lock_guard lock(status_mutex_);
   s.error = error_;

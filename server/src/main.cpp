@@ -23,9 +23,11 @@
 #include "tendril/server/http/http_server.hpp"
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/planning_api.hpp"
+#include "tendril/server/replay_control_api.hpp"
 #include "tendril/server/robot_runtime.hpp"
 #include "tendril/server/robot_types.hpp"
 #include "tendril/server/session_recording.hpp"
+#include "tendril/server/session_replay.hpp"
 #include "tendril/server/version.hpp"
 
 namespace {
@@ -50,6 +52,10 @@ options:
                        topics and taking commands; README, "DDS")
   --dds-domain N       DDS domain id, 0 to 232 (default 0, as ROS 2's ROS_DOMAIN_ID); Cyclone DDS reads
                        its network settings from $CYCLONEDDS_URI
+  --replay PATH        replay a recording (an MCAP file, or a folder of them) through the same
+                       WebSocket topics instead of running the robots: no robot is driven (every
+                       command answers 409 replay_mode), no bus, DDS, imaging or recording runs;
+                       GET/PUT /api/v1/replay play, pause, seek and change the rate
   --version            print the version and exit
   --help               print this help and exit
 
@@ -81,6 +87,95 @@ std::filesystem::path default_config() {
   std::exit(2);
 }
 
+// The front end's options from the server file and the command line (live and replay alike).
+tendril::server::HttpOptions http_options(const tendril::server::ServerConfig& config,
+                                          const std::string& token,
+                                          const std::vector<std::string>& extra_origins) {
+  tendril::server::HttpOptions ho;
+  ho.host = config.host;
+  ho.port = config.port;
+  ho.token = token;
+  ho.allowed_origins = config.allowed_origins;
+  ho.allowed_origins.insert(ho.allowed_origins.end(), extra_origins.begin(), extra_origins.end());
+  ho.web_root = config.web_root.string();
+  ho.static_mounts["/vendor/three/"] = (config.vendor_root / "three").string();
+  ho.publish_rate_hz = config.publish_rate_hz;
+  ho.openapi_file = config.openapi_file.string();
+  if (!std::filesystem::exists(config.openapi_file)) {
+    const auto in_source = std::filesystem::path(TENDRIL_SOURCE_DIR) / "server" / "openapi" / "openapi.json";
+    ho.openapi_file = std::filesystem::exists(in_source) ? in_source.string() : std::string();
+    if (ho.openapi_file.empty())
+      std::cerr << "tendrild: no OpenAPI document at " << config.openapi_file.string()
+                << "; GET /api/v1/openapi.json will answer 404" << std::endl;
+  }
+  ho.tls_certificate_file = config.tls_certificate.string();
+  ho.tls_private_key_file = config.tls_private_key.string();
+  return ho;
+}
+
+void print_console_url(const tendril::server::ServerConfig& config, const tendril::server::HttpServer& http,
+                       const std::string& token) {
+  std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
+  if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
+  std::cout << "tendril console: " << (http.tls() ? "https://" : "http://") << shown_host << ":"
+            << http.port() << "/?token=" << token << std::endl;
+}
+
+// tendrild --replay: the robots are described (built from their files, never started: every bus is
+// treated as virtual, so no SocketCAN interface is even opened) and the recording is published through
+// the WebSocket. Returns the exit code.
+int run_replay(tendril::server::ServerConfig config, const std::string& token,
+               const std::vector<std::string>& extra_origins, const std::filesystem::path& replay_path,
+               sigset_t& stop_signals) {
+  using namespace tendril::server;
+  for (auto& rc : config.robots)
+    for (auto& bus : rc.buses) bus.interface = "virtual";
+  RuntimeOptions ro;
+  ro.control_rate_hz = config.control_rate_hz;
+  ro.realtime_priority = false;
+  RobotRuntime runtime(config.robots, ro, builtin_robot_types());  // never started
+  std::map<std::string, nlohmann::json> schemas;
+  for (const auto& rc : config.robots)
+    if (const auto* type = builtin_robot_types().find(rc.kind))
+      schemas[rc.name] = robot_schema(type->settings_schema(), rc.kind);
+  JsonControlApi description(
+      runtime, [&runtime](const std::string& robot) { return runtime.api_extension(robot); },
+      [&schemas](const std::string& robot) -> std::optional<nlohmann::json> {
+        const auto it = schemas.find(robot);
+        if (it == schemas.end()) return std::nullopt;
+        return it->second;
+      });
+  ReplayControlApi api(description);
+  std::shared_ptr<SessionReplay> replay;
+  try {
+    ReplayOptions options;
+    options.log = [](std::string_view line) { std::cerr << "tendrild: replay: " << line << std::endl; };
+    replay = std::make_shared<SessionReplay>(replay_path, std::move(options));
+  } catch (const tendril::record::McapError& e) {
+    std::cerr << "tendrild: cannot replay " << replay_path.string() << ": " << e.what() << "\n";
+    return 2;
+  }
+  HttpOptions ho = http_options(config, token, extra_origins);
+  ho.topic_sources.push_back(replay);
+  ho.replay = replay;
+  HttpServer http(api, ho);
+  http.start();
+  replay->start();
+  std::cerr << "tendrild: replay mode: no robot is driven and every command is refused (409 replay_mode); "
+               "GET/PUT /api/v1/replay control the playback"
+            << std::endl;
+  print_console_url(config, http, token);
+  int signal_number = 0;
+  sigwait(&stop_signals, &signal_number);
+  std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
+            << " received: stopping the replay" << std::endl;
+  http.stop();
+  replay->stop();
+  std::cerr << "tendrild: replay stopped after " << replay->status().messages_sent << " messages"
+            << std::endl;
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -91,6 +186,7 @@ int main(int argc, char** argv) {
   bool dds_enabled = true;
   std::uint32_t dds_domain = 0;
   std::vector<std::string> extra_origins;
+  std::filesystem::path replay_path;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&](const char* name) -> std::string {
@@ -113,6 +209,9 @@ int main(int argc, char** argv) {
       extra_origins.push_back(value("--allowed-origin"));
     } else if (arg == "--no-realtime") {
       no_realtime = true;
+    } else if (arg == "--replay") {
+      replay_path = value("--replay");
+      if (replay_path.empty()) usage_error("--replay expects an MCAP file or a folder of them");
     } else if (arg == "--no-dds") {
       dds_enabled = false;
     } else if (arg == "--dds-domain") {
@@ -158,6 +257,8 @@ int main(int argc, char** argv) {
     }
     if (token.empty()) token = config.token;
     if (token.empty()) token = random_token();
+    if (!replay_path.empty())
+      return run_replay(std::move(config), token, extra_origins, replay_path, stop_signals);
 
     // One world: the scene's vessel is what the robots touch, the fluoroscope images and the 3D view
     // shows, placed at the vessel entry of the scene's robot.
@@ -197,26 +298,7 @@ int main(int argc, char** argv) {
           return it->second;
         });
 
-    HttpOptions ho;
-    ho.host = config.host;
-    ho.port = config.port;
-    ho.token = token;
-    ho.allowed_origins = config.allowed_origins;
-    ho.allowed_origins.insert(ho.allowed_origins.end(), extra_origins.begin(), extra_origins.end());
-    ho.web_root = config.web_root.string();
-    ho.static_mounts["/vendor/three/"] = (config.vendor_root / "three").string();
-    ho.publish_rate_hz = config.publish_rate_hz;
-    ho.openapi_file = config.openapi_file.string();
-    if (!std::filesystem::exists(config.openapi_file)) {
-      const auto in_source =
-          std::filesystem::path(TENDRIL_SOURCE_DIR) / "server" / "openapi" / "openapi.json";
-      ho.openapi_file = std::filesystem::exists(in_source) ? in_source.string() : std::string();
-      if (ho.openapi_file.empty())
-        std::cerr << "tendrild: no OpenAPI document at " << config.openapi_file.string()
-                  << "; GET /api/v1/openapi.json will answer 404" << std::endl;
-    }
-    ho.tls_certificate_file = config.tls_certificate.string();
-    ho.tls_private_key_file = config.tls_private_key.string();
+    HttpOptions ho = http_options(config, token, extra_origins);
     // Bi-plane imaging (simulated or from sources): its own threads read the runtime snapshot, never the
     // RT thread.
     std::shared_ptr<ImagingWorker> imaging;
@@ -271,7 +353,14 @@ int main(int argc, char** argv) {
                 << tendril::record::compression_name(rc.compression) << ", a new file every "
                 << rc.max_file_bytes / (1024ULL * 1024ULL) << " MB or "
                 << rc.max_file_duration_ns / 60'000'000'000ULL << " min; images "
-                << (rc.images_always ? "always" : "while watched") << ")" << std::endl;
+                << (rc.images_always ? "always" : "while watched") << "; keeping "
+                << (rc.keep_total_bytes > 0
+                        ? std::to_string(rc.keep_total_bytes / (1024ULL * 1024ULL)) + " MB"
+                        : std::string("any size"))
+                << (rc.keep_age.count() > 0
+                        ? " of files at most " + std::to_string(rc.keep_age.count() / 3600) + " h old"
+                        : std::string(" of files of any age"))
+                << ")" << std::endl;
       recording->start();
       ho.tap = recording;
     }
@@ -309,10 +398,7 @@ int main(int argc, char** argv) {
                 << " Hz; commands on rt/<robot>/servo_jv, move_jp, state_command" << std::endl;
     }
 
-    std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
-    if (shown_host.find(':') != std::string::npos) shown_host = "[" + shown_host + "]";
-    std::cout << "tendril console: " << (http.tls() ? "https://" : "http://") << shown_host << ":"
-              << http.port() << "/?token=" << token << std::endl;
+    print_console_url(config, http, token);
 
     int signal_number = 0;
     sigwait(&stop_signals, &signal_number);

@@ -41,15 +41,16 @@ RecordingConfig parse_recording_config(const nlohmann::json& recording,
   if (!recording.is_object())
     throw ConfigError(file + ": recording: expected an object, got " + recording.dump());
   for (const auto& item : recording.items()) {
-    static const std::vector<std::string> kKeys = {
-        "enabled", "directory", "compression", "max_file_mb", "max_file_minutes", "images", "note"};
+    static const std::vector<std::string> kKeys = {"enabled",       "directory",        "compression",
+                                                   "max_file_mb",   "max_file_minutes", "images",
+                                                   "keep_total_mb", "keep_days",        "note"};
     if (std::find(kKeys.begin(), kKeys.end(), item.key()) == kKeys.end()) {
       std::string message = file;
       message += ": recording.";
       message += item.key();
       message +=
-          ": unknown key; expected enabled, directory, compression, max_file_mb, max_file_minutes, images or "
-          "note";
+          ": unknown key; expected enabled, directory, compression, max_file_mb, max_file_minutes, images, "
+          "keep_total_mb, keep_days or note";
       throw ConfigError(message);
     }
   }
@@ -87,6 +88,13 @@ RecordingConfig parse_recording_config(const nlohmann::json& recording,
   };
   c.max_file_bytes = static_cast<std::uint64_t>(number("max_file_mb", 1.0, 1e6, 1024.0) * 1024.0 * 1024.0);
   c.max_file_duration_ns = static_cast<std::uint64_t>(number("max_file_minutes", 0.05, 1e5, 60.0) * 60e9);
+  if (recording.contains("keep_total_mb"))
+    c.keep_total_bytes = static_cast<std::uint64_t>(number("keep_total_mb", 1.0, 1e9, 0.0) * 1024.0 * 1024.0);
+  if (recording.contains("keep_days")) {
+    const double days = number("keep_days", 0.0, 36500.0, 0.0);
+    if (!(days > 0)) fail("keep_days", "a number of days greater than 0");
+    c.keep_age = std::chrono::seconds(static_cast<std::int64_t>(std::ceil(days * 86400.0)));
+  }
   if (recording.contains("images")) {
     const auto& v = recording.at("images");
     if (v == "always") {
@@ -114,6 +122,8 @@ record::RecorderOptions recorder_options(const RecordingConfig& config,
   o.writer.compression = config.compression;
   o.max_file_bytes = config.max_file_bytes;
   o.max_file_duration_ns = config.max_file_duration_ns;
+  o.keep_total_bytes = config.keep_total_bytes;
+  o.keep_age = config.keep_age;
   o.log = std::move(log);
   return o;
 }

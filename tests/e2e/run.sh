@@ -5,7 +5,8 @@
 # console.e2e.mjs runs against a tendrild with the catheter in free space (see tests/api/server.sh);
 # cockpit.e2e.mjs against a fresh one of the same kind; two_robots.e2e.mjs against one that adds the
 # SIMULATED UR5 arm; tracking.e2e.mjs (the Tracking tab) against a fresh one; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped
-# SIMULATED vessel (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it). One server runs at a time: two sanitized
+# SIMULATED vessel (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it); replay.e2e.mjs against
+# tendrild --replay on a few seconds another server recorded. One server runs at a time: two sanitized
 # servers with real-time threads beside a software-rendering Chromium starve the browser on two cores.
 # Usage: tests/e2e/run.sh [path/to/tendrild] (default $TENDRILD, else build/server/tendrild).
 # Screenshots: tests/e2e/artifacts/ (git-ignored).
@@ -50,6 +51,19 @@ stop_tendrild
 start_tendrild "$binary" || exit 1
 run_file "$here/tracking.e2e.mjs"
 stop_tendrild
+
+# The replay bar (replay.e2e.mjs): a few seconds recorded by a live server (SIGTERM finalises them),
+# then tendrild --replay on that recording.
+TENDRIL_TEST_RECORDING=true start_tendrild "$binary" || exit 1
+sleep 4
+kill -TERM "$tendrild_pid" && wait "$tendrild_pid"
+tendrild_pid=""
+recorded_workdir="$tendrild_workdir"
+tendrild_workdir=""  # kept while it is replayed
+TENDRILD_ARGS="--config {config} --replay $TENDRIL_RECORDING_DIR" start_tendrild "$binary" || exit 1
+run_file "$here/replay.e2e.mjs"
+stop_tendrild
+[ -n "${KEEP_TENDRILD_LOG:-}" ] || rm -rf "$recorded_workdir"
 
 TENDRIL_TEST_VESSEL=1 start_tendrild "$binary" || exit 1
 export TENDRIL_VESSEL_URL="$TENDRIL_URL" TENDRIL_VESSEL_TOKEN="$TENDRIL_TOKEN" TENDRIL_VESSEL_LOG="$TENDRIL_LOG"

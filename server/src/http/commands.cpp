@@ -41,6 +41,13 @@ ApiResult HttpServer::Impl::execute(const CommandRef& command, const std::string
 
 ApiResult HttpServer::Impl::execute_checked(const CommandRef& command, const std::string& robot,
                                             const json& body, const Identity& who) {
+  if (opts.replay && command.kind != Command::kAuthorizeOnly) {
+    // Before the role and the lease: in a replay no robot is driven, whoever asks.
+    return ApiResult::error(
+        409, "replay_mode",
+        "this server is replaying a recording (tendrild --replay): it drives no robot, so "
+        "it takes no commands; what you see is the recorded session");
+  }
   if (command.kind == Command::kEstop) {
     try {
       return api.estop_from(who.label + (who.role == Role::kViewer ? " (viewer)" : " (operator)"));

@@ -161,6 +161,24 @@ RouteResult handle_api(HttpServer::Impl& server, const Request& req, const Reque
     }
     return json_response(req, 200, api.faults(max_events));
   }
+  if (route == std::vector<std::string>{"replay"}) {
+    if (method != bhttp::verb::get && method != bhttp::verb::put) return method_not_allowed(req, "GET, PUT");
+    if (!server.opts.replay) {
+      return error_response(req,
+                            ApiResult::error(404, "not_replaying",
+                                             "this server runs live; start tendrild --replay FILE_OR_FOLDER "
+                                             "to replay a recording"));
+    }
+    if (method == bhttp::verb::get) return result_response(req, server.opts.replay->replay_status());
+    if (who.role != Role::kOperator) {
+      return error_response(req, ApiResult::error(403, "forbidden_role",
+                                                  "this session is a viewer (read-only); only operators "
+                                                  "control the replay"));
+    }
+    const ApiResult body = parse_json_body(req.body(), server.opts.max_body_bytes);
+    if (!body.ok()) return error_response(req, body);
+    return result_response(req, server.opts.replay->control_replay(body.body));
+  }
   if (route == std::vector<std::string>{"lease"}) return handle_lease(server, req, who);
   if (route == std::vector<std::string>{"estop"} || route == std::vector<std::string>{"estop", "reset"}) {
     if (method != bhttp::verb::post) return method_not_allowed(req, "POST");
@@ -388,6 +406,8 @@ std::vector<HttpServer::Route> HttpServer::api_routes() {
   routes.push_back({"GET", "/api/v1/imaging/segmentation"});
   routes.push_back({"PUT", "/api/v1/imaging/segmentation/{plane}"});
   routes.push_back({"POST", "/api/v1/imaging/roadmap/{plane}"});
+  routes.push_back({"GET", "/api/v1/replay"});
+  routes.push_back({"PUT", "/api/v1/replay"});
   return routes;
 }
 

@@ -829,5 +829,56 @@ TEST_F(HttpServerTest, EveryDispatchedRouteIsInTheOpenApiDocument) {
   }
 }
 
+// A ReplayControl double: records the controls it was given.
+class FakeReplay : public tendril::server::ReplayControl {
+ public:
+  ApiResult replay_status() const override { return ApiResult::success({{"playing", true}}); }
+  ApiResult control_replay(const json& body) override {
+    last = body;
+    return ApiResult::success({{"playing", body.value("playing", true)}});
+  }
+  json last;
+};
+
+TEST_F(HttpServerTest, InReplayModeEveryCommandIsRefusedBeforeTheLeaseAndTheReplayRoutesAnswer) {
+  // A live server: the replay routes say so.
+  start();
+  auto live = http_request(port_, bhttp::verb::get, "/api/v1/replay", "", bearer());
+  EXPECT_EQ(live.status, 404);
+  EXPECT_EQ(live.body()["error"]["code"], "not_replaying");
+  server_->stop();
+
+  auto replay = std::make_shared<FakeReplay>();
+  options_.replay = replay;
+  start();
+  const auto refused = [&](bhttp::verb verb, const std::string& target, const std::string& body) {
+    const auto reply = http_request(port_, verb, target, body, bearer());
+    EXPECT_EQ(reply.status, 409) << target << ": " << reply.raw.body();
+    EXPECT_EQ(reply.body()["error"]["code"], "replay_mode") << target;
+  };
+  // Without the lease: the answer is replay_mode, not lease_held.
+  refused(bhttp::verb::post, "/api/v1/robots/srmc/state_command", R"({"command":"enable"})");
+  refused(bhttp::verb::post, "/api/v1/estop", "{}");
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "{}", bearer()).status, 200);
+  refused(bhttp::verb::post, "/api/v1/robots/srmc/state_command", R"({"command":"enable"})");
+  refused(bhttp::verb::post, "/api/v1/robots/srmc/servo_jv", R"({"velocity":[1]})");
+  refused(bhttp::verb::post, "/api/v1/estop/reset", "{}");
+  EXPECT_EQ(api_.state_commands.load(), 0);
+  EXPECT_EQ(api_.servo_commands.load(), 0);
+  EXPECT_EQ(api_.estops.load(), 0);
+
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/replay", "", bearer()).status, 200);
+  const auto put = http_request(port_, bhttp::verb::put, "/api/v1/replay", R"({"playing":false})", bearer());
+  EXPECT_EQ(put.status, 200) << put.raw.body();
+  EXPECT_EQ(replay->last, (json{{"playing", false}}));
+  auto viewer = bearer();
+  viewer["X-Tendril-Role"] = "viewer";
+  EXPECT_EQ(http_request(port_, bhttp::verb::put, "/api/v1/replay", R"({"playing":true})", viewer).status,
+            403);
+  EXPECT_EQ(http_request(port_, bhttp::verb::put, "/api/v1/replay", "{not json", bearer()).status, 400);
+  EXPECT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/replay", "{}", bearer()).status, 405);
+  EXPECT_EQ(replay->last, (json{{"playing", false}}));
+}
+
 }  // namespace
 }  // namespace tendril_test

@@ -36,8 +36,14 @@ TEST(RecordingConfig, DefaultsResolveAgainstTheServerFileAndMistakesNameTheKey) 
                                          {"compression", "lz4"},
                                          {"max_file_mb", 2},
                                          {"max_file_minutes", 0.5},
-                                         {"images", "always"}},
+                                         {"images", "always"},
+                                         {"keep_total_mb", 500},
+                                         {"keep_days", 0.5}},
                                         kServerFile);
+  EXPECT_EQ(d.keep_total_bytes, 500ULL * 1024 * 1024);
+  EXPECT_EQ(d.keep_age, std::chrono::seconds(43200));
+  EXPECT_EQ(c.keep_total_bytes, 0U) << "no retention unless asked";
+  EXPECT_EQ(c.keep_age.count(), 0);
   EXPECT_FALSE(d.enabled);
   EXPECT_EQ(d.directory, fs::path("/data/rec"));
   EXPECT_EQ(d.compression, record::Compression::kLz4);
@@ -61,6 +67,11 @@ TEST(RecordingConfig, DefaultsResolveAgainstTheServerFileAndMistakesNameTheKey) 
   refuses({{"max_file_minutes", -1}}, "recording.max_file_minutes");
   refuses({{"images", "sometimes"}}, "recording.images");
   refuses({{"topics", "all"}}, "recording.topics: unknown key");
+  refuses({{"keep_total_mb", 0}}, "recording.keep_total_mb");
+  refuses({{"keep_total_mb", "1G"}}, "recording.keep_total_mb");
+  refuses({{"keep_days", 0}}, "recording.keep_days");
+  refuses({{"keep_days", -3}}, "recording.keep_days");
+  refuses({{"keep_days", std::nan("")}}, "recording.keep_days");
 }
 
 TEST(SessionRecording, RecordsAdvertisedChannelsAndCommandsAndWantsImagesOnlyWhenAskedTo) {

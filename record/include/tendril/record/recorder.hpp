@@ -55,6 +55,13 @@ struct RecorderOptions {
   std::size_t queue_capacity = 4096;                     // messages waiting (rounded up to a power of 2)
   std::size_t queue_max_bytes = std::size_t{256} << 20;  // payload bytes waiting
   std::size_t max_channels = 1024;
+  // Retention, applied each time a file is started (the first and every rotation): among the finished
+  // files named <file_prefix>_<UTC>_<index>.mcap in `directory` (this session's and earlier ones' with
+  // the same prefix; other files are never touched), those last written more than keep_age ago are
+  // deleted, and the oldest are deleted while all of them, the open file included, take more than
+  // keep_total_bytes. The open file is never deleted. 0 = no limit. Each deletion is logged.
+  std::uint64_t keep_total_bytes = 0;
+  std::chrono::seconds keep_age{0};
   // Files finished, drops and errors, one line each, from the writer thread. May be empty.
   std::function<void(std::string_view)> log;
 };
@@ -66,6 +73,7 @@ struct RecorderStats {
   std::uint64_t flushed = 0;         // in complete chunks on disk (safe from SIGKILL)
   std::uint64_t bytes = 0;           // MCAP bytes written, all files
   std::uint64_t files = 0;           // files started
+  std::uint64_t files_deleted = 0;   // deleted by retention (keep_total_bytes, keep_age)
   std::size_t queue_high_water = 0;  // most messages waiting at once
   std::string error;                 // the writer's first I/O error; recording stopped there
 };
@@ -128,6 +136,7 @@ class Recorder {
   void run();
   void write(Entry& entry);
   void open_file();
+  void apply_retention();
   void close_file();
   void maybe_flush_by_age();
   void report_drops(bool force);
@@ -154,7 +163,8 @@ class Recorder {
   std::atomic<bool> failed_{false};
   std::thread thread_;
 
-  std::atomic<std::uint64_t> accepted_{0}, dropped_{0}, written_{0}, flushed_{0}, bytes_{0}, file_count_{0};
+  std::atomic<std::uint64_t> accepted_{0}, dropped_{0}, written_{0}, flushed_{0}, bytes_{0}, file_count_{0},
+      files_deleted_{0};
   mutable std::mutex status_mutex_;  // files_ and error_
   std::vector<std::filesystem::path> files_;
   std::string error_;

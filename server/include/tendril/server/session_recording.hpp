@@ -12,6 +12,7 @@
 // renders only then) or always ("images": "always": the planes then render for the recording).
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -35,10 +36,14 @@ struct RecordingConfig {
   std::uint64_t max_file_bytes = std::uint64_t{1} << 30;         // rotate at 1 GiB
   std::uint64_t max_file_duration_ns = 3600ULL * 1000000000ULL;  // and every hour
   bool images_always = false;
+  // Retention (record::RecorderOptions::keep_total_bytes, keep_age); 0 = no limit.
+  std::uint64_t keep_total_bytes = 0;
+  std::chrono::seconds keep_age{0};
 };
 
 // The server file's "recording": {"enabled", "directory", "compression": "zstd"|"lz4"|"none",
-// "max_file_mb", "max_file_minutes", "images": "watched"|"always", "note"}; null = off. Throws
+// "max_file_mb", "max_file_minutes", "images": "watched"|"always", "keep_total_mb", "keep_days", "note"};
+// null = off. Throws
 // ConfigError naming the file and key.
 RecordingConfig parse_recording_config(const nlohmann::json& recording,
                                        const std::filesystem::path& server_file);

@@ -36,6 +36,7 @@
 #include "tendril/server/control_api.hpp"
 #include "tendril/server/http/publish_tap.hpp"
 #include "tendril/server/imaging_control.hpp"
+#include "tendril/server/replay_control.hpp"
 #include "tendril/server/topic_source.hpp"
 
 namespace tendril::server {
@@ -80,6 +81,10 @@ struct HttpOptions {
   std::vector<std::shared_ptr<TopicSource>> topic_sources;
   // The segmentation editor and roadmaps (/api/v1/imaging/…); null = those routes answer 503.
   std::shared_ptr<ImagingControl> imaging;
+  // Replay mode (tendrild --replay): GET/PUT /api/v1/replay, and every robot command (the e-stop and
+  // its reset too: no robot is driven) is refused with 409 replay_mode. Null = a live server; the
+  // /replay routes answer 404 not_replaying.
+  std::shared_ptr<ReplayControl> replay;
   // A second reader of every channel, message and command (e.g. the session recording); null = none.
   std::shared_ptr<http::PublishTap> tap;
   // Where the front end logs (refused connections, contained exceptions); null = standard error.
