@@ -431,10 +431,13 @@ ApiResult SessionReplay::control_replay(const nlohmann::json& body) {
                          std::to_string(start_ns_) + " to end_ns " + std::to_string(end_ns_));
     }
   }
-  // Validated whole before anything changes: all or nothing.
-  if (position) seek(*position);
+  // Validated whole before anything changes: all or nothing. A pause goes first, so that time spent
+  // waiting for the replay thread (it holds the lock while it reads the lookback after a seek) does not
+  // move a paused position away from the one asked for; a play goes last, from the new position.
+  if (playing && !*playing) set_playing(false);
   if (rate) set_rate(*rate);
-  if (playing) set_playing(*playing);
+  if (position) seek(*position);
+  if (playing && *playing) set_playing(true);
   return replay_status();
 }
 

@@ -39,6 +39,7 @@ test("the session recording holds every published topic and every command, final
   const schemas = {};
   const protobufTypes = {};  // topic → the type decoded from the recorded FileDescriptorSet
   let protobufImages = 0;
+  let protobufAnnotations = 0;
   const segmentation = [];
   for (const file of files) {
     const bytes = new Uint8Array(readFileSync(join(dir, file)));
@@ -66,8 +67,14 @@ test("the session recording holds every published topic and every command, final
       nextSeq[topic] = message.sequence + 1;
       counts[topic] = (counts[topic] ?? 0) + 1;
       if (protobufTypes[topic]) {
-        const image = protobufTypes[topic].decode(message.data);
-        assert.deepEqual([...image.data.subarray(0, 2)], [0xff, 0xd8], `${topic}: a JPEG`);
+        const decoded = protobufTypes[topic].decode(message.data);
+        if (schemas[topic] === "foxglove.ImageAnnotations") {
+          // The overlay of a frame: at least the model backbone as a line strip, stamped.
+          assert.ok(decoded.points.length >= 1 && decoded.points[0].timestamp, `${topic}: annotations`);
+          ++protobufAnnotations;
+          continue;
+        }
+        assert.deepEqual([...decoded.data.subarray(0, 2)], [0xff, 0xd8], `${topic}: a JPEG`);
         ++protobufImages;
         continue;
       }
@@ -76,7 +83,8 @@ test("the session recording holds every published topic and every command, final
       if (topic === "/imaging/segmentation") segmentation.push(body);
     }
   }
-  console.log(`recorded: ${JSON.stringify(counts)} in ${files.length} file(s); ${protobufImages} protobuf images decoded`);
+  console.log(`recorded: ${JSON.stringify(counts)} in ${files.length} file(s); ${protobufImages} protobuf images ` +
+              `and ${protobufAnnotations} protobuf image annotations decoded`);
   for (const topic of ["/srmc/joint_states", "/srmc/operating_state", "/safety/events", "/commands"])
     assert.ok(counts[topic] > 0, `nothing recorded on ${topic}: ${JSON.stringify(counts)}`);
   assert.ok(counts["/srmc/joint_states"] >= 50, `only ${counts["/srmc/joint_states"]} joint states`);
