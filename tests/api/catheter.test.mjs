@@ -18,7 +18,17 @@ const operatingState = async () => {
   return res.json;
 };
 const setpoint = async () => (await get(`${R}/setpoint_js`)).json.position;
-const holding = () => pollUntil(async () => !(await operatingState()).is_busy, {polls: 400, intervalMs: 50});
+// Holding: not busy on two polls 50 ms apart. A 202 can come back before the control loop has taken the
+// command (it goes through the lock-free mailbox at the next tick), so one "not busy" read right after
+// a move can be the state from before it — seen with the Release build in the container, whose answers
+// are fast enough to beat the tick.
+const holding = () => {
+  let quiet = 0;
+  return pollUntil(async () => {
+    quiet = (await operatingState()).is_busy ? 0 : quiet + 1;
+    return quiet >= 2;
+  }, {polls: 400, intervalMs: 50});
+};
 
 // The first /{robot}/operating_state message on the Foxglove WebSocket that satisfies `accept`.
 async function streamedOperatingState(accept) {
