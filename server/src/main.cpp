@@ -335,6 +335,10 @@ int main(int argc, char** argv) {
       ho.imaging = imaging;
       imaging->start();
     }
+    // The robot types' own topics (a continuum robot's map, an ultrasound arm's images).
+    for (const auto& rc : config.robots)
+      if (auto* plugin = runtime.plugin(rc.name))
+        for (auto& source : plugin->topic_sources()) ho.topic_sources.push_back(std::move(source));
     // Jobs of the robot types (path plans, design optimisation, calibrations) run on their own worker
     // thread(s), never on the RT thread. The first type with a planning service provides it.
     std::unique_ptr<PlanningApi> planning;

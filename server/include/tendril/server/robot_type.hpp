@@ -29,6 +29,7 @@
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_kinematics.hpp"
 #include "tendril/server/robot_service.hpp"
+#include "tendril/server/topic_source.hpp"
 #include "tendril/teleop/vessel_centerline.hpp"
 
 namespace tendril::sim {
@@ -264,6 +265,10 @@ class RobotPlugin {
   // The type's use of the bi-plane imaging (image_feedback.hpp): null for a type that does not close a
   // loop on images. Owned by the plug-in; lives as long as it.
   virtual ImageFeedback* image_feedback() { return nullptr; }
+  // WebSocket topics of the type's own (maps, images, scene entities, transforms), published by the
+  // front end beside the core's and recorded with them. Asked once, after the runtime has started;
+  // the sources are filled from the type's own threads (never the control thread's hot path).
+  virtual std::vector<std::shared_ptr<TopicSource>> topic_sources() { return {}; }
   // The type's part of the network API; `service` reaches the runtime, `post` hands a PluginCommand to
   // this robot's control thread (false: the mailbox is full).
   virtual std::unique_ptr<RobotApiExtension> api(RobotService& service,
