@@ -521,7 +521,13 @@ function streamLatencyMs() {
   return state.latencyMs.length ? Math.max(...state.latencyMs.map((l) => l.ms)) : NaN;
 }
 
-function wsStreaming() { return state.wsLive && Date.now() - state.lastWsJointMs < 1000; }
+// A paused replay sends nothing, by request: the page's clock for ages and for "is the stream live"
+// stops where the playback stopped (the newest joint message's arrival), so the page shows the ages the
+// data had then instead of turning STALE and offline. A live server never pauses.
+function replayPaused() { return document.body.dataset.replayPlaying === 'false' && state.lastWsJointMs > 0; }
+function ageClockMs() { return replayPaused() ? state.lastWsJointMs : Date.now(); }
+
+function wsStreaming() { return state.wsLive && ageClockMs() - state.lastWsJointMs < 1000; }
 
 function refreshConnectionIndicator() {
   const now = Date.now();
@@ -535,6 +541,8 @@ function refreshConnectionIndicator() {
   if (offline) {
     setConnection('offline', net.reachable ? 'no data from server' : 'no connection to server',
                   Number.isFinite(age) ? `data ${formatAge(age)} old` : '');
+  } else if (replayPaused()) {
+    setConnection('replay-paused', 'replay paused', Number.isFinite(age) ? `data ${formatAge(age)} old when paused` : '');
   } else if (state.stale) {
     setConnection('stale', `STALE ${formatAge(age)}`, streaming ? 'stream behind' : 'polling behind');
   } else if (streaming) {
@@ -568,7 +576,7 @@ function setAge(el, ageMs) {
 }
 
 function updateAges() {
-  const now = wallNowMs();
+  const now = replayPaused() ? state.lastWsJointMs : wallNowMs();
   lastAgeUpdate = performance.now();
   const jointsAge = clock.ageMs(shown.joints, now);
   state.streamAgeMs = jointsAge;

@@ -83,6 +83,8 @@ export class ReplayBar {
     this.play.textContent = state.playing ? 'Pause' : 'Play';
     this.play.setAttribute('aria-label', state.playing ? 'Pause the replay' : 'Play the replay');
     this.root.dataset.playing = String(state.playing);
+    // The console's age badges stop their clock while paused (app.js replayPaused()).
+    document.body.dataset.replayPlaying = String(state.playing);
     if (document.activeElement !== this.rate) this.rate.value = String(state.rate);
     if (!this.dragging) {
       const span = Math.max(1, state.end_ns - state.start_ns);

@@ -80,6 +80,16 @@ test('the replay bar controls the server\'s replay: pause, play, rate, position;
   await until((r) => r.playing === false, 'paused');
   await page.waitForFunction(() => document.querySelector('[data-testid="replay-play"]').textContent === 'Play',
                              null, WAIT);
+  // Paused, nothing arrives by request: the page says "replay paused" and keeps the ages the data had
+  // when it stopped, instead of turning STALE and offline (the age bound is 250 ms; wait well past it).
+  await page.waitForTimeout(1500);
+  const paused = await page.evaluate(() => ({
+    connection: document.querySelector('[data-testid="connection-indicator"]').dataset.kind,
+    stale: [...document.querySelectorAll('[data-testid^="age-"]')].filter((el) => el.dataset.stale === 'true')
+        .map((el) => `${el.dataset.testid}: ${el.textContent}`),
+  }));
+  assert.equal(paused.connection, 'replay-paused');
+  assert.deepEqual(paused.stale, [], 'no age badge turns STALE while the replay is paused');
 
   await page.selectOption(tid('replay-rate'), '2');
   await until((r) => r.rate === 2, 'rate 2');
