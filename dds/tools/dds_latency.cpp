@@ -28,6 +28,7 @@
 #include <nlohmann/json.hpp>
 
 #include "tendril/dds/wire.hpp"
+#include "tool_arguments.hpp"
 
 namespace {
 
@@ -292,27 +293,16 @@ int pub(dds_entity_t participant, const Options& o) {
 
 int main(int argc, char** argv) {
   Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto value = [&](const char* name) -> std::string {
-      if (i + 1 >= argc) usage_error(std::string(name) + " needs a value");
-      return argv[++i];
-    };
-    auto number = [&](const char* name) {
-      const std::string text = value(name);
-      char* end = nullptr;
-      const double v = std::strtod(text.c_str(), &end);
-      if (text.empty() || end != text.c_str() + text.size() || !std::isfinite(v) || v < 0)
-        usage_error(std::string(name) + " expects a number >= 0, got '" + text + "'");
-      return v;
-    };
+  tools::ArgumentCursor args(argc, argv, usage_error);
+  while (args.next()) {
+    const std::string arg = args.current();
+    auto value = [&](const char* name) { return args.value(name); };
+    auto number = [&](const char* name) { return args.number(name); };
     if (arg == "--help" || arg == "-h") {
       std::cout << kUsage;
       return 0;
     } else if (arg == "--domain") {
-      const double d = number("--domain");
-      if (d > 232 || d != std::floor(d)) usage_error("--domain expects 0 to 232");
-      o.domain = static_cast<std::uint32_t>(d);
+      o.domain = args.domain();
     } else if (arg == "--timeout") {
       o.timeout_s = number("--timeout");
     } else if (arg == "--seconds") {
