@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "allocation_counter.hpp"
 #include "json_api.hpp"
 #include "mbcr_vd/mbcr_vd_robot.hpp"
 #include "tendril/server/config.hpp"
@@ -245,6 +246,70 @@ TEST_F(MbcrTest, AnOperatorMotionStopsBeforeTheDisksMustTouch) {
       "servo_cv down from the circle's top stopped at tip z = %.1f mm (the circle's bottom: 365 mm)\n",
       api->measured_cp("mbcr").body["position"][2].get<double>());
   EXPECT_EQ(op()["state"], "ENABLED") << op().dump();
+}
+
+TEST_F(MbcrTest, AFixedDiameterHoldsTheDiameterJointInTaskMode) {
+  start();
+  enable_task_mode();
+  auto r = api->robot_command("mbcr", "diameter", {{"mode", "fixed"}});
+  ASSERT_EQ(r.status, 202) << r.message;
+  steps(2);
+  EXPECT_EQ(op()["mbcr"]["diameter"], "fixed");
+  const double a0 = robot().snapshot().diameter_joint;
+  r = api->move_cp("mbcr", {{"goal", {{"position", {30.0, 0.0, 590.0}}, {"orientation", {0, 0, 0, 1}}}}});
+  ASSERT_EQ(r.status, 202) << r.message;
+  steps(2);
+  ASSERT_TRUE(step_until([&] { return op()["mbcr"]["motion"] == "none"; }, 10000)) << op().dump();
+  EXPECT_NEAR(robot().snapshot().diameter_joint, a0, 1e-9);
+  EXPECT_NEAR(api->setpoint_js("mbcr").body["position"][6].get<double>(), a0, 1e-9);
+  EXPECT_NEAR(api->measured_cp("mbcr").body["position"][0].get<double>(), 30.0, 1.0);
+}
+
+// A control context of the test's own, to run the plug-in's controller outside the runtime's thread.
+class TickContext final : public ControlContext {
+ public:
+  bool servo_live() const noexcept override { return false; }
+  std::span<const double> servo_velocity() const noexcept override { return {}; }
+  void stop_servo() noexcept override {}
+  bool hold(safety::FaultCode, int, const char*) noexcept override { return false; }
+  safety::FaultCode hold_cause() const noexcept override { return safety::FaultCode::kNone; }
+  void setpoint_moved() noexcept override {}
+};
+
+TEST_F(MbcrTest, TheControlTickDoesNotAllocate) {
+  start();  // the runtime is not stepped below: the controller runs only here
+  auto& controller = robot().controller();
+  std::array<double, 7> q{}, qd{}, effort{}, q_des{}, qd_des{};
+  q_des[6] = q[6] = 2.663;
+  safety::OperatingLimits limits;
+  limits.servo_timeout_s = 0.15;
+  TickContext ctx;
+  ctx.n = 7;
+  ctx.period = 0.001;
+  ctx.state = safety::OperatingState::kEnabled;
+  ctx.drives_ready = true;
+  ctx.mode = kTaskMode;
+  ctx.q = q;
+  ctx.qd = qd;
+  ctx.effort = effort;
+  ctx.q_des = q_des;
+  ctx.qd_des = qd_des;
+  ctx.limits = &limits;
+  controller.reset(ctx);
+  PluginCommand start_circle;
+  start_circle.id = static_cast<std::uint16_t>(MbcrCommand::circle_start);
+  start_circle.flag = 1;
+  const long before = tendril::testing::allocation_count.load();
+  controller.apply(ctx, start_circle);
+  // The approach (about 5 s) and the first 2 s of the circle, with the diameter moving.
+  for (int i = 0; i < 7000; ++i) {
+    ctx.t = i * ctx.period;
+    controller.control(ctx);
+    controller.publish(ctx);
+  }
+  EXPECT_EQ(tendril::testing::allocation_count.load(), before);
+  EXPECT_EQ(robot().snapshot().motion, MbcrMotion::circle);
+  EXPECT_GT(robot().snapshot().diameter_joint, 10.0);  // the tick did the work it was counted on
 }
 
 }  // namespace

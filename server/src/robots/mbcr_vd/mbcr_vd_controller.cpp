@@ -49,10 +49,6 @@ void MbcrController::sync_from_setpoint(const ControlContext& ctx) noexcept {
 }
 
 void MbcrController::stop(ControlContext& ctx) noexcept {
-  if (motion_ == MbcrMotion::circle && circle_samples_ > 0) {
-    const double rms = std::sqrt(circle_sum_sq_ / circle_samples_);
-    (motion_variable_ ? last_rms_variable_ : last_rms_fixed_) = rms;
-  }
   motion_ = MbcrMotion::none;
   for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
 }
@@ -200,7 +196,12 @@ void MbcrController::control(ControlContext& ctx) noexcept {
       ++circle_samples_;
       if (report_.status == teleop::VariableDiameterStatus::kInterferenceUnavoidable) ++circle_unavoidable_;
       ++circle_index_;
-      if (circle_index_ > static_cast<std::uint32_t>(std::llround(c.period / ctx.period))) stop(ctx);
+      if (circle_index_ > static_cast<std::uint32_t>(std::llround(c.period / ctx.period))) {
+        // Only a whole circle is comparable with the seed's (and with the other diameter's) RMS.
+        (motion_variable_ ? last_rms_variable_ : last_rms_fixed_) =
+            std::sqrt(circle_sum_sq_ / circle_samples_);
+        stop(ctx);
+      }
       return;
     }
     case MbcrMotion::none:
@@ -273,10 +274,6 @@ void MbcrController::apply(ControlContext& ctx, const PluginCommand& command) no
 void MbcrController::reset(ControlContext& ctx) noexcept {
   // The setpoint was set from outside (enable, pause, a mode switch, a clamp): every motion ends there
   // and the reference restarts from it.
-  if (motion_ == MbcrMotion::circle && circle_samples_ > 0) {
-    const double rms = std::sqrt(circle_sum_sq_ / circle_samples_);
-    (motion_variable_ ? last_rms_variable_ : last_rms_fixed_) = rms;
-  }
   motion_ = MbcrMotion::none;
   backbone_limited_ = false;
   interference_limited_ = false;
