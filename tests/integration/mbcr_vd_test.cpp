@@ -119,6 +119,11 @@ TEST_F(MbcrTest, DescribesSevenJointsInMillimetresAndATaskMode) {
   ASSERT_EQ(r["joints"].size(), 7u);
   for (const auto& j : r["joints"]) EXPECT_EQ(j["unit"], "mm");
   EXPECT_EQ(r["modes"], json({"joint", "task"}));
+  // Seven CiA 402 axes at a 5 ms SYNC on 1 Mbit/s: within the 70 % budget.
+  ASSERT_EQ(r["buses"].size(), 1u);
+  EXPECT_LT(r["buses"][0]["load"].get<double>(), 0.7);
+  std::printf("mbcr bus %s: worst-case load %.1f %%\n", r["buses"][0]["name"].get<std::string>().c_str(),
+              100.0 * r["buses"][0]["load"].get<double>());
   EXPECT_NEAR(r["mbcr"]["linkage"]["inner_radius_mm"][0].get<double>(), kMinInnerRadius, 1e-3);  // T2.3
   EXPECT_NEAR(r["mbcr"]["linkage"]["inner_radius_mm"][1].get<double>(), 47.224, 1e-3);
   // Straight at start: the tip 3 × 200 mm up the base's z axis.
