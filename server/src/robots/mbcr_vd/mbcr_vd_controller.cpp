@@ -36,7 +36,7 @@ MbcrController::MbcrController(MbcrRobot& robot)
       probe_(robot.model().make_data()),
       variable_(robot.settings().variable_diameter),
       motion_variable_(robot.settings().variable_diameter) {
-  for (int k = 0; k < teleop::kVariableDiameterSegments; ++k)
+  for (Eigen::Index k = 0; k < teleop::kVariableDiameterSegments; ++k)
     state_.configuration[2 * k] = teleop::kStraightTangentAngle;
   state_.diameter_joint = robot.config().joints[6].initial_position;
 }
@@ -81,7 +81,7 @@ bool MbcrController::task_step(ControlContext& ctx, const Eigen::Isometry3d& tar
                           (q[i] > p.backbone_upper && q[i] > before[i]);
     if (model.diameter_limits(next.configuration).interference_unavoidable) {
       double bend_before = 0.0, bend_after = 0.0;
-      for (int k = 0; k < teleop::kVariableDiameterSegments; ++k) {
+      for (Eigen::Index k = 0; k < teleop::kVariableDiameterSegments; ++k) {
         bend_before =
             std::max(bend_before, std::abs(state_.configuration[2 * k] - teleop::kStraightTangentAngle));
         bend_after =
@@ -254,7 +254,7 @@ void MbcrController::apply(ControlContext& ctx, const PluginCommand& command) no
       approach_a_from_ = state_.diameter_joint;
       // A straight segment's plane is arbitrary: take the start's, so that only its bend moves.
       const auto& to = robot_.circle_start();
-      for (int k = 0; k < teleop::kVariableDiameterSegments; ++k)
+      for (Eigen::Index k = 0; k < teleop::kVariableDiameterSegments; ++k)
         if (std::abs(approach_from_[2 * k] - teleop::kStraightTangentAngle) < 1e-9)
           approach_from_[2 * k + 1] = to[2 * k + 1];
       MbcrSnapshot from;
@@ -316,7 +316,7 @@ void MbcrController::publish(const ControlContext& ctx) noexcept {
   s.tracking_error = report_.tracking_error;
   s.limits = model.diameter_limits(state_.configuration);
   double margin = INFINITY;
-  for (int k = 0; k < teleop::kVariableDiameterSegments; ++k)
+  for (Eigen::Index k = 0; k < teleop::kVariableDiameterSegments; ++k)
     margin = std::min(
         margin, teleop::interference_outer_radius_limit(
                     model.parameters().disks, state_.configuration[2 * k] - teleop::kStraightTangentAngle) -

@@ -159,7 +159,7 @@ teleop::StackConfiguration configuration_from_joints(const teleop::VariableDiame
   teleop::StackConfiguration psi = previous;
   const double r = model.linkage().configuration_radius(q[6]);
   if (!std::isfinite(r) || r <= 0.0) return psi;
-  for (int k = 0; k < teleop::kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < teleop::kVariableDiameterSegments; ++k) {
     const double q1 = q[2 * k], q2 = q[2 * k + 1];
     const double magnitude = std::hypot(q1, q2) / r;
     if (magnitude < 1e-12) {
@@ -190,7 +190,7 @@ std::vector<Eigen::Vector3d> MbcrDisplayModel::shape(std::span<const double> q) 
   const double length = model_.parameters().disks.segment_length;
   Eigen::Isometry3d base = Eigen::Isometry3d::Identity();
   points.push_back(base.translation());
-  for (int k = 0; k < teleop::kVariableDiameterSegments; ++k) {
+  for (Eigen::Index k = 0; k < teleop::kVariableDiameterSegments; ++k) {
     const double bend = psi[2 * k] - teleop::kStraightTangentAngle;
     for (int i = 1; i <= kDisplayPointsPerSegment; ++i) {
       const double s = length * i / kDisplayPointsPerSegment;
@@ -258,8 +258,7 @@ MbcrRobot::MbcrRobot(const RobotConfig& rc, RobotAssembly& assembly)
   MbcrSnapshot initial;
   initial.diameter_joint = rc.joints[6].initial_position;
   initial.variable_diameter = settings_.variable_diameter;
-  for (int k = 0; k < 3; ++k)
-    initial.configuration[static_cast<std::size_t>(2 * k)] = teleop::kStraightTangentAngle;
+  for (std::size_t k = 0; k < 3; ++k) initial.configuration[2 * k] = teleop::kStraightTangentAngle;
   published_.store(initial);
 }
 
