@@ -253,6 +253,31 @@ TEST_F(MbcrTest, AnOperatorMotionStopsBeforeTheDisksMustTouch) {
   EXPECT_EQ(op()["state"], "ENABLED") << op().dump();
 }
 
+TEST_F(MbcrTest, BadRobotFilesAreRefusedNamingTheKey) {
+  RuntimeOptions o;
+  o.stepped = true;
+  o.control_rate_hz = 1000;
+  const auto refused = [&](RobotConfig c) -> std::string {
+    try {
+      RobotRuntime r({std::move(c)}, o, builtin_robot_types());
+    } catch (const ConfigError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  // The diameter joint's range must contain the linkage's [2.613, 47.224] mm.
+  auto c = config();
+  c.joints[6].limit.lower = 5.0;
+  EXPECT_NE(refused(c).find("joints[6]"), std::string::npos) << refused(c);
+  EXPECT_NE(refused(c).find("2.613"), std::string::npos) << refused(c);
+  c = config();
+  c.joints.pop_back();
+  EXPECT_NE(refused(c).find("expected 7 joints"), std::string::npos) << refused(c);
+  c = config();
+  c.settings["mbcr"]["linkage"]["hinge_diameter_mm"] = 30.0;  // no admissible range left
+  EXPECT_NE(refused(c).find("mbcr"), std::string::npos) << refused(c);
+}
+
 TEST_F(MbcrTest, AFixedDiameterHoldsTheDiameterJointInTaskMode) {
   start();
   enable_task_mode();
