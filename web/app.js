@@ -773,6 +773,7 @@ function topicNames(robotName) {
     ap: '/imaging/ap/compressed', lateral: '/imaging/lateral/compressed',
     apOverlay: '/imaging/ap/overlay', lateralOverlay: '/imaging/lateral/overlay',
     map: '/maps/vessel', catheter: `/${robotName}/catheter`,
+    actuation: `/${robotName}/actuation`,  // mbcr_vd only (web/mbcr.js); not advertised for other kinds
   };
 }
 
@@ -809,6 +810,14 @@ function connectWebSocket(robotName) {
       if (topic === TRACKING_TOPIC) {
         try {
           tipTracking?.onMessage(JSON.parse(new TextDecoder().decode(bytes)));
+        } catch {
+          // not JSON: ignored
+        }
+        return;
+      }
+      if (topic === t.actuation) {
+        try {
+          mbcr?.onMessage(JSON.parse(new TextDecoder().decode(bytes)));
         } catch {
           // not JSON: ignored
         }

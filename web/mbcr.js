@@ -1,11 +1,13 @@
 // The variable-diameter continuum robot's panel (robot kind mbcr_vd, seed 000 ch. 2): a live plot of the
 // robot's diameter and of its backbones' actuation forces, the seed circle's start and stop, and the
 // choice between a variable diameter (gradient projection lowers the forces) and a fixed one (the
-// seed's baseline). The values are the robot's operating_state "mbcr" fields (the same ones the
-// /{robot}/actuation topic carries), read every 100 ms while the panel's robot is selected.
+// seed's baseline). The values are the robot's operating_state "mbcr" fields as the /{robot}/actuation
+// topic carries them (20 Hz, over the console's WebSocket); while that stream is silent (no WebSocket,
+// a proxy that drops it) the panel reads GET operating_state every 100 ms instead.
 import {TimePlot} from './plot.js';
 
 const POLL_MS = 100;
+const STREAM_SILENT_MS = 500;  // no topic message for this long: poll REST
 // One colour per segment; its four backbones share it (backbones 3 and 4 mirror 1 and 2).
 const SEGMENT_COLORS = ['#4ea1ff', '#f0883e', '#3fb950'];
 
@@ -98,6 +100,7 @@ export class MbcrPanel {
     const changed = this.robot?.name !== robot?.name;
     this.robot = robot;
     if (changed) {
+      this.lastStream = undefined;
       this.diameterPlot.clear();
       this.forcePlot.clear();
     }
@@ -142,8 +145,18 @@ export class MbcrPanel {
     }
   }
 
+  // A /{robot}/actuation message (the robot's whole operating state).
+  onMessage(msg) {
+    if (!this.robot || !msg?.mbcr) return;
+    this.lastStream = performance.now();
+    this.container.dataset.source = 'stream';
+    this.show(msg.mbcr);
+  }
+
   async poll() {
     if (!this.robot || this.polling) return;
+    if (performance.now() - (this.lastStream ?? -Infinity) < STREAM_SILENT_MS) return;
+    this.container.dataset.source = 'rest';
     this.polling = true;
     try {
       const state = await this.api.operatingState(this.robot.name);

@@ -78,6 +78,9 @@ test('the seed circle runs from the Diameter tab; the plots fill and the diamete
     assert.equal(await page.locator(tid(plot)).getAttribute('data-available'), 'true', plot);
   }
   assert.match(await page.locator(tid('mbcr-rms')).textContent(), /N$/);
+  // The values come over the WebSocket topic /mbcr/actuation (REST only while it is silent).
+  await page.waitForFunction(() => document.querySelector('[data-testid="mbcr-panel"]').dataset.source === 'stream',
+    null, WAIT);
   await page.waitForTimeout(2000);
   await page.screenshot({path: path.join(ARTIFACTS, 'mbcr.png')});
 
