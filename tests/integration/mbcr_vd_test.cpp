@@ -295,6 +295,28 @@ TEST_F(MbcrTest, AFixedDiameterHoldsTheDiameterJointInTaskMode) {
   EXPECT_NEAR(api->measured_cp("mbcr").body["position"][0].get<double>(), 30.0, 1.0);
 }
 
+TEST_F(MbcrTest, JointsReadBackIntoTheSameShapeWhicheverSignTheReferenceHad) {
+  start();
+  const auto& model = robot().model();
+  const auto& psi = robot().circle_start();  // the hook: segment 1 bent one way, 2 and 3 the other
+  const double a = 10.0;
+  const auto q = model.joints(psi, a);
+  auto data = model.make_data();
+  const Eigen::Isometry3d tip = model.tip_pose(psi, data);
+  teleop::StackConfiguration negative, positive;
+  negative << 1.0, 0.0, 1.0, 0.0, 1.0, 0.0;  // every Θ < 0
+  positive << 2.0, 0.0, 2.0, 0.0, 2.0, 0.0;  // every Θ > 0
+  for (const auto& previous : {negative, positive, psi}) {
+    const auto back = configuration_from_joints(model, q.data(), previous);
+    EXPECT_LT((model.joints(back, a) - q).norm(), 1e-9);
+    const Eigen::Isometry3d again = model.tip_pose(back, data);
+    EXPECT_LT((again.translation() - tip.translation()).norm(), 1e-9);
+    EXPECT_LT((again.linear() - tip.linear()).norm(), 1e-9);
+    for (Eigen::Index k = 0; k < 3; ++k)  // the sign of Θ follows the previous reference
+      EXPECT_EQ(back[2 * k] > teleop::kStraightTangentAngle, previous[2 * k] > teleop::kStraightTangentAngle);
+  }
+}
+
 // A control context of the test's own, to run the plug-in's controller outside the runtime's thread.
 class TickContext final : public ControlContext {
  public:
