@@ -134,6 +134,11 @@ bash tests/api/two_robots/run.sh build/server/tendrild 2>&1 | tee build/api_two_
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/api_two_robots.log)
 record api_two_robots "$status" "$p" "$f"
+# The variable-diameter continuum robot (mbcr_vd) next to the catheter, a server of its own (~8 s).
+bash tests/api/mbcr/run.sh build/server/tendrild 2>&1 | tee build/api_mbcr.log
+status=${PIPESTATUS[0]}
+read -r p f < <(node_counts build/api_mbcr.log)
+record api_mbcr "$status" "$p" "$f"
 
 # ---- 4. browser tests ---------------------------------------------------------------------------
 stage "browser tests (Playwright + chromium) against the sanitized tendrild"

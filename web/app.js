@@ -5,6 +5,7 @@
 import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';
 import {CatheterPanel} from './catheter.js';
+import {MbcrPanel} from './mbcr.js';
 import {buildJointPanel} from './joints.js';
 import {ImagePanel} from './images.js';
 import {decodeCompressedImage} from './protobuf.js';
@@ -56,6 +57,7 @@ const ui = {
   modeBar: $('[data-testid="mode-bar"]'),
   modeRefusal: $('[data-testid="mode-refusal"]'),
   catheterTab: $('#tab-catheter'),
+  mbcrTab: $('#tab-mbcr'),
   tabs: [...document.querySelectorAll('[role="tab"]')],
   eventCount: $('[data-testid="event-count"]'),
   configTip: $('[data-testid="config-tip"]'),
@@ -125,6 +127,7 @@ let joints = null;      // joint panel controller
 let view = null;        // CatheterView, loaded lazily so a WebGL/three failure cannot break the controls
 let plan = null;        // PlanPanel
 let catheter = null;    // CatheterPanel, for robots with a configuration space
+let mbcr = null;        // MbcrPanel, for the variable-diameter robot (mbcr_vd)
 let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
 let tipTracking = null;   // TrackingPanel: the imaged tip and the segmentation editor
@@ -602,6 +605,7 @@ function updateStale(force) {
   state.stale = stale;
   document.body.classList.toggle('stale', stale);
   catheter?.setCommandable(!stale);
+  mbcr?.setCommandable(!stale);
   updateBanner();
   updateControls();
   updateModeBar();
@@ -777,6 +781,7 @@ function topicNames(robotName) {
     ap: '/imaging/ap/compressed', lateral: '/imaging/lateral/compressed',
     apOverlay: '/imaging/ap/overlay', lateralOverlay: '/imaging/lateral/overlay',
     map: '/maps/vessel', catheter: `/${robotName}/catheter`,
+    actuation: `/${robotName}/actuation`,  // mbcr_vd only (web/mbcr.js); not advertised for other kinds
   };
 }
 
@@ -813,6 +818,14 @@ function connectWebSocket(robotName) {
       if (topic === TRACKING_TOPIC) {
         try {
           tipTracking?.onMessage(JSON.parse(new TextDecoder().decode(bytes)));
+        } catch {
+          // not JSON: ignored
+        }
+        return;
+      }
+      if (topic === t.actuation) {
+        try {
+          mbcr?.onMessage(JSON.parse(new TextDecoder().decode(bytes)));
         } catch {
           // not JSON: ignored
         }
@@ -1213,6 +1226,12 @@ function selectRobot(name) {
     catheter.setViewer(state.role === 'viewer');
     catheter.setCommandable(!state.stale);
   }
+  // The variable-diameter robot's diameter and forces (web/mbcr.js): only for its kind.
+  const isMbcr = robot.kind === 'mbcr_vd';
+  ui.mbcrTab.hidden = !isMbcr;
+  if (isMbcr) mbcr ??= new MbcrPanel($('#panel-mbcr'), api, {status: showStatus});
+  mbcr?.setRobot(isMbcr ? robot : null);
+  if (!isMbcr && ui.mbcrTab.getAttribute('aria-selected') === 'true') selectTab(ui.tabs[0]);
   ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${j.unit})`, j.name)));
   const first = robot.joints[0];
   trackingPlot?.configure({unit: first?.unit || '', minSpan: first?.unit === 'rad' ? 0.01 : 0.1});

@@ -4,7 +4,7 @@
 # download: /usr/bin/chromium or $CHROMIUM), and always stops the server.
 # console.e2e.mjs runs against a tendrild with the catheter in free space (see tests/api/server.sh);
 # cockpit.e2e.mjs against a fresh one of the same kind; two_robots.e2e.mjs against one that adds the
-# SIMULATED UR5 arm; tracking.e2e.mjs (the Tracking tab) against a fresh one; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped
+# SIMULATED UR5 arm; mbcr.e2e.mjs against one that adds the SIMULATED mbcr_vd robot; tracking.e2e.mjs (the Tracking tab) against a fresh one; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped
 # SIMULATED vessel (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it); replay.e2e.mjs against
 # tendrild --replay on a few seconds another server recorded. One server runs at a time: two sanitized
 # servers with real-time threads beside a software-rendering Chromium starve the browser on two cores.
@@ -45,6 +45,11 @@ stop_tendrild
 # Two robots in one server: the robot selector, and each robot's own lease.
 TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/ur5_arm.json" start_tendrild "$binary" || exit 1
 run_file "$here/two_robots.e2e.mjs"
+stop_tendrild
+
+# The variable-diameter robot's panel (mbcr.e2e.mjs): the catheter and the SIMULATED mbcr_vd robot.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/mbcr_vd.json" start_tendrild "$binary" || exit 1
+run_file "$here/mbcr.e2e.mjs"
 stop_tendrild
 
 # The Tracking tab (tracking.e2e.mjs): tip tracking, segmentation editor and roadmaps, on a fresh server.
