@@ -181,7 +181,7 @@ TEST_F(SduContinuumTest, ArmApproachesRobotSlowsPerTheLawThenStopsOnTouchWithinO
   ASSERT_EQ(
       api->robot_command("sdu", "simulation_scene", {{"action", "approach"}, {"speed_mm_s", 20.0}}).status,
       202);
-  double min_limit = 1e9, min_kept = 1.0;
+  double min_limit = 1e9, min_kept = 1.0, last_speed = 0.0, speed_at_contact = 0.0;
   int limited_ticks = 0;
   std::uint64_t contact_tick = 0;
   double true_touch_t = -1.0, contact_t = -1.0;
@@ -200,6 +200,7 @@ TEST_F(SduContinuumTest, ArmApproachesRobotSlowsPerTheLawThenStopsOnTouchWithinO
       }
       if (s.contact) {
         contact_tick = s.tick;
+        speed_at_contact = last_speed;
         contact_t = runtime->time();
         // The same cycle: the robot is held (PAUSED) and the setpoint did not move.
         EXPECT_EQ(op()["state"], "PAUSED");
@@ -208,6 +209,7 @@ TEST_F(SduContinuumTest, ArmApproachesRobotSlowsPerTheLawThenStopsOnTouchWithinO
         done = true;
         break;
       }
+      last_speed = s.surface_speed_mm_s;
       if (s.state == cont::SduSafetyState::kClear) {
         // The published limit is the law's value at the nearest effective distance, and the fastest
         // window moved no faster.
@@ -231,6 +233,15 @@ TEST_F(SduContinuumTest, ArmApproachesRobotSlowsPerTheLawThenStopsOnTouchWithinO
   EXPECT_TRUE(logged("contact on SDU 4")) << api->faults().dump();
   // The setpoint stays where the hold put it; the drives come to rest.
   const auto q_stop_cmd = setpoint();
+  // Standstill: every joint's measured speed under 1e-4 rad/s (0.008 mm/s at the sleeve).
+  const double t_hold = runtime->time();
+  ASSERT_TRUE(step_until(
+      [&] {
+        const auto v = api->measured_js("sdu").body["velocity"].get<std::vector<double>>();
+        return std::all_of(v.begin(), v.end(), [](double x) { return std::abs(x) < 1e-4; });
+      },
+      500));
+  const double standstill_s = runtime->time() - t_hold;
   steps(500);
   EXPECT_EQ(setpoint(), q_stop_cmd);
   EXPECT_EQ(q_stop_cmd, q_hold);
@@ -241,8 +252,10 @@ TEST_F(SduContinuumTest, ArmApproachesRobotSlowsPerTheLawThenStopsOnTouchWithinO
   std::printf(
       "stop on touch: detected %.1f ms after the true force reached 0.5 N; the robot held in that control "
       "cycle; stopping distance %.3f mm after detection, %.3f mm after the true touch; slowest limit "
-      "before the touch %.2f mm/s\n",
-      (contact_t - true_touch_t) * 1e3, after_detect, after_touch, min_limit);
+      "before the touch %.2f mm/s, commanded window speed in the cycle before %.3f mm/s; joints at rest "
+      "%.0f ms after the hold\n",
+      (contact_t - true_touch_t) * 1e3, after_detect, after_touch, min_limit, speed_at_contact,
+      standstill_s * 1e3);
   EXPECT_LT(contact_t - true_touch_t, 0.012);  // one 100 Hz sample and one control cycle
   EXPECT_LT(after_detect, 0.5);
   // Resume is refused while the arm presses, with the cause.
