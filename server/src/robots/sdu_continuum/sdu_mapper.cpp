@@ -149,6 +149,9 @@ void SduMapper::poll(double now_s) {
 }
 
 SduMapper::Extraction SduMapper::extract() {
+  // One extraction at a time (the mapping thread's periodic one and the API's): the planes' slot to the
+  // control thread has a single writer.
+  std::lock_guard serial(extract_mutex_);
   Extraction e;
   std::vector<Eigen::Vector3d> points;
   {
@@ -199,6 +202,7 @@ SduMapper::Extraction SduMapper::extract() {
 }
 
 void SduMapper::clear() {
+  std::lock_guard serial(extract_mutex_);
   {
     std::lock_guard lock(mutex_);
     map_ = cont::VoxelMap(settings_.voxel_mm, settings_.map_capacity);

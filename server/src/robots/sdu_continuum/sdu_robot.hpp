@@ -281,6 +281,7 @@ class SduMapper final : public TopicSource {
 
   SduContinuum& robot_;
   const SduSettings& settings_;
+  std::mutex extract_mutex_;  // extract() and clear(): one at a time
   mutable std::mutex mutex_;  // the map, the verdict and the payloads
   continuum::VoxelMap map_;
   std::array<std::int64_t, kSdus> last_stamp_{};
