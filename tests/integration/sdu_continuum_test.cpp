@@ -438,6 +438,56 @@ TEST_F(SduContinuumTest, AnEmptyMapIsAClearErrorAndAMappedWallGivesItsPlane) {
   EXPECT_EQ(api->robot_command("sdu", "map", {{"action", "extract"}}).code, "map_empty");
 }
 
+// The ways out of a contact hold: the no-slip roll about the contact (seed (3.6)) and the contact-based
+// guidance yielding to the push, each at most the retreat speed of 5 mm/s; then resume.
+TEST_F(SduContinuumTest, ContactHoldWaysOutRollAndContactGuidanceBackAway) {
+  start(config());
+  unbias_and_enable();
+  ASSERT_EQ(api->mode("sdu", {{"mode", "guidance"}}).status, 200);
+  // The arm walks into the resting segment (its end point is 6 mm inside the top disk's sleeve).
+  ASSERT_EQ(
+      api->robot_command("sdu", "simulation_scene", {{"action", "approach"}, {"speed_mm_s", 50.0}}).status,
+      202);
+  ASSERT_TRUE(step_until([&] { return sdu().snapshot().contact; }, 10000)) << op()["continuum"].dump();
+  steps(2);
+  EXPECT_EQ(op()["state"], "PAUSED");
+  EXPECT_EQ(op()["continuum"]["contact_disk"], 4);
+  EXPECT_NE(op()["hold"]["message"].get<std::string>().find("contact on SDU 4"), std::string::npos);
+  const auto& m = sdu().settings().model;
+  auto centre = [&](const std::vector<double>& q) -> Eigen::Vector3d {
+    return cont::disk_pose(m, segment_configuration(q), 4).translation();
+  };
+  // The roll: a stream; the disk's centre moves at most 5 mm/s while the robot stays held.
+  const auto q0 = setpoint();
+  double fastest = 0.0;
+  for (int i = 0; i < 25 && sdu().snapshot().contact; ++i) {
+    ASSERT_EQ(api->robot_command("sdu", "roll", {{"rate_rad_s", 0.2}}).status, 202);
+    for (int k = 0; k < 20; ++k) {
+      const auto a = setpoint();
+      runtime->step();
+      fastest = std::max(fastest, (centre(setpoint()) - centre(a)).norm() * 1000.0);
+    }
+  }
+  const double rolled = (centre(setpoint()) - centre(q0)).norm();
+  EXPECT_GT(rolled, 0.1) << "the roll moved the disk";
+  std::printf(
+      "no-slip roll: the top disk's centre moved %.2f mm, at most %.2f mm/s, while held on the contact\n",
+      rolled, fastest);
+  EXPECT_LE(fastest, 5.0 * 1.05);
+  EXPECT_EQ(op()["state"], "PAUSED");
+  steps(300);  // the roll stream ends
+  // Contact-based guidance yields to the push: only straight away from the contact, ≤ 5 mm/s.
+  ASSERT_EQ(api->robot_command("sdu", "hri_mode", {{"mode", "contact"}}).status, 202);
+  const double y0 = centre(setpoint()).y();
+  ASSERT_TRUE(step_until([&] { return !sdu().snapshot().contact; }, 10000)) << op()["continuum"].dump();
+  EXPECT_GT(centre(setpoint()).y(), y0) << "backed away from the arm at −y";
+  std::printf("contact guidance backed the top disk %.2f mm away from the push until the contact cleared\n",
+              centre(setpoint()).y() - y0);
+  ASSERT_EQ(api->robot_command("sdu", "hri_mode", {{"mode", "off"}}).status, 202);
+  steps(20);
+  EXPECT_EQ(api->state_command("sdu", {{"command", "resume"}}).status, 200);
+}
+
 TEST_F(SduContinuumTest, CommandsRefuseBadBodies) {
   start(config());
   EXPECT_EQ(api->robot_command("sdu", "hri_mode", {{"mode", "fast"}}).status, 400);
