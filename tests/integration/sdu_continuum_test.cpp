@@ -270,6 +270,67 @@ TEST_F(SduContinuumTest, ArmApproachesRobotSlowsPerTheLawThenStopsOnTouchWithinO
   EXPECT_EQ(api->state_command("sdu", {{"command", "resume"}}).status, 200);
 }
 
+// The stop itself at speed: with the proximity law made inert (d_max 1 mm, so the robot meets the arm at
+// the operator's full speed, as it would an object no ToF window sees), the touch still holds the robot in
+// the control cycle that receives the sample; what it travels after is the sample period's and the drives'.
+TEST_F(SduContinuumTest, StopOnTouchAtFullSpeedWithTheLawMadeInert) {
+  auto rc = config();
+  rc.settings["continuum"]["safety"]["d_max_mm"] = 1.0;
+  start(std::move(rc));
+  unbias_and_enable();
+  // A Hall window (not a ToF window, which would read 0 when covered and slow the robot) faces the arm:
+  // the stage turned by 22.5°, the bending plane turned back so that the segment still bends to −y.
+  ASSERT_EQ(api->move_jp("sdu", {{"goal", {0.392699, 0.2, -1.570796 - 0.392699}}}).status, 202);
+  steps(2);
+  ASSERT_TRUE(step_until([&] { return !op()["is_busy"].get<bool>(); }, 10000));
+  // The arm stands in the bending path (its centre at y −230 mm); the operator bends at 0.2 rad/s.
+  ASSERT_EQ(
+      api->robot_command("sdu", "simulation_scene", {{"action", "approach"}, {"speed_mm_s", 200.0}}).status,
+      202);
+  steps(500);
+  ASSERT_EQ(api->robot_command("sdu", "simulation_scene", {{"action", "stop"}}).status, 202);
+  steps(5);
+  ASSERT_EQ(op()["state"], "ENABLED") << op()["continuum"]["supervisor"].dump();
+  double speed_before = 0.0, t_contact = -1.0, t_true = -1.0, t_touch = -1.0;
+  std::vector<double> q_detect, q_touch;
+  for (int ms = 0; ms < 10000 && t_contact < 0.0; ms += 20) {
+    if (api->servo_jv("sdu", {{"velocity", {0.0, 0.2, 0.0}}}).status != 200) break;
+    for (int k = 0; k < 20; ++k) {
+      const double before = sdu().snapshot().surface_speed_mm_s;
+      runtime->step();
+      if (t_true < 0.0 && sim().true_max_force() >= 0.5) t_true = runtime->time();
+      if (t_touch < 0.0 && sim().true_max_force() > 0.0) {
+        t_touch = runtime->time();
+        q_touch = measured();
+      }
+      if (sdu().snapshot().contact) {
+        EXPECT_EQ(op()["state"], "PAUSED");  // in this very cycle
+        t_contact = runtime->time();
+        speed_before = before;
+        q_detect = measured();
+        break;
+      }
+    }
+  }
+  ASSERT_GT(t_contact, 0.0) << op()["state"] << " " << op()["continuum"]["supervisor"].dump() << " q "
+                            << setpoint()[1];
+  EXPECT_GT(speed_before, 20.0);  // it met the arm fast
+  const auto q_cmd = setpoint();
+  steps(500);
+  EXPECT_EQ(setpoint(), q_cmd);
+  const auto q_rest = measured();
+  const double travel = window_travel(q_detect, q_rest);
+  const double from_touch = window_travel(q_touch, q_rest);
+  std::printf(
+      "stop on touch at speed (law inert): window speed %.1f mm/s in the cycle before; detected %.1f ms "
+      "after "
+      "the simulated sample first showed 0.5 N and %.1f ms after the first sample with any force; held in "
+      "that control cycle; the measured windows travelled %.2f mm after the hold (the drives' lag behind the "
+      "setpoint) and %.2f mm after the first sample with any force\n",
+      speed_before, (t_contact - t_true) * 1e3, (t_contact - t_touch) * 1e3, travel, from_touch);
+  EXPECT_LT(travel, 2.0);
+}
+
 TEST_F(SduContinuumTest, TheLawCapsMoveJpTooAndEveryModeGoesThroughIt) {
   start(config());
   unbias_and_enable();

@@ -206,7 +206,7 @@ class SduApi final : public RobotApiExtension {
             {"simulation_scene",
              {{"type", "object"},
               {"properties",
-               {{"action", {{"type", "string"}, {"enum", {"approach", "retreat", "reset"}}}},
+               {{"action", {{"type", "string"}, {"enum", {"approach", "retreat", "stop", "reset"}}}},
                 {"speed_mm_s", number}}},
               {"required", {"action"}}},
              false,
@@ -302,8 +302,9 @@ class SduApi final : public RobotApiExtension {
                               "robot '" + robot_.config().name +
                                   "' has no SIMULATED arm in its scene (continuum.simulation.arm)");
     const auto it = body.find("action");
-    if (it == body.end() || !it->is_string() || (*it != "approach" && *it != "retreat" && *it != "reset"))
-      return bad("simulation_scene", "\"action\" must be \"approach\", \"retreat\" or \"reset\"");
+    if (it == body.end() || !it->is_string() ||
+        (*it != "approach" && *it != "retreat" && *it != "stop" && *it != "reset"))
+      return bad("simulation_scene", "\"action\" must be \"approach\", \"retreat\", \"stop\" or \"reset\"");
     double speed = std::numeric_limits<double>::quiet_NaN();
     if (const auto sp = body.find("speed_mm_s"); sp != body.end()) {
       if (!sp->is_number() || !(sp->get<double>() > 0.0) || sp->get<double>() > 200.0)
@@ -312,6 +313,8 @@ class SduApi final : public RobotApiExtension {
     }
     if (*it == "reset")
       sim->arm_reset();
+    else if (*it == "stop")
+      sim->arm_command(SduSimulation::ArmAction::hold, speed);
     else
       sim->arm_command(
           *it == "approach" ? SduSimulation::ArmAction::approach : SduSimulation::ArmAction::retreat, speed);
