@@ -139,3 +139,41 @@ test('commands: hri_mode, simulation_scene, map clear; bad bodies get clear erro
   assert.ok(['map_empty', 'no_plane'].includes(again.json.error.code), again.text);
   await sleep(10);
 });
+
+test('the scenario over the API: the arm approaches, the limit falls, the touch holds the robot with its cause', async () => {
+  await holdLease();
+  const s0 = await state();
+  if (s0.state !== 'ENABLED') {
+    const enable = await post(`${SDU}/state_command`, {command: s0.state === 'PAUSED' ? 'resume' : 'enable'});
+    assert.equal(enable.status, 200, enable.text);
+  }
+  assert.ok(await pollUntil(async () => {
+    const s = await state();
+    return s.state === 'ENABLED' && s.drives_ready && !s.is_busy;
+  }, {polls: 200, intervalMs: 25}), JSON.stringify(await state()));
+  // The start pose (its top disk is where the arm's end point presses 6 mm into the sleeve).
+  const home = await post(`${SDU}/move_jp`, {goal: [0, 0.2, -1.570796]});
+  assert.equal(home.status, 202, home.text);
+  assert.ok(await pollUntil(async () => !(await state()).is_busy, {polls: 400, intervalMs: 25}));
+  await post(`${SDU}/simulation_scene`, {action: 'reset'});
+  const approach = await post(`${SDU}/simulation_scene`, {action: 'approach', speed_mm_s: 40});
+  assert.equal(approach.status, 202, approach.text);
+  let slowest = 50;
+  const held = await pollUntil(async () => {
+    const s = await state();
+    slowest = Math.min(slowest, s.continuum.speed_limit_mm_s);
+    return s.state === 'PAUSED' && s.continuum.contact ? s : null;
+  }, {polls: 400, intervalMs: 25});
+  assert.ok(held, JSON.stringify((await state()).continuum.supervisor));
+  assert.ok(slowest < 50, `the limit fell as the arm came: ${slowest}`);
+  assert.equal(held.continuum.supervisor.state, 'stopped_contact');
+  assert.equal(held.continuum.contact_disk, 4);
+  assert.match(held.hold.message, /contact on SDU 4/);
+  assertErrorShape(await post(`${SDU}/state_command`, {command: 'resume'}), 409);
+  const events = (await get('/faults')).json;
+  assert.ok(JSON.stringify(events).includes('contact on SDU 4'), 'the touch is in the event log');
+  await post(`${SDU}/simulation_scene`, {action: 'reset'});
+  assert.ok(await pollUntil(async () => !(await state()).continuum.contact, {polls: 200, intervalMs: 25}));
+  const resume = await post(`${SDU}/state_command`, {command: 'resume'});
+  assert.equal(resume.status, 200, resume.text);
+});

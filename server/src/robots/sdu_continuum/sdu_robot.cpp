@@ -264,6 +264,7 @@ SduSimulation::SduSimulation(const SduSettings& settings,
   for (std::size_t i = 0; i < kSdus; ++i) {
     tof_fault_slot_[i].store(-1);
     hall_fault_slot_[i].store(-1);
+    next_sample_[i] = static_cast<double>(i) / (static_cast<double>(kSdus) * settings_.rate_hz);
   }
 }
 
@@ -297,12 +298,14 @@ void SduSimulation::step(double dt) noexcept {
   // The arm: a person's forearm moving at a steady speed towards the segment or away.
   if (arm_index_ && settings_.simulation.arm) {
     const auto& a = *settings_.simulation.arm;
-    if (reset_.exchange(false)) {
+    bool moved = false;
+    if (reset_.exchange(false)) {  // arm_reset() stopped it already; a later command may move it on
       arm_ = a.start;
-      action_.store(static_cast<int>(ArmAction::hold));
+      moved = true;
     }
     const auto action = static_cast<ArmAction>(action_.load());
     if (action != ArmAction::hold) {
+      moved = true;
       const Eigen::Vector3d target = action == ArmAction::approach ? a.end : a.start;
       const Eigen::Vector3d to = target - arm_;
       const double step = arm_speed_.load() * dt;
@@ -312,22 +315,32 @@ void SduSimulation::step(double dt) noexcept {
       } else {
         arm_ += to.normalized() * step;
       }
+    }
+    if (moved) {
       scene_.move_cylinder(*arm_index_, arm_);
       arm_centre_.store({arm_.x(), arm_.y(), arm_.z()});
     }
   }
-  if (t_ + 1e-9 < next_sample_) return;
-  next_sample_ += 1.0 / settings_.rate_hz;
-  if (next_sample_ < t_) next_sample_ = t_ + 1.0 / settings_.rate_hz;
+  // Each disk's microcontroller runs its own 100 Hz timer, the five staggered over the period (their
+  // clocks are not synchronised); it also spreads the ray casting over the simulation's 1 kHz steps,
+  // so that no one step of the bus thread carries all five disks.
+  const double period = 1.0 / settings_.rate_hz;
+  bool any = false;
+  for (std::size_t i = 0; i < kSdus; ++i) any = any || t_ + 1e-9 >= next_sample_[i];
+  if (!any) return;
   // The disks read where the segment truly is: the SIMULATED drives' load positions.
   std::array<double, kSduJoints> q{};
   for (std::size_t j = 0; j < kSduJoints; ++j) q[j] = drives_[j]->truth().position;
   const auto poses = cont::disk_poses(settings_.model, segment_configuration(q));
-  double strongest = 0.0;
   for (std::size_t i = 0; i < kSdus; ++i) {
+    if (t_ + 1e-9 < next_sample_[i]) continue;
+    next_sample_[i] += period;
+    if (next_sample_[i] < t_) next_sample_[i] = t_ + period;
     nodes_[i].hall().drift_mT_per_s = hall_drift_[i].load();
     cont::SduSample sample = nodes_[i].sense(scene_, poses[i], t_);
-    for (double f : nodes_[i].true_force()) strongest = std::max(strongest, f);
+    strongest_[i] = 0.0;
+    for (double f : nodes_[i].true_force()) strongest_[i] = std::max(strongest_[i], f);
+    sent_.fetch_add(1);
     if (silent_[i].load()) continue;
     if (const int slot = tof_fault_slot_[i].load(); slot >= 0 && slot < static_cast<int>(cont::kTofPerSdu)) {
       const double mm = tof_fault_mm_[i].load();
@@ -344,8 +357,7 @@ void SduSimulation::step(double dt) noexcept {
     }
     for (const auto& frame : cont::encode_sdu_sample(i, sample)) endpoints_[i]->send(frame);
   }
-  true_force_.store(strongest);
-  sent_.fetch_add(1);
+  true_force_.store(*std::max_element(strongest_.begin(), strongest_.end()));
 }
 
 // ---- the robot --------------------------------------------------------------------------------------

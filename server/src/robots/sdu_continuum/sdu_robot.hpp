@@ -201,7 +201,10 @@ class SduSimulation final : public sim::Plant {
   // Moves the SIMULATED arm (network thread): towards its end point, back to its start, or to its start at
   // once.
   void arm_command(ArmAction action, double speed_mm_s) noexcept;
-  void arm_reset() noexcept { reset_.store(true); }
+  void arm_reset() noexcept {
+    action_.store(static_cast<int>(ArmAction::hold));
+    reset_.store(true);
+  }
   bool has_arm() const noexcept { return arm_index_.has_value(); }
   Eigen::Vector3d arm_centre() const noexcept {
     const auto c = arm_centre_.load();
@@ -216,7 +219,7 @@ class SduSimulation final : public sim::Plant {
   void set_hall_drift(std::size_t disk, double mT_per_s) noexcept;
   // The largest true force on any Hall window in the last sample (N), for tests.
   double true_max_force() const noexcept { return true_force_.load(); }
-  std::uint64_t samples_sent() const noexcept { return sent_.load(); }
+  std::uint64_t samples_sent() const noexcept { return sent_.load(); }  // disk samples taken
 
  private:
   SduSettings settings_;
@@ -225,7 +228,9 @@ class SduSimulation final : public sim::Plant {
   continuum::Scene scene_;
   std::vector<continuum::SimulatedSduNode> nodes_;
   std::optional<std::size_t> arm_index_;
-  double t_ = 0.0, next_sample_ = 0.0;
+  double t_ = 0.0;
+  std::array<double, kSdus> next_sample_{};
+  std::array<double, kSdus> strongest_{};
   Eigen::Vector3d arm_ = Eigen::Vector3d::Zero();
   hardware::LatestValue<std::array<double, 3>> arm_centre_;
   std::atomic<int> action_{0};
