@@ -118,7 +118,7 @@ TEST_F(SduContinuumTest, DescribesTheSegmentItsDisksAndTopics) {
   ASSERT_EQ(robots.size(), 1u);
   const auto& r = robots[0];
   EXPECT_EQ(r["kind"], "sdu_continuum");
-  EXPECT_EQ(r["modes"], json({"joint", "guidance"}));
+  EXPECT_EQ(r["modes"], json({"joint", "guidance", "tip"}));
   const auto& c = r["continuum"];
   ASSERT_EQ(c["disks"].size(), 5u);
   EXPECT_EQ(c["disks"][4]["arc_mm"], 370.0);
@@ -547,6 +547,39 @@ TEST_F(SduContinuumTest, ContactHoldWaysOutRollAndContactGuidanceBackAway) {
   ASSERT_EQ(api->robot_command("sdu", "hri_mode", {{"mode", "off"}}).status, 202);
   steps(20);
   EXPECT_EQ(api->state_command("sdu", {{"command", "resume"}}).status, 200);
+}
+
+TEST_F(SduContinuumTest, ServoCvMovesTheTipInTipModeThroughTheSameSafetyPath) {
+  start(config());
+  unbias_and_enable();
+  const json twist = {{"linear", {10.0, 0.0, 0.0}}, {"angular", {0, 0, 0}}};
+  EXPECT_EQ(api->servo_cv("sdu", twist).status, 409);  // joint mode
+  ASSERT_EQ(api->mode("sdu", {{"mode", "tip"}}).status, 200);
+  steps(2);
+  EXPECT_GE(api->servo_cv("sdu", {{"linear", {0, 0, 0}}, {"angular", {0.1, 0, 0}}}).status, 400);
+  EXPECT_GE(
+      api->move_cp("sdu", {{"goal", {{"position", {0, 0, 300}}, {"orientation", {0, 0, 0, 1}}}}}).status,
+      400);
+  const auto& m = sdu().settings().model;
+  const Eigen::Vector3d p0 = cont::disk_pose(m, segment_configuration(setpoint()), 4).translation();
+  // 10 mm/s along +x (towards the wall, 121 mm from the sleeve: the law allows 46 mm/s there) for 1 s.
+  for (int i = 0; i < 50; ++i) {
+    ASSERT_EQ(api->servo_cv("sdu", twist).status, 200);
+    for (int k = 0; k < 20; ++k) {
+      runtime->step();
+      EXPECT_LE(sdu().snapshot().surface_speed_mm_s, sdu().snapshot().speed_limit_mm_s + 1e-6);
+    }
+  }
+  const Eigen::Vector3d p1 = cont::disk_pose(m, segment_configuration(setpoint()), 4).translation();
+  std::printf("servo_cv 10 mm/s along x for 1 s moved the tip by (%.2f, %.2f, %.2f) mm\n", p1.x() - p0.x(),
+              p1.y() - p0.y(), p1.z() - p0.z());
+  EXPECT_NEAR(p1.x() - p0.x(), 10.0, 1.5);
+  EXPECT_NEAR(p1.y() - p0.y(), 0.0, 1.5);
+  // The stream ends: the tip stays.
+  steps(400);
+  const auto held = setpoint();
+  steps(200);
+  EXPECT_EQ(setpoint(), held);
 }
 
 TEST_F(SduContinuumTest, CommandsRefuseBadBodies) {

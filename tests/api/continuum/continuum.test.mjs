@@ -28,7 +28,7 @@ test('GET /robots describes the continuum robot: disks, HRI modes, the speed law
   assert.ok(sdu, `robots: ${robots.map((r) => r.name).join(', ')}`);
   assert.equal(sdu.kind, 'sdu_continuum');
   assert.deepEqual(sdu.joints.map((j) => j.name), ['stage_roll', 'bending', 'bending_plane']);
-  assert.deepEqual(sdu.modes, ['joint', 'guidance']);
+  assert.deepEqual(sdu.modes, ['joint', 'guidance', 'tip']);
   const c = sdu.continuum;
   assert.equal(c.disks.length, 5);
   assert.deepEqual(c.disks.map((d) => d.arc_mm), [74, 148, 222, 296, 370]);

@@ -148,6 +148,12 @@ double SduController::max_window_step(std::span<const double> a, std::span<const
 void SduController::control(ControlContext& ctx) noexcept {
   guidance_mm_s_ = 0.0;
   for (std::size_t j = 0; j < ctx.n; ++j) ctx.qd_des[j] = 0.0;
+  if (ctx.mode == kTipMode) {
+    // A stream: it ends when not refreshed within the servo timeout (as servo_jv's does).
+    if (last_stream_ < 0.0 || ctx.t - last_stream_ > ctx.limits->servo_timeout_s) return;
+    integrate(ctx, rates_for_velocity(ctx.q_des, kSdus - 1, tip_velocity_));
+    return;
+  }
   if (ctx.mode != kGuidanceMode || hri_ == cont::GuidanceMode::kOff) return;
   const std::size_t top = kSdus - 1;
   const auto& s = robot_.settings_;
@@ -205,11 +211,20 @@ void SduController::apply(ControlContext& ctx, const PluginCommand& command) noe
     case SduCommand::unbias:
       supervisor_.request_unbias();
       break;
+    case SduCommand::servo_cv:
+      if (command.count != 3) break;
+      tip_velocity_ = Eigen::Vector3d(command.values[0], command.values[1], command.values[2]);
+      last_stream_ = ctx.t;
+      ctx.supervisor->servo_command_received(ctx.t);
+      break;
   }
 }
 
 bool SduController::moving(const ControlContext& ctx) const noexcept {
-  return (roll_until_ > ctx.t && roll_rate_ != 0.0) || guidance_mm_s_ != 0.0;
+  const bool streaming = ctx.mode == kTipMode && last_stream_ >= 0.0 &&
+                         ctx.t - last_stream_ <= ctx.limits->servo_timeout_s &&
+                         tip_velocity_.squaredNorm() > 0.0;
+  return (roll_until_ > ctx.t && roll_rate_ != 0.0) || guidance_mm_s_ != 0.0 || streaming;
 }
 
 bool SduController::hold_cleared(const ControlContext& ctx, char* why, std::size_t why_size) const noexcept {

@@ -446,7 +446,38 @@ std::vector<ModeInfo> SduContinuum::modes() const {
   return {
       {"guidance",
        "the top disk moves by the selected HRI law (hri_mode): contactless v = γ(d_r − d_l) or contact-based "
-       "v = γ(ΔB_z,r − ΔB_z,l); proximity scaling and stop on contact apply as in every mode"}};
+       "v = γ(ΔB_z,r − ΔB_z,l); proximity scaling and stop on contact apply as in every mode"},
+      {"tip",
+       "CRTK servo_cv of the tip (the top disk), linear mm/s in the base frame, resolved by damped least "
+       "squares; proximity scaling and stop on contact apply as in every mode"}};
+}
+
+Result<std::pair<PluginCommand, double>> SduContinuum::cartesian_command(
+    CartesianKind kind, const CartesianPose& pose, const CartesianTwist& twist,
+    const OperatingStateView& state) const {
+  (void)pose;
+  const std::string& robot = config_.name;
+  if (kind != CartesianKind::servo_cv)
+    return ServiceError{ErrorKind::not_supported, "not_supported",
+                        "robot '" + robot +
+                            "' takes servo_cv only: its three joints place the tip, they cannot also hold an "
+                            "orientation, so move_cp and servo_cp poses are not offered"};
+  if (state.mode != "tip")
+    return ServiceError{ErrorKind::conflict, "wrong_mode",
+                        "robot '" + robot + "' is in " + state.mode +
+                            " mode; switch to tip mode (POST /api/v1/robots/" + robot +
+                            "/mode {\"mode\": \"tip\"}) for servo_cv"};
+  if (!twist.linear.allFinite() || !twist.angular.allFinite())
+    return ServiceError{ErrorKind::invalid, "bad_twist", "servo_cv: the twist must be finite"};
+  if (twist.angular.norm() > 0.0)
+    return ServiceError{ErrorKind::invalid, "bad_twist",
+                        "servo_cv: robot '" + robot +
+                            "' steers its tip's position only (three joints); send angular [0, 0, 0]"};
+  PluginCommand c;
+  c.id = static_cast<std::uint16_t>(SduCommand::servo_cv);
+  c.count = 3;
+  for (Eigen::Index i = 0; i < 3; ++i) c.values[static_cast<std::size_t>(i)] = twist.linear[i];
+  return std::pair{c, 0.0};
 }
 
 std::optional<ServiceError> SduContinuum::resume_refusal(const OperatingStateView& state) const {

@@ -51,10 +51,12 @@ class SduContinuum;
 inline constexpr std::size_t kStageRoll = 0, kBending = 1, kBendingPlane = 2, kSduJoints = 3;
 inline constexpr std::size_t kSdus = continuum::kSdusPerSegment;
 
-// The type's mode after the core's joint mode: the top disk moves by the selected HRI law.
+// The type's modes after the core's joint mode: the top disk moves by the selected HRI law (guidance),
+// or by the operator's CRTK servo_cv of the tip (tip).
 inline constexpr ModeId kGuidanceMode = kFirstPluginMode;
+inline constexpr ModeId kTipMode = kFirstPluginMode + 1;
 
-enum class SduCommand : std::uint16_t { hri_mode, roll, unbias };
+enum class SduCommand : std::uint16_t { hri_mode, roll, unbias, servo_cv };
 
 struct SduSceneArm {  // the SIMULATED cylinder standing for a human arm
   Eigen::Vector3d axis = Eigen::Vector3d::UnitX();
@@ -169,6 +171,8 @@ class SduController final : public RobotController {
   double guidance_mm_s_ = 0.0;
   double roll_rate_ = 0.0;
   double roll_until_ = -1.0;
+  Eigen::Vector3d tip_velocity_ = Eigen::Vector3d::Zero();  // servo_cv, mm/s in {0}
+  double last_stream_ = -1.0;
   double step_kept_ = 1.0;
   double surface_speed_ = 0.0;
   std::uint64_t tick_ = 0;
@@ -318,6 +322,12 @@ class SduContinuum final : public RobotPlugin {
   std::vector<ModeInfo> modes() const override;
   RobotController& controller() override { return controller_; }
   std::optional<ServiceError> resume_refusal(const OperatingStateView& state) const override;
+  // CRTK servo_cv of the tip (the top disk) in mode tip; its three joints place the tip, so the angular
+  // part must be zero. move_cp and servo_cp are not offered.
+  bool cartesian() const override { return true; }
+  Result<std::pair<PluginCommand, double>> cartesian_command(CartesianKind kind, const CartesianPose& pose,
+                                                             const CartesianTwist& twist,
+                                                             const OperatingStateView& state) const override;
   void start() override;
   void stop() override;
   std::vector<std::shared_ptr<TopicSource>> topic_sources() override { return {mapper_}; }
