@@ -14,8 +14,10 @@
 #include <string>
 #include <vector>
 
+#include "allocation_counter.hpp"
 #include "json_api.hpp"
 #include "sdu_continuum/sdu_robot.hpp"
+#include "tendril/safety/safety_supervisor.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
@@ -580,6 +582,88 @@ TEST_F(SduContinuumTest, ServoCvMovesTheTipInTipModeThroughTheSameSafetyPath) {
   const auto held = setpoint();
   steps(200);
   EXPECT_EQ(setpoint(), held);
+}
+
+// A context for calling the controller directly (the runtime is stepped, so nothing else runs meanwhile).
+class DirectContext final : public ControlContext {
+ public:
+  bool servo_live() const noexcept override { return false; }
+  std::span<const double> servo_velocity() const noexcept override { return {}; }
+  void stop_servo() noexcept override {}
+  bool hold(safety::FaultCode code, int joint, const char* detail) noexcept override {
+    (void)code;
+    (void)joint;
+    (void)detail;
+    ++holds;
+    return true;
+  }
+  safety::FaultCode hold_cause() const noexcept override { return safety::FaultCode::kNone; }
+  void setpoint_moved() noexcept override {}
+  int holds = 0;
+};
+
+// The control thread's part never allocates: sense (the supervisor, the event forwarding, the hold),
+// control in guidance and tip mode, the filter, while_held and publish, across state changes.
+TEST_F(SduContinuumTest, TheControlThreadsPartNeverAllocates) {
+  auto rc = config();
+  std::vector<safety::JointLimit> joints;
+  for (const auto& j : rc.joints) joints.push_back(j.limit);
+  safety::SafetySupervisor supervisor{safety::LimitSet(joints)};
+  start(std::move(rc));
+  steps(800);  // unbiased, the disks report
+  auto& controller = sdu().controller();
+  std::array<double, 3> q{0.0, 0.2, -1.570796}, qd{}, effort{}, q_des = q, qd_des{};
+  safety::OperatingLimits limits;
+  for (std::size_t j = 0; j < 3; ++j) {
+    limits.lower[j] = -10;
+    limits.upper[j] = 10;
+    limits.max_velocity[j] = 0.5;
+  }
+  limits.servo_timeout_s = 0.15;
+  DirectContext ctx;
+  ctx.n = 3;
+  ctx.q = q;
+  ctx.qd = qd;
+  ctx.effort = effort;
+  ctx.q_des = q_des;
+  ctx.qd_des = qd_des;
+  ctx.limits = &limits;
+  ctx.supervisor = &supervisor;
+  ctx.state = safety::OperatingState::kEnabled;
+  ctx.drives_ready = true;
+  PluginCommand hri;
+  hri.id = static_cast<std::uint16_t>(SduCommand::hri_mode);
+  hri.values[0] = 1;
+  PluginCommand cv;
+  cv.id = static_cast<std::uint16_t>(SduCommand::servo_cv);
+  cv.count = 3;
+  cv.values = {5.0, 0.0, 0.0};
+  sim().set_tof_fault(2, 4, std::numeric_limits<double>::quiet_NaN());  // a state change on the way
+  const long before = tendril::testing::allocation_count.load();
+  for (int k = 0; k < 300; ++k) {
+    if (k == 150) sim().set_silent(1, true);  // and a hold (silent disk) later
+    runtime->step();  // new samples arrive (the runtime's own step is not what is counted: see below)
+    const long outside = tendril::testing::allocation_count.load();
+    ctx.t = runtime->time();
+    ctx.now_ns = sdu().snapshot().now_ns + 1;  // the runtime's clock, which stamps the samples
+    ctx.mode = k < 100 ? kGuidanceMode : kTipMode;
+    controller.apply(ctx, k < 100 ? hri : cv);
+    const std::array<double, 3> before_step = q_des;
+    controller.sense(ctx);
+    controller.control(ctx);
+    controller.limit_step(ctx, before_step);
+    ctx.state = safety::OperatingState::kPaused;
+    controller.while_held(ctx);
+    ctx.state = safety::OperatingState::kEnabled;
+    char why[96];
+    controller.hold_cleared(ctx, why, sizeof why);
+    controller.publish(ctx);
+    EXPECT_EQ(tendril::testing::allocation_count.load(), outside) << "cycle " << k;
+  }
+  (void)before;
+  EXPECT_GT(ctx.holds, 0);                // the silent disk held it
+  ::operator delete(::operator new(16));  // the counter sees allocations, so the check above can fail
+  EXPECT_GT(tendril::testing::allocation_count.load(), before);
 }
 
 TEST_F(SduContinuumTest, CommandsRefuseBadBodies) {
