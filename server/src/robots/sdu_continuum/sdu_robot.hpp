@@ -10,6 +10,9 @@
 // same control cycle, an unusable ToF reading slows it to the safe speed. Ways out of a contact hold:
 // the contact-based guidance yielding to the push and the 1-DoF no-slip roll (seed (3.6)).
 //
+// Modes: the core's joint mode, guidance (the HRI laws of seed (3.8)/(3.9) on the top disk) and tip (CRTK
+// servo_cv of the top disk's position).
+//
 // Hardware: the joints are CiA 402 drives on the robot file's bus; the disks are CAN nodes on the same
 // bus (frames 0x680–0x6A7, sdu_frames.hpp). On a virtual bus the drives are the core's SIMULATED
 // drives and the disks are SIMULATED disk nodes (SduSimulation) that ray-cast a configurable scene
