@@ -666,6 +666,28 @@ TEST_F(SduContinuumTest, TheControlThreadsPartNeverAllocates) {
   EXPECT_GT(tendril::testing::allocation_count.load(), before);
 }
 
+TEST_F(SduContinuumTest, ASecondSduRobotOnTheSameBusIsRefused) {
+  auto first = config();
+  auto second = config();
+  second.name = "sdu2";
+  for (std::size_t j = 0; j < second.joints.size(); ++j)
+    second.joints[j].drive->node_id = 4 + static_cast<int>(j);
+  RuntimeOptions o;
+  o.stepped = true;
+  o.control_rate_hz = 1000;
+  try {
+    RobotRuntime rt({first, second}, o, builtin_robot_types());
+    FAIL() << "two SDU robots on one bus were accepted";
+  } catch (const ConfigError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("continuum.disks.bus"), std::string::npos) << what;
+    EXPECT_NE(what.find("would clash"), std::string::npos) << what;
+  }
+  // The refusal left nothing behind: one SDU robot still starts.
+  start(config());
+  EXPECT_EQ(api->robots().size(), 1u);
+}
+
 TEST_F(SduContinuumTest, CommandsRefuseBadBodies) {
   start(config());
   EXPECT_EQ(api->robot_command("sdu", "hri_mode", {{"mode", "fast"}}).status, 400);

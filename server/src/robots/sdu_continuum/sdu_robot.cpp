@@ -430,10 +430,43 @@ SduContinuum::SduContinuum(const RobotConfig& rc, RobotAssembly& assembly)
   SduSnapshot initial;
   for (std::size_t j = 0; j < kSduJoints; ++j) initial.q[j] = rc.joints[j].initial_position;
   published_.store(initial);
+  // The disks' frame ids depend on the disk index only: two SDU robots on one bus would read each
+  // other's disks as their own. Refused here (the last step, so that a refusal leaves nothing claimed).
+  std::lock_guard lock(buses_mutex());
+  for (const auto& [name, robot] : buses_in_use())
+    if (name == bus_key())
+      throw ConfigError(file + ": continuum.disks.bus: robot '" + robot + "' has its sensing disks on bus '" +
+                        settings_.bus +
+                        "' already; the disks' frame ids (0x680 + 8 x disk) would clash: give each SDU robot "
+                        "a bus of its own");
+  buses_in_use().emplace_back(bus_key(), rc.name);
+  registered_ = true;
 }
 
 SduContinuum::~SduContinuum() {
   if (mapper_) mapper_->stop();
+  if (!registered_) return;
+  std::lock_guard lock(buses_mutex());
+  auto& in_use = buses_in_use();
+  for (auto it = in_use.begin(); it != in_use.end(); ++it)
+    if (it->first == bus_key() && it->second == config_.name) {
+      in_use.erase(it);
+      break;
+    }
+}
+
+std::mutex& SduContinuum::buses_mutex() {
+  static std::mutex m;
+  return m;
+}
+std::vector<std::pair<std::string, std::string>>& SduContinuum::buses_in_use() {
+  static std::vector<std::pair<std::string, std::string>> in_use;
+  return in_use;
+}
+std::string SduContinuum::bus_key() const {
+  // One server per process: the bus names of the robots alive now (a runtime destroys its robots before
+  // the next one is built, as tests do).
+  return settings_.bus;
 }
 
 void SduContinuum::start() {

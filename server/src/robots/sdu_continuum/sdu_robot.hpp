@@ -356,6 +356,11 @@ class SduContinuum final : public RobotPlugin {
   hardware::LatestValue<SduSamples> samples_;
   hardware::LatestValue<SduPlaneSet> planes_;
   hardware::LatestValue<SduSnapshot> published_;
+  // The SDU robots' disk buses in this process (a second SDU robot on one bus is refused).
+  static std::mutex& buses_mutex();
+  static std::vector<std::pair<std::string, std::string>>& buses_in_use();  // bus, robot
+  std::string bus_key() const;
+  bool registered_ = false;
   bool stepped_ = false;
   std::unique_ptr<SduSimulation> simulation_;
   std::shared_ptr<SduMapper> mapper_;
