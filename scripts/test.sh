@@ -139,6 +139,11 @@ bash tests/api/mbcr/run.sh build/server/tendrild 2>&1 | tee build/api_mbcr.log
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/api_mbcr.log)
 record api_mbcr "$status" "$p" "$f"
+# The sensing-disk continuum robot (robot sdu) beside the catheter, a server of its own.
+bash tests/api/continuum/run.sh build/server/tendrild 2>&1 | tee build/api_continuum.log
+status=${PIPESTATUS[0]}
+read -r p f < <(node_counts build/api_continuum.log)
+record api_continuum "$status" "$p" "$f"
 
 # ---- 4. browser tests ---------------------------------------------------------------------------
 stage "browser tests (Playwright + chromium) against the sanitized tendrild"
