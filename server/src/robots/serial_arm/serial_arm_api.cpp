@@ -208,7 +208,10 @@ class SerialArmApi final : public RobotApiExtension {
     const auto truth = robot_.simulated_force_sensor().truth();
     arm["simulation"] = {{"in_contact", truth.in_contact}, {"penetration_mm", truth.penetration}};
     out["arm"] = std::move(arm);
-    if (robot_.ultrasound()) out["sweep"] = sweep_json(robot_.sweep_snapshot());
+    if (const auto& u = robot_.ultrasound()) {
+      out["sweep"] = sweep_json(robot_.sweep_snapshot());
+      out["sweep"]["force_target_n"] = u->force.contact_force;
+    }
     if (s.force_hold && out.contains("hold") && out["hold"].is_object()) {
       char next[160];
       std::snprintf(
