@@ -41,7 +41,8 @@ void BM_SweepCycle(benchmark::State& state) {
   teleop::CartesianCommandResult out;
   for (auto _ : state) {
     in.t += in.dt;
-    in.world_T_limb = limb.pose_at(in.t);  // a new limb pose every cycle, as the tracker's would be
+    in.world_T_limb = limb.pose_at(in.t);  // a new limb pose every cycle (the feed-forward runs too)
+    in.limb_t = in.t;
     benchmark::DoNotOptimize(sweep.step(model, arm, in, out));
     benchmark::DoNotOptimize(out.joints.joint_velocity);
   }

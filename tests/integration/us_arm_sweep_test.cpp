@@ -224,10 +224,11 @@ TEST_F(UsArmSweepTest, FullSweepOnTheMovingLimbReachesDone) {
       "%.3f mm, max %.3f mm\n",
       n, step * 1e-3, first_peak, peak, max_gate_position, max_gate_angle, max_gate_force_error, error_mean,
       error_max);
-  // Motion compensation: the probe stays on the moving via-point within the gate's 0.5 mm (plus the
-  // tracker's sample-and-hold and latency) while the slices are taken.
-  EXPECT_LT(error_mean, 0.5);
-  EXPECT_LT(error_max, 1.0);
+  // Motion compensation: the probe stays on the moving via-point, well within the gate's 0.5 mm, while
+  // the slices are taken (measured 0.03 mm mean, 0.33 mm max; without the velocity feed-forward
+  // 0.23 mm and 0.51 mm).
+  EXPECT_LT(error_mean, 0.1);
+  EXPECT_LT(error_max, 0.5);
   EXPECT_LT(peak, 3.0);  // never near F_max
   // Done: the probe retracts off the skin and holds.
   ASSERT_TRUE(step_until([&] { return !sweep().retracting; }, 5'000));
@@ -259,12 +260,12 @@ TEST_F(UsArmSweepTest, PauseHoldsTheForceAndStartContinues) {
   }
   EXPECT_EQ(sweep().slices, slices);
   EXPECT_EQ(sweep().via_point, 2);
-  // In contact throughout. Along the normal only the force law A10 follows the limb: its steady-state
-  // gain is K_p/(1 − K_i) = 1.67 (mm/s)/N, so the limb's vertical PLM speed (≤ 0.63 mm/s here) leaves
-  // the force up to ≈ 0.38 N off d_f while the limb moves fastest (the gate waits for it).
+  // In contact throughout, near d_f: the velocity feed-forward moves the probe with the limb (without
+  // it, A10's steady-state gain K_p/(1 − K_i) = 1.67 (mm/s)/N left the force up to ≈ 0.38 N off d_f
+  // while the limb moved fastest: 0.50..0.67 N measured here).
   std::printf("paused: true force %.3f..%.3f N\n", low, high);
-  EXPECT_GT(low, kForceTarget - 0.4);
-  EXPECT_LT(high, kForceTarget + 0.4);
+  EXPECT_GT(low, kForceTarget - 0.15);
+  EXPECT_LT(high, kForceTarget + 0.15);
   EXPECT_EQ(action("pause").status, 409);
   ASSERT_EQ(action("start").status, 202);
   ASSERT_TRUE(step_until([&] { return sweep().slices > slices; }, 30'000)) << sweep().message;

@@ -96,6 +96,7 @@ void SerialArmController::sweep(ControlContext& ctx) noexcept {
   in.force_valid = force_fresh_;
   const LimbPoseSample limb = robot_.limb_->tracked();
   in.world_T_limb = to_isometry(limb.pose);
+  in.limb_t = limb.t;
   in.t = ctx.t;
   in.dt = ctx.period;
   teleop::CartesianCommandResult result;

@@ -120,6 +120,7 @@ std::optional<UltrasoundSettings> parse_ultrasound_settings(const RobotConfig& r
   if (s.retract_speed > 10.0)
     u.fail("retract_speed_mm_s", "at most 10 (seed 002 REQ-SAFE-2)", u.raw("retract_speed_mm_s"));
   s.retract_distance = u.positive_or("retract_distance_mm", s.retract_distance);
+  s.velocity_feed_forward = u.boolean_or("velocity_feed_forward", s.velocity_feed_forward);
 
   if (!u.has("limb"))
     throw ConfigError(file +
@@ -259,6 +260,11 @@ void UltrasoundSweep::load(const SweepPlanData& plan) noexcept {
   set_message("planned: %d via-points; pre_position next", plan.count);
 }
 
+Eigen::Matrix4d UltrasoundSweep::plan_via(int i) const noexcept {
+  const int k = std::clamp(i, 0, std::max(plan_.count - 1, 0));
+  return Eigen::Map<const Eigen::Matrix4d>(plan_.via_points[static_cast<std::size_t>(k)].data());
+}
+
 Eigen::Isometry3d UltrasoundSweep::target(int i, const Eigen::Isometry3d& world_T_limb) const noexcept {
   const int k = std::clamp(i, 0, std::max(plan_.count - 1, 0));
   return world_T_limb * isometry(plan_.via_points[static_cast<std::size_t>(k)]);
@@ -356,6 +362,12 @@ bool UltrasoundSweep::step(const teleop::SerialArmKinematics& model, teleop::Ser
     state_.reset();
     interrupted_ = false;
   }
+  if (in.limb_t != latest_limb_t_) {  // a new tracker sample
+    previous_limb_ = latest_limb_;
+    previous_limb_t_ = latest_limb_t_;
+    latest_limb_ = in.world_T_limb;
+    latest_limb_t_ = in.limb_t;
+  }
   if (s.phase == SweepPhase::idle || s.phase == SweepPhase::planned || plan_.count == 0) return false;
 
   if (s.phase == SweepPhase::done || s.phase == SweepPhase::aborted) {
@@ -399,6 +411,22 @@ bool UltrasoundSweep::step(const teleop::SerialArmKinematics& model, teleop::Ser
   out.joints.position_limited = r.position_limited;
   out.twist = r.twist;
   out.twist_limited = r.twist_limited;
+  const double dt_limb = latest_limb_t_ - previous_limb_t_;
+  if (settings_.velocity_feed_forward && out.joints.valid && previous_limb_t_ >= 0.0 && dt_limb > 1e-6 &&
+      dt_limb < 0.1) {
+    // The via-point's velocity between the last two tracker samples (its point on the limb, so the
+    // limb's rotation counts too), added to the law's twist and resolved again (caps, damped inverse,
+    // joint limits): the probe moves with the limb instead of behind it.
+    const Eigen::Matrix4d via = plan_via(s.via_point);
+    const Eigen::Vector3d p = via.block<3, 1>(0, 3);
+    const Eigen::Vector3d v = (latest_limb_ * p - previous_limb_ * p) / dt_limb;
+    if (v.allFinite()) {
+      teleop::Twist twist = r.twist;
+      twist.head<3>() += v;
+      model.update(in.q, data);
+      out = teleop::servo_cv(model, data, in.q, twist, limits_, in.dt);
+    }
+  }
 
   switch (s.phase) {
     case SweepPhase::pre_positioning: {

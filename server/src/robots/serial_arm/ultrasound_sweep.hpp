@@ -61,6 +61,10 @@ struct UltrasoundSettings {
   double acquire_time = 0.25;           // s the gate stays open per slice
   double retract_speed = 10.0;          // mm/s (REQ-SAFE-2: ≤ 10)
   double retract_distance = 20.0;       // mm
+  // Motion compensation's velocity feed-forward: the via-point's velocity, from the last two tracker
+  // samples, added to the hybrid controller's twist (without it only the force law follows the limb
+  // along the normal, and lags it by v / 1.67 (mm/s)/N).
+  bool velocity_feed_forward = true;
 };
 
 // Parses the file's "ultrasound" section (nullopt without one). Throws ConfigError naming file and key.
@@ -140,6 +144,7 @@ class UltrasoundSweep {
     Eigen::Vector3d force = Eigen::Vector3d::Zero();  // tool frame (N), environment on the probe
     bool force_valid = false;
     Eigen::Isometry3d world_T_limb = Eigen::Isometry3d::Identity();  // tracked
+    double limb_t = 0.0;                                             // the tracker sample's time (s)
     double t = 0.0, dt = 0.001;
   };
 
@@ -158,6 +163,7 @@ class UltrasoundSweep {
 
  private:
   Eigen::Isometry3d target(int i, const Eigen::Isometry3d& world_T_limb) const noexcept;
+  Eigen::Matrix4d plan_via(int i) const noexcept;  // H_i^P of via-point i (clamped to the plan)
   void set_message(const char* fmt, ...) noexcept;
   void start_retraction(SweepPhase phase) noexcept;
 
@@ -173,6 +179,10 @@ class UltrasoundSweep {
   Eigen::Vector3d retract_direction_ = Eigen::Vector3d::Zero();
   double retracted_ = 0.0;
   bool interrupted_ = false;  // set by interrupt(): the hybrid state restarts at the next step
+  // The velocity feed-forward: the tracker's previous sample (a different time than the latest).
+  Eigen::Isometry3d previous_limb_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d latest_limb_ = Eigen::Isometry3d::Identity();
+  double previous_limb_t_ = -1.0, latest_limb_t_ = -1.0;
 };
 
 }  // namespace tendril::server
