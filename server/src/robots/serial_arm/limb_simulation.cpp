@@ -155,20 +155,6 @@ std::vector<Eigen::Vector3d> LimbSimulation::ct_wall_cloud() const {
   return out;
 }
 
-std::vector<Eigen::Vector3d> LimbSimulation::ct_skin_cloud(double spacing) const {
-  const auto& p = parameters_;
-  std::mt19937_64 rng(p.seed + 1);
-  std::normal_distribution<double> noise(0.0, 1.0);
-  std::vector<Eigen::Vector3d> out;
-  // Inside the scanned patch (skin_scan), so that every CT point has its counterpart for ICP.
-  const double half = 0.4 * p.cylinder_radius;
-  for (double x = p.artery_x_start; x <= p.artery_x_end + 1e-9; x += spacing)
-    for (double y = -half; y <= half + 1e-9; y += spacing)
-      out.push_back(p.ct_T_limb * Eigen::Vector3d(x, y, height(x, y)) +
-                    p.ct_noise * Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
-  return out;
-}
-
 std::vector<Eigen::Vector3d> LimbSimulation::skin_scan(double spacing) const {
   const auto& p = parameters_;
   std::mt19937_64 rng(p.seed + 2);

@@ -106,10 +106,9 @@ class LimbSimulation final : public sim::SurfaceHeightMap {
   const teleop::CenterlinePolyline& artery() const noexcept { return artery_; }
 
   // Pre-operative data (SIMULATED, deterministic for the seed): the artery wall (a ring of points every
-  // 2 mm) and the skin, both in the CT frame with CT noise; and the skin as a depth scan in the limb
-  // frame with scan noise. Grid spacing in mm.
+  // 2 mm) in the CT frame with CT noise; and the skin as a depth scan in the limb frame with scan noise
+  // (grid spacing in mm).
   std::vector<Eigen::Vector3d> ct_wall_cloud() const;
-  std::vector<Eigen::Vector3d> ct_skin_cloud(double spacing = 5.0) const;
   std::vector<Eigen::Vector3d> skin_scan(double spacing = 1.5) const;
   // The calibration stick fixed to the limb (§4.4, §16 step 2): three rods of 40, 25 and 15 mm (radius
   // 3 mm) along x, y and z from a corner beside the skin — asymmetric, so one pose fits. Its model in
