@@ -342,6 +342,12 @@ TEST_F(UsArmSweepTest, PausingTheRobotPausesTheSweepAndStartContinuesIt) {
   ASSERT_EQ(action("start").status, 202);
   ASSERT_TRUE(step_until([&] { return sweep().phase == SweepPhase::approaching; }, 1'000));
   steps(500);
+  // No mode switch while the sweep moves the arm.
+  const auto switched = api->mode("us_arm", {{"mode", "cartesian"}});
+  EXPECT_EQ(switched.status, 409) << switched.message;
+  steps(5);
+  EXPECT_EQ(op()["mode"], "sweep");
+  EXPECT_EQ(sweep().phase, SweepPhase::approaching);
   ASSERT_EQ(api->state_command("us_arm", {{"command", "pause"}}).status, 200);
   steps(5);
   EXPECT_EQ(op()["state"], "PAUSED");
