@@ -383,6 +383,18 @@ TEST_F(UsArmSweepTest, TheCatheterMovesWhileTheSweepRuns) {
   EXPECT_NE(sweep().phase, SweepPhase::paused) << sweep().message;
 }
 
+TEST_F(UsArmSweepTest, APlanOutsideTheWorkspaceBoxIsRefused) {
+  auto low = arm_config();
+  low.settings["arm"]["workspace_mm"]["max"] = {900, 900, 160};  // under the pre-position (about 170 mm)
+  start({low});
+  const auto r = action("plan");
+  EXPECT_EQ(r.status, 422);
+  EXPECT_EQ(r.code, "out_of_workspace");
+  EXPECT_NE(r.message.find("pre-position above via-point 1"), std::string::npos) << r.message;
+  steps(2);
+  EXPECT_EQ(sweep().phase, SweepPhase::idle);
+}
+
 TEST_F(UsArmSweepTest, RobotFilesTheSweepRefuses) {
   auto both = arm_config();
   both.settings["arm"]["simulation"]["contact_surface"] = {{"height_mm", 150}};

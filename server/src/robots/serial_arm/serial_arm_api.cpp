@@ -6,7 +6,10 @@
 // out on /{robot}/sweep (with the arm's fields) instead of /{robot}/arm.
 #include <cstdio>
 #include <exception>
+#include <optional>
+#include <string>
 #include <utility>
+#include <vector>
 
 #include "serial_arm/serial_arm_robot.hpp"
 #include "tendril/server/robot_api_extension.hpp"
@@ -118,6 +121,7 @@ class SerialArmApi final : public RobotApiExtension {
                           "/sweep {\"action\":\"abort\"})");
         try {
           auto plan = std::make_shared<SweepPlan>(make_sweep_plan(*robot_.limb(), *robot_.ultrasound()));
+          if (auto why = outside_workspace(*plan)) return ApiResult::error(422, "out_of_workspace", *why);
           json answer = plan_json(*plan, true);
           robot_.set_sweep_plan(std::move(plan));
           PluginCommand c;
@@ -243,6 +247,33 @@ class SerialArmApi final : public RobotApiExtension {
   }
 
  private:
+  // A plan whose via-points (or the pre-position above the first) leave the arm's workspace box at
+  // the limb's rest pose would stall at the box: refused with the first offender, before anything moves.
+  std::optional<std::string> outside_workspace(const SweepPlan& plan) const {
+    const auto& s = robot_.settings();
+    const auto& u = *robot_.ultrasound();
+    const Eigen::Isometry3d rest = u.limb.rest_pose;
+    for (std::size_t i = 0; i < plan.via_points.size(); ++i) {
+      const Eigen::Isometry3d world = rest * plan.via_points[i];
+      std::vector<std::pair<Eigen::Vector3d, const char*>> points = {{world.translation(), "via-point"}};
+      if (i == 0)
+        points.emplace_back(world.translation() - u.approach_height * world.linear().col(2),
+                            "pre-position above via-point");
+      for (const auto& [p, what] : points)
+        if ((p.array() < s.workspace_min.array()).any() || (p.array() > s.workspace_max.array()).any()) {
+          char buf[256];
+          std::snprintf(
+              buf, sizeof buf,
+              "sweep: the %s %zu at (%.1f, %.1f, %.1f) mm is outside the arm's workspace box "
+              "(x %.0f..%.0f, y %.0f..%.0f, z %.0f..%.0f mm); move the limb or widen arm.workspace_mm",
+              what, i + 1, p.x(), p.y(), p.z(), s.workspace_min.x(), s.workspace_max.x(), s.workspace_min.y(),
+              s.workspace_max.y(), s.workspace_min.z(), s.workspace_max.z());
+          return std::string(buf);
+        }
+    }
+    return std::nullopt;
+  }
+
   static ApiResult busy() {
     return ApiResult::error(503, "busy", "sweep: the control thread's mailbox is full; try again");
   }
