@@ -232,8 +232,8 @@ class SerialArm final : public RobotPlugin {
   SerialArmController controller_{*this};
   hardware::LatestValue<ArmSnapshot> published_;
   hardware::LatestValue<UltrasoundProbeSample> probe_published_;
-  std::unique_ptr<UltrasoundSweep> sweep_;  // control thread only
-  hardware::LatestValue<SweepPlanData> plan_slot_;
+  std::unique_ptr<UltrasoundSweep> sweep_;     // control thread only
+  AlternatingValue<SweepPlanData> plan_slot_;  // the control thread never spins on a writer
   hardware::LatestValue<SweepSnapshot> sweep_published_;
   mutable std::mutex plan_mutex_;  // network threads only
   std::shared_ptr<const SweepPlan> plan_;
