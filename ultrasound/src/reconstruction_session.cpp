@@ -83,6 +83,16 @@ UltrasoundReconstructionSession::UltrasoundReconstructionSession(ReconstructionS
 }
 
 void UltrasoundReconstructionSession::set_plan(SweepPlan plan) {
+  check_plan(plan);
+  plan_ = std::move(plan);
+  for (auto& s : slices_) {
+    const auto i = static_cast<std::size_t>(s.via_point);
+    s.centroid_error = i < plan_.centroids.size() ? (s.slice.centroid - plan_.centroids[i]).norm() : -1.0;
+  }
+  ++revision_;
+}
+
+void UltrasoundReconstructionSession::check_plan(const SweepPlan& plan) {
   auto finite = [](const std::vector<Eigen::Vector3d>& points) {
     return std::all_of(points.begin(), points.end(), [](const Eigen::Vector3d& p) { return p.allFinite(); });
   };
@@ -98,12 +108,6 @@ void UltrasoundReconstructionSession::set_plan(SweepPlan plan) {
     throw PlanningInputError("ultrasound session: the plan has " + std::to_string(plan.via_points.size()) +
                              " via-points for " + std::to_string(plan.centroids.size()) +
                              " centroids (one each expected)");
-  plan_ = std::move(plan);
-  for (auto& s : slices_) {
-    const auto i = static_cast<std::size_t>(s.via_point);
-    s.centroid_error = i < plan_.centroids.size() ? (s.slice.centroid - plan_.centroids[i]).norm() : -1.0;
-  }
-  ++revision_;
 }
 
 Eigen::Isometry3d UltrasoundReconstructionSession::perturbed(const Eigen::Isometry3d& pose, double mean,

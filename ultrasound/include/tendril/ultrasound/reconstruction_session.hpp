@@ -142,6 +142,8 @@ class UltrasoundReconstructionSession {
   // Replaces the plan (seeds and scene). Throws PlanningInputError for non-finite points or via-points
   // and centroids of different counts. The stored slices stay (they are in {P} already).
   void set_plan(SweepPlan plan);
+  // The checks of set_plan() alone, for a caller on another thread than the session's.
+  static void check_plan(const SweepPlan& plan);
   const SweepPlan& plan() const noexcept { return plan_; }
 
   // One probe sample: renders the SIMULATED slice at the sample's poses, segments and maps it, and on
