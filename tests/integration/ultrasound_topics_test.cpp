@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <string>
@@ -86,8 +87,22 @@ std::vector<unsigned char> base64_prefix(const std::string& text, std::size_t by
   return out;
 }
 
+// What SerialArm::probe_state() hands out, set by the test (a mutex: the worker thread reads it in one test).
+struct StateSource {
+  mutable std::mutex mutex;
+  std::optional<UltrasoundProbeState> state;
+  void publish(const UltrasoundProbeState& s) {
+    std::lock_guard lock(mutex);
+    state = s;
+  }
+  std::optional<UltrasoundProbeState> latest() const {
+    std::lock_guard lock(mutex);
+    return state;
+  }
+};
+
 struct Rig {
-  UltrasoundProbeStateSlot slot;
+  StateSource slot;
   std::unique_ptr<UltrasoundTopics> topics;
   std::uint64_t now = 1'000'000'000ULL;
 
@@ -101,6 +116,7 @@ struct Rig {
     UltrasoundProbeState s;
     s.t = static_cast<double>(now) * 1e-9;
     s.world_T_limb = limb_pose();
+    s.world_T_limb_true = limb_pose();
     s.world_T_probe = limb_pose() * plan().via_points[i].pose();
     s.in_contact = true;
     s.acquiring = acquiring;
@@ -279,6 +295,7 @@ TEST(UltrasoundTopics, RefusesABadProbeStateAndKeepsTheSlices) {
   ASSERT_TRUE(tf_before);
   UltrasoundProbeState bad;
   bad.world_T_limb = limb_pose();
+  bad.world_T_limb_true = limb_pose();
   bad.world_T_probe = limb_pose() * plan().via_points[2].pose();
   bad.world_T_probe.translation().y() = std::numeric_limits<double>::quiet_NaN();
   bad.in_contact = true;

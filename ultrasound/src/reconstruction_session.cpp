@@ -127,8 +127,15 @@ Eigen::Isometry3d UltrasoundReconstructionSession::perturbed(const Eigen::Isomet
   return pose * error;
 }
 
+namespace {
+bool sample_is_valid(const ProbeSample& s) noexcept {
+  return is_rigid(s.world_T_probe) && is_rigid(s.world_T_limb) &&
+         (!s.world_T_limb_true || is_rigid(*s.world_T_limb_true)) && std::isfinite(s.t);
+}
+}  // namespace
+
 SessionOutcome UltrasoundReconstructionSession::process(const ProbeSample& sample) {
-  if (!is_rigid(sample.world_T_probe) || !is_rigid(sample.world_T_limb) || !std::isfinite(sample.t))
+  if (!sample_is_valid(sample))
     return refuse(SessionStatus::invalid_pose,
                   "the probe sample was refused: its probe or limb pose (or time) is not finite, or a "
                   "rotation is not orthonormal; nothing reconstructed was changed");
@@ -139,7 +146,8 @@ SessionOutcome UltrasoundReconstructionSession::process(const ProbeSample& sampl
     probe_true = perturbed(sample.world_T_probe, config_.errors.robot_mm, config_.errors.robot_sd_mm);
     limb_measured = perturbed(sample.world_T_limb, config_.errors.tracker_mm, config_.errors.tracker_sd_mm);
   }
-  const Eigen::Isometry3d image_true = sample.world_T_limb.inverse() * probe_true * config_.image_in_probe;
+  const Eigen::Isometry3d image_true =
+      sample.world_T_limb_true.value_or(sample.world_T_limb).inverse() * probe_true * config_.image_in_probe;
   const Eigen::Isometry3d image_measured =
       limb_measured.inverse() * sample.world_T_probe * config_.image_in_probe;
   const BModeImage image = scanner_.render(image_true, config_.errors.seed * 1'000'003ULL + image_count_++);
@@ -147,7 +155,7 @@ SessionOutcome UltrasoundReconstructionSession::process(const ProbeSample& sampl
 }
 
 SessionOutcome UltrasoundReconstructionSession::process(const ProbeSample& sample, const BModeImage& image) {
-  if (!is_rigid(sample.world_T_probe) || !is_rigid(sample.world_T_limb) || !std::isfinite(sample.t))
+  if (!sample_is_valid(sample))
     return refuse(SessionStatus::invalid_pose,
                   "the probe sample was refused: its probe or limb pose (or time) is not finite, or a "
                   "rotation is not orthonormal; nothing reconstructed was changed");
@@ -234,15 +242,17 @@ SessionOutcome UltrasoundReconstructionSession::segment_and_store(
 }
 
 SessionOutcome UltrasoundReconstructionSession::update_catheter(const ProbeSample& sample) {
-  if (!is_rigid(sample.world_T_limb) || !std::isfinite(sample.t))
+  if (!is_rigid(sample.world_T_limb) || (sample.world_T_limb_true && !is_rigid(*sample.world_T_limb_true)) ||
+      !std::isfinite(sample.t))
     return refuse(SessionStatus::invalid_pose,
                   "the catheter update was refused: the limb pose (or time) is not finite or not rigid; "
                   "the last catheter shape stays");
   if (!interrogator_) return {};
   // The catheter lies in the artery, so its base moves with the limb: H_C^G = H_P^G · H_F^P · (H_F^C)⁻¹;
   // the tracker sees the base and the limb with its error.
+  const Eigen::Isometry3d limb_true = sample.world_T_limb_true.value_or(sample.world_T_limb);
   const Eigen::Isometry3d base_true =
-      sample.world_T_limb * catheter_truth_.fiber_pose * config_.fiber_in_base.inverse();
+      limb_true * catheter_truth_.fiber_pose * config_.fiber_in_base.inverse();
   Eigen::Isometry3d base_measured = base_true, limb_measured = sample.world_T_limb;
   if (config_.errors.enabled) {
     base_measured = perturbed(base_true, config_.errors.tracker_mm, config_.errors.tracker_sd_mm);
@@ -263,7 +273,7 @@ SessionOutcome UltrasoundReconstructionSession::update_catheter(const ProbeSampl
   for (const auto& p : c.world) c.tissue.push_back(world_to_tissue * p);
   c.simulated_true_world.reserve(catheter_truth_.points.size());
   for (const auto& p : catheter_truth_.points)
-    c.simulated_true_world.push_back(sample.world_T_limb * (catheter_truth_.fiber_pose * p));
+    c.simulated_true_world.push_back(limb_true * (catheter_truth_.fiber_pose * p));
   if (mesh_.triangles.empty()) {
     c.wall_distance.assign(c.tissue.size(), std::numeric_limits<double>::infinity());
   } else {

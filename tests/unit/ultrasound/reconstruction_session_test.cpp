@@ -69,6 +69,18 @@ struct LimbMotion {
   }
 };
 
+ProbeSample sample_at(double t, const Isometry3d& probe, const Isometry3d& limb, bool contact, bool acquiring,
+                      int via_point) {
+  ProbeSample s;
+  s.t = t;
+  s.world_T_probe = probe;
+  s.world_T_limb = limb;
+  s.in_contact = contact;
+  s.acquiring = acquiring;
+  s.via_point = via_point;
+  return s;
+}
+
 const Isometry3d kTissueAtRest = pose(rotation(0.3, Vector3d::UnitY()), Vector3d(400.0, 100.0, -50.0));
 
 // Spec §16 steps 1–3 (CT with noise, ICP on the stick, Algorithm 1, a noisy depth-camera surface,
@@ -168,7 +180,8 @@ SweepRun run_sweep(const LimbMotion& motion, std::uint64_t seed) {
       held = conditions ? held + dt : 0.0;
       if (held >= 0.1) break;
       if (++step % 125 == 0) {
-        const ProbeSample live{t, probe, kTissueAtRest * motion.at(t), true, false, static_cast<int>(i)};
+        const ProbeSample live =
+            sample_at(t, probe, kTissueAtRest * motion.at(t), true, false, static_cast<int>(i));
         const SessionOutcome o = run.session->process(live);
         EXPECT_FALSE(o.stored_slice);
         ++run.live_frames;
@@ -182,7 +195,8 @@ SweepRun run_sweep(const LimbMotion& motion, std::uint64_t seed) {
         return run;
       }
     }
-    const ProbeSample acquisition{t, probe, kTissueAtRest * motion.at(t), true, true, static_cast<int>(i)};
+    const ProbeSample acquisition =
+        sample_at(t, probe, kTissueAtRest * motion.at(t), true, true, static_cast<int>(i));
     const std::size_t before = run.session->slices().size();
     const SessionOutcome o = run.session->process(acquisition);
     EXPECT_TRUE(o.ok()) << o.message;
@@ -347,8 +361,8 @@ TEST(ReconstructionSession, RefusesBadInputAndKeepsWhatItHas) {
   const Isometry3d limb = kTissueAtRest;
   // Two acquisitions exactly at the first two via-points: two slices and a mesh.
   for (int i = 0; i < 2; ++i) {
-    const ProbeSample s{
-        1.0 * i, limb * plan().via_points[static_cast<std::size_t>(i)].pose(), limb, true, true, i};
+    const ProbeSample s =
+        sample_at(1.0 * i, limb * plan().via_points[static_cast<std::size_t>(i)].pose(), limb, true, true, i);
     ASSERT_TRUE(session.process(s).stored_slice);
   }
   const std::uint64_t revision = session.revision();
@@ -356,17 +370,17 @@ TEST(ReconstructionSession, RefusesBadInputAndKeepsWhatItHas) {
   ASSERT_EQ(session.slices().size(), 2u);
   ASSERT_EQ(vertices, 60u);
 
-  ProbeSample nan_pose{2.0, limb * plan().via_points[2].pose(), limb, true, true, 2};
+  ProbeSample nan_pose = sample_at(2.0, limb * plan().via_points[2].pose(), limb, true, true, 2);
   nan_pose.world_T_probe.translation().x() = std::numeric_limits<double>::quiet_NaN();
   SessionOutcome o = session.process(nan_pose);
   EXPECT_EQ(o.status, SessionStatus::invalid_pose);
   EXPECT_NE(o.message.find("not finite"), std::string::npos) << o.message;
-  ProbeSample skewed{2.0, limb * plan().via_points[2].pose(), limb, true, true, 2};
+  ProbeSample skewed = sample_at(2.0, limb * plan().via_points[2].pose(), limb, true, true, 2);
   skewed.world_T_limb.linear() *= 1.1;  // not a rotation
   EXPECT_EQ(session.process(skewed).status, SessionStatus::invalid_pose);
   EXPECT_EQ(session.update_catheter(skewed).status, SessionStatus::invalid_pose);
 
-  const ProbeSample good{2.0, limb * plan().via_points[2].pose(), limb, true, true, 2};
+  const ProbeSample good = sample_at(2.0, limb * plan().via_points[2].pose(), limb, true, true, 2);
   BModeImage empty;
   empty.geometry = c.geometry;
   o = session.process(good, empty);
@@ -397,6 +411,38 @@ TEST(ReconstructionSession, RefusesBadInputAndKeepsWhatItHas) {
   session.reset();
   EXPECT_TRUE(session.slices().empty());
   EXPECT_TRUE(session.mesh().vertices.empty());
+}
+
+// The scanner images the limb where it truly is, the slice is mapped where the tracker says it is: a
+// tracked limb 3 mm off (latency) moves the stored centroid by those 3 mm; a NaN true pose is refused.
+TEST(ReconstructionSession, ImagesAtTheTrueLimbAndMapsThroughTheTrackedOne) {
+  ReconstructionSessionConfig c = session_config(9);
+  c.catheter_path.clear();
+  c.errors.enabled = false;
+  UltrasoundReconstructionSession exact(c), lagging(c);
+  exact.set_plan(plan());
+  lagging.set_plan(plan());
+  const Isometry3d limb = kTissueAtRest;
+  const Isometry3d probe = limb * plan().via_points[5].pose();
+  ProbeSample s = sample_at(0.0, probe, limb, true, true, 5);
+  s.world_T_limb_true = limb;
+  ASSERT_TRUE(exact.process(s).stored_slice);
+  // The true limb is 3 mm further along its own y than the tracked one, the probe moved with it.
+  const Isometry3d moved = limb * pose(Eigen::Matrix3d::Identity(), Vector3d(0.0, 3.0, 0.0));
+  ProbeSample late = sample_at(0.0, moved * plan().via_points[5].pose(), limb, true, true, 5);
+  late.world_T_limb_true = moved;
+  ASSERT_TRUE(lagging.process(late).stored_slice);
+  const double exact_error = exact.slices().front().centroid_error;
+  const double lag_error = lagging.slices().front().centroid_error;
+  std::printf("true = tracked: %.3f mm; tracked 3 mm behind: %.3f mm\n", exact_error, lag_error);
+  EXPECT_LT(exact_error, 0.5);
+  EXPECT_NEAR(lag_error, 3.0, 0.5);
+  ProbeSample broken = s;
+  broken.via_point = 6;
+  broken.world_T_limb_true->translation().z() = std::numeric_limits<double>::infinity();
+  EXPECT_EQ(exact.process(broken).status, SessionStatus::invalid_pose);
+  EXPECT_EQ(exact.update_catheter(broken).status, SessionStatus::invalid_pose);
+  EXPECT_EQ(exact.slices().size(), 1u);
 }
 
 TEST(ReconstructionSession, RefusesABadSetUp) {

@@ -1,81 +1,75 @@
-// The ultrasound probe's state as the us_arm's sweep controller publishes it and the imaging worker
-// (ultrasound_topics.hpp) reads it: the meeting point of the sweep (control thread) and the
-// reconstruction (its own worker thread), so that neither waits for the other.
+// UltrasoundProbeState: what the ultrasound arm's control thread tells the imaging side (the SIMULATED
+// B-mode probe, the slice mapping of eq. 5, the reconstruction topics) about the probe and the limb,
+// once per control tick. Read it off the control thread with SerialArm::probe_state(): a latest-value
+// read through a seqlock (hardware::LatestValue), so the control thread never waits for a reader.
 //
-// Frames and units: poses in the world frame, mm; time in s (the controller's clock); force in N.
-// world_T_limb is the limb's (tissue frame's) pose as the sweep's motion compensation uses it.
+// Frames: "world" is the arm's base frame {B} (us_arm_base): tendril places no arm elsewhere, so
+// world_T_base is the identity and the /tf chain world→us_arm_base is one. The limb frame {P} (the
+// tissue-stabilised frame "tissue") moves with the SIMULATED limb; the probe frame {U} is the arm's
+// tool frame, z along the probe axis into the tissue. Units: mm, rad, N, s.
 #pragma once
 
-#include <Eigen/Geometry>
+#include <array>
 #include <cstdint>
-#include <optional>
 
-#include "tendril/drivers/hardware/latest_value.hpp"
+#include <Eigen/Geometry>
 
 namespace tendril::server {
 
 struct UltrasoundProbeState {
-  double t = 0.0;
+  std::uint64_t tick = 0;  // control tick of the sample (grows; 0: nothing published yet)
+  double t = 0.0;          // control time (s)
+  // The probe (tool) pose from the measured joints.
   Eigen::Isometry3d world_T_probe = Eigen::Isometry3d::Identity();
+  // The limb as the motion compensation sees it (the SIMULATED 120 Hz tracker: sample-and-hold plus
+  // its latency) — the frame to map slices into for a motion-stabilised reconstruction (eq. 5's H_P^G).
   Eigen::Isometry3d world_T_limb = Eigen::Isometry3d::Identity();
+  // The limb's true pose now (SIMULATED ground truth, for the simulated B-mode image only).
+  Eigen::Isometry3d world_T_limb_true = Eigen::Isometry3d::Identity();
+  double normal_force_n = 0.0;  // F_n along the probe axis (positive pressing), from the force sensor
+  bool in_contact = false;      // the force phase of the hybrid controller (or F_n over 0.1 N)
+  bool acquiring = false;       // the acquisition gate is open: an image taken now is a slice
+  int via_point = -1;           // index of the current via-point, -1 without a running sweep
+};
+
+// The trivially copyable form the control thread stores (LatestValue holds trivially copyable data
+// only; Eigen's transforms are not). Poses as 4×4 column-major matrices.
+struct UltrasoundProbeSample {
+  std::uint64_t tick = 0;
+  double t = 0.0;
+  std::array<double, 16> world_T_probe{};
+  std::array<double, 16> world_T_limb{};
+  std::array<double, 16> world_T_limb_true{};
   double normal_force_n = 0.0;
   bool in_contact = false;
-  bool acquiring = false;  // the acquisition gate is open at via_point
-  int via_point = -1;      // −1: no via-point (not sweeping)
+  bool acquiring = false;
+  int via_point = -1;
 };
 
-// The newest probe state: written by one thread (the control thread: never waits, never allocates),
-// read by any. Eigen's matrices are not trivially copyable, so the slot keeps a plain copy in a
-// hardware::LatestValue seqlock.
-class UltrasoundProbeStateSlot {
- public:
-  void publish(const UltrasoundProbeState& s) noexcept {
-    Packed p;
-    p.t = s.t;
-    for (int i = 0; i < 16; ++i) {
-      p.probe[i] = s.world_T_probe.matrix().data()[i];
-      p.limb[i] = s.world_T_limb.matrix().data()[i];
-    }
-    p.normal_force_n = s.normal_force_n;
-    p.in_contact = s.in_contact;
-    p.acquiring = s.acquiring;
-    p.via_point = s.via_point;
-    p.present = true;
-    slot_.store(p);
-  }
+inline std::array<double, 16> to_array(const Eigen::Isometry3d& pose) noexcept {
+  std::array<double, 16> out{};
+  Eigen::Map<Eigen::Matrix4d>(out.data()) = pose.matrix();
+  return out;
+}
 
-  // Nothing before the first publish().
-  std::optional<UltrasoundProbeState> latest() const noexcept {
-    const Packed p = slot_.load();
-    if (!p.present) return std::nullopt;
-    UltrasoundProbeState s;
-    s.t = p.t;
-    for (int i = 0; i < 16; ++i) {
-      s.world_T_probe.matrix().data()[i] = p.probe[i];
-      s.world_T_limb.matrix().data()[i] = p.limb[i];
-    }
-    s.normal_force_n = p.normal_force_n;
-    s.in_contact = p.in_contact;
-    s.acquiring = p.acquiring;
-    s.via_point = p.via_point;
-    return s;
-  }
+inline Eigen::Isometry3d to_isometry(const std::array<double, 16>& m) noexcept {
+  Eigen::Isometry3d pose;
+  pose.matrix() = Eigen::Map<const Eigen::Matrix4d>(m.data());
+  return pose;
+}
 
-  // Grows with every publish(): a reader can tell a new state from the one it has.
-  std::uint64_t version() const noexcept { return slot_.version(); }
-
- private:
-  struct Packed {
-    double t = 0.0;
-    double probe[16] = {};  // column-major 4 × 4, as Eigen stores it
-    double limb[16] = {};
-    double normal_force_n = 0.0;
-    bool in_contact = false;
-    bool acquiring = false;
-    bool present = false;
-    int via_point = -1;
-  };
-  hardware::LatestValue<Packed> slot_;
-};
+inline UltrasoundProbeState to_state(const UltrasoundProbeSample& s) noexcept {
+  UltrasoundProbeState out;
+  out.tick = s.tick;
+  out.t = s.t;
+  out.world_T_probe = to_isometry(s.world_T_probe);
+  out.world_T_limb = to_isometry(s.world_T_limb);
+  out.world_T_limb_true = to_isometry(s.world_T_limb_true);
+  out.normal_force_n = s.normal_force_n;
+  out.in_contact = s.in_contact;
+  out.acquiring = s.acquiring;
+  out.via_point = s.via_point;
+  return out;
+}
 
 }  // namespace tendril::server

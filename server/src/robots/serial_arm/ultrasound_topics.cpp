@@ -211,6 +211,7 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
   sample.t = state->t;
   sample.world_T_probe = state->world_T_probe;
   sample.world_T_limb = state->world_T_limb;
+  sample.world_T_limb_true = state->world_T_limb_true;  // SIMULATED truth: where the scanner images
   sample.in_contact = state->in_contact;
   sample.acquiring = state->acquiring;
   sample.via_point = state->via_point;
@@ -238,7 +239,8 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     slices_.store(session_.slices().size(), std::memory_order_relaxed);
   } else if (!state->in_contact) {
     // A refused pose shows here too (process() checks the pose before the contact).
-    if (!ultrasound::is_rigid(sample.world_T_probe) || !ultrasound::is_rigid(sample.world_T_limb)) {
+    if (!ultrasound::is_rigid(sample.world_T_probe) || !ultrasound::is_rigid(sample.world_T_limb) ||
+        !ultrasound::is_rigid(state->world_T_limb_true)) {
       std::lock_guard lock(topics_mutex_);
       last_message_ = "the probe state was refused: a pose is not finite or not rigid";
       ++refusals_;

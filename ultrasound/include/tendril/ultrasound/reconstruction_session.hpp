@@ -11,12 +11,13 @@
 // and into {P}, checked against the mesh for contacts (under 1.25 mm from the wall) and for curvature
 // over the fibre's limit.
 //
-// SIMULATED measurement errors: the sample's poses are the simulation's truth (the arm's forward
-// kinematics, the limb's pose). A real system sees the probe through the robot's calibration and the
-// limb through the tracker, so the session renders the image at the TRUE poses and maps it through
-// poses perturbed by the error budget of spec §4.6 (robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm, 0.02°
-// per axis; a new draw per image, as the digital twin does). Set `errors.enabled = false` for exact
-// mapping.
+// SIMULATED measurement errors: the sample's probe pose is the arm's forward kinematics, and the limb
+// comes as tracked (world_T_limb: the simulated tracker's sample-and-hold and latency) and, optionally,
+// as the simulation's truth (world_T_limb_true). The scanner images at the TRUE poses — the probe's
+// forward kinematics ⊕ the robot's error, the true limb — and the slice is mapped through the measured
+// ones — the forward kinematics, the tracked limb ⊕ the tracker's noise — with the error budget of spec
+// §4.6 (robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm, 0.02° per axis; a new draw per image, as the digital
+// twin does). Set `errors.enabled = false` to add no noise (the latency, if any, stays).
 //
 // Bad input (a pose that is not finite or not rigid, an image that is empty or of another geometry)
 // is refused with a status and a sentence; nothing stored before is changed.
@@ -46,7 +47,9 @@ namespace tendril::ultrasound {
 struct ProbeSample {
   double t = 0.0;                                                   // s
   Eigen::Isometry3d world_T_probe = Eigen::Isometry3d::Identity();  // H_U^G
-  Eigen::Isometry3d world_T_limb = Eigen::Isometry3d::Identity();   // H_P^G (the tissue frame)
+  Eigen::Isometry3d world_T_limb = Eigen::Isometry3d::Identity();   // H_P^G as tracked (the tissue frame)
+  // SIMULATED: the limb's true pose, where the scanner images it; without it, world_T_limb.
+  std::optional<Eigen::Isometry3d> world_T_limb_true;
   bool in_contact = false;
   bool acquiring = false;  // the sweep's gate is open: store this slice
   int via_point = -1;      // index into the plan; −1 when none
