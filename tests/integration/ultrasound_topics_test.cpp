@@ -9,6 +9,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <mutex>
 #include <nlohmann/json.hpp>
@@ -163,9 +164,14 @@ TEST(UltrasoundTopics, ImageAndEllipseAnnotationOfTheSlice) {
   rig.topics->set_demand("/us_arm/ultrasound/image", true);
   rig.topics->set_demand("/us_arm/ultrasound/annotations", true);
   rig.at_via_point(2, false);
+  const auto t0 = std::chrono::steady_clock::now();
   rig.step();
+  const double step_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   const auto image = rig.message("/us_arm/ultrasound/image");
   ASSERT_TRUE(image);
+  std::printf("one worker step with an image: %.1f ms (render, EKF, PNG, JSON); image message %zu bytes\n",
+              step_ms, rig.topics->latest("/us_arm/ultrasound/image", 0)->payload->size());
   EXPECT_EQ(image->at("format"), "png");
   EXPECT_EQ(image->at("frame_id"), "us_arm_image");
   EXPECT_EQ(image->at("simulated"), true);
@@ -213,6 +219,8 @@ TEST(UltrasoundTopics, SceneInTheTissueFrameWithSlicesMeshCatheterAndContacts) {
   EXPECT_FALSE(rig.topics->latest("/us_arm/ultrasound/image", 0));
   const auto scene = rig.message("/us_arm/reconstruction");
   ASSERT_TRUE(scene);
+  std::printf("scene message %zu bytes (7 slices, 600 surface points)\n",
+              rig.topics->latest("/us_arm/reconstruction", 0)->payload->size());
   std::set<std::string> ids;
   for (const auto& e : scene->at("entities")) {
     ids.insert(e.at("id").get<std::string>());
