@@ -204,6 +204,7 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     }
     if (reset) session_.reset();
     if (plan) session_.set_plan(std::move(*plan));
+    slices_.store(session_.slices().size(), std::memory_order_relaxed);
   }
   const std::optional<UltrasoundProbeState> state = probe_state_();
   if (!state) return;
