@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "serial_arm/serial_arm_robot.hpp"
 #include "tendril/drivers/imaging/image_source.hpp"
 #include "tendril/server/http/foxglove_protocol.hpp"
 
@@ -201,6 +202,14 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
       std::lock_guard lock(pending_mutex_);
       plan.swap(pending_plan_);
       std::swap(reset, pending_reset_);
+    }
+    if (settings_.plan_reader) {
+      std::shared_ptr<const ultrasound::SweepPlan> polled = settings_.plan_reader();
+      if (polled && polled != seen_plan_) {
+        seen_plan_ = polled;
+        reset = true;
+        plan = *polled;
+      }
     }
     if (reset) session_.reset();
     if (plan) session_.set_plan(std::move(*plan));
@@ -521,6 +530,51 @@ std::string UltrasoundTopics::metrics() const {
          "# TYPE tendril_ultrasound_step_seconds gauge\n"
          "tendril_ultrasound_step_seconds" +
          label + " " + fixed(last_step_s_, 6) + "\n";
+}
+
+std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm) {
+  const LimbSimulation* limb = arm.limb();
+  if (!limb) return nullptr;
+  ultrasound::ReconstructionSessionConfig session;
+  session.artery = limb->artery();
+  // The catheter [our choice; the us_arm file names none]: straight into the artery along its entry
+  // tangent for 200 mm, then along its centerline, so its 270 mm fibre ends inside the artery.
+  const auto& axis = limb->artery().points;
+  if (axis.size() >= 2) {
+    const Eigen::Vector3d entry = axis.front(), tangent = (axis[1] - axis[0]).normalized();
+    for (int k = 400; k >= 1; --k) session.catheter_path.push_back(entry - 0.5 * k * tangent);
+    session.catheter_path.insert(session.catheter_path.end(), axis.begin(), axis.end());
+    double length = 200.0;
+    for (std::size_t i = 1; i < axis.size(); ++i) length += (axis[i] - axis[i - 1]).norm();
+    if (length < session.fiber.length() + 1.0) session.catheter_path.clear();  // too short: no catheter
+  }
+  UltrasoundTopicsSettings settings;
+  settings.robot = arm.config().name;
+  // The plan as the arm holds it, converted once per new plan (this lambda runs on the worker only).
+  settings.plan_reader = [&arm, seen = std::shared_ptr<const SweepPlan>(),
+                          converted = std::shared_ptr<const ultrasound::SweepPlan>()]() mutable {
+    std::shared_ptr<const SweepPlan> plan = arm.sweep_plan();
+    if (plan && plan != seen) {
+      seen = plan;
+      auto out = std::make_shared<ultrasound::SweepPlan>();
+      out->surface = plan->skin;
+      out->centroids = plan->centroids;
+      for (const auto& pose : plan->via_points) {
+        ultrasound::ProbeViaPoint v;
+        v.surface_point = pose.translation();
+        v.rotation = pose.linear();
+        out->via_points.push_back(v);
+      }
+      converted = std::move(out);
+    }
+    return converted;
+  };
+  return std::make_shared<UltrasoundTopics>(std::move(session), std::move(settings),
+                                            [&arm]() -> std::optional<UltrasoundProbeState> {
+                                              UltrasoundProbeState s = arm.probe_state();
+                                              if (s.tick == 0) return std::nullopt;  // nothing published yet
+                                              return s;
+                                            });
 }
 
 }  // namespace tendril::server

@@ -46,6 +46,9 @@ struct UltrasoundTopicsSettings {
   Eigen::Isometry3d world_T_base = Eigen::Isometry3d::Identity();  // the arm's base in the world
   std::size_t max_surface_points = 600;  // the scene's skin cloud, evenly thinned to this many
   bool own_thread = true;                // false: the caller drives step() (tests)
+  // Polled by the worker at each step (optional): a plan pointer it has not seen is set (and the
+  // slices of the previous plan are forgotten: a new plan is a new sweep). The alternative to set_plan().
+  std::function<std::shared_ptr<const ultrasound::SweepPlan>()> plan_reader;
 };
 
 class UltrasoundTopics final : public TopicSource {
@@ -114,6 +117,7 @@ class UltrasoundTopics final : public TopicSource {
   double last_step_s_ = 0.0;
 
   // Worker state.
+  std::shared_ptr<const ultrasound::SweepPlan> seen_plan_;
   std::uint64_t next_catheter_ns_ = 0, next_scene_ns_ = 0, scene_revision_ = ~0ULL;
   std::uint64_t last_frame_stamp_ = 0;
   std::atomic<std::size_t> slices_{0};
@@ -122,5 +126,13 @@ class UltrasoundTopics final : public TopicSource {
   bool stopping_ = false;
   std::thread worker_;
 };
+
+class SerialArm;
+// The us_arm's topics (helper usimg's hook-up, called from SerialArm::topic_sources()): the session
+// images the SIMULATED limb's artery, with a SIMULATED catheter lying along it (a 200 mm straight
+// lead-in, then the artery's centerline); the probe state and the plan come from the arm. Null without
+// the file's "ultrasound" section. The arm must outlive the topics (tendrild stops its front end, which
+// holds them, before the runtime).
+std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm);
 
 }  // namespace tendril::server
