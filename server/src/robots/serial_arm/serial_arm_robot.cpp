@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "serial_arm/serial_arm_schema.hpp"
+#include "serial_arm/ultrasound_topics.hpp"
 #include "tendril/server/config_reader.hpp"
 #include "tendril/server/robot_api_extension.hpp"
 #include "tendril/server/robot_types.hpp"
@@ -282,6 +283,12 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
 }
 
 SerialArm::~SerialArm() = default;
+
+// The ultrasound imaging and reconstruction topics (helper usimg; ultrasound_topics.cpp).
+std::vector<std::shared_ptr<TopicSource>> SerialArm::topic_sources() {
+  if (auto topics = make_us_arm_topics(*this)) return {std::move(topics)};
+  return {};
+}
 
 std::vector<ModeInfo> SerialArm::modes() const {
   std::vector<ModeInfo> modes = {

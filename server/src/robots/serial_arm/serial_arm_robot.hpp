@@ -188,6 +188,8 @@ class SerialArm final : public RobotPlugin {
   std::optional<ServiceError> resume_refusal(const OperatingStateView& state) const override;
   std::unique_ptr<RobotApiExtension> api(RobotService& service,
                                          std::function<bool(const PluginCommand&)> post) override;
+  // The ultrasound imaging and reconstruction topics (ultrasound_topics.hpp); none without "ultrasound".
+  std::vector<std::shared_ptr<TopicSource>> topic_sources() override;
 
   // The ultrasound sweep (nullopt / null without the file's "ultrasound" section).
   const std::optional<UltrasoundSettings>& ultrasound() const noexcept { return ultrasound_; }
