@@ -144,6 +144,11 @@ bash tests/api/continuum/run.sh build/server/tendrild 2>&1 | tee build/api_conti
 status=${PIPESTATUS[0]}
 read -r p f < <(node_counts build/api_continuum.log)
 record api_continuum "$status" "$p" "$f"
+# The ultrasound arm's sweep (us_arm) beside the moving catheter, a server of its own (~30 s).
+bash tests/api/us_arm/run.sh build/server/tendrild 2>&1 | tee build/api_us_arm.log
+status=${PIPESTATUS[0]}
+read -r p f < <(node_counts build/api_us_arm.log)
+record api_us_arm "$status" "$p" "$f"
 
 # ---- 4. browser tests ---------------------------------------------------------------------------
 stage "browser tests (Playwright + chromium) against the sanitized tendrild"
