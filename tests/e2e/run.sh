@@ -50,6 +50,8 @@ stop_tendrild
 # The Tracking tab (tracking.e2e.mjs): tip tracking, segmentation editor and roadmaps, on a fresh server.
 start_tendrild "$binary" || exit 1
 run_file "$here/tracking.e2e.mjs"
+# The 3D view's generic pieces (point clouds, SceneUpdate primitives, /tf frames) on the same server.
+run_file "$here/scene_update.e2e.mjs"
 stop_tendrild
 
 # The replay bar (replay.e2e.mjs): a few seconds recorded by a live server (SIGTERM finalises them),
