@@ -455,6 +455,7 @@ function applyJointState(js, withSetpoint) {
   if (!joints || !js) return;
   joints.updateMeasured(js);
   procedure.onJoints(js);
+  kindPanel?.onJointState?.(js);
   if (withSetpoint && Array.isArray(js.setpoint)) joints.updateSetpoint({name: js.name, position: js.setpoint});
   plotJointState(js.name, js.position, 1);
   if (withSetpoint) plotJointState(js.name, js.setpoint, 0);

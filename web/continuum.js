@@ -13,7 +13,8 @@
 import {el, group, fmt, describe, robotCommand, rampColor} from './panel_kit.js';
 
 const SLOTS_DEFAULT = 8;
-const DISK_RING_MM = 9;  // drawn ring radius when the robot does not state its disks' radius
+// The disks' rim radius when GET /robots does not state it: seed 000 §3's SDU (OD 158 mm).
+const DISK_RING_MM = 79;
 const ENTITY_PREFIX = 'continuum-panel/';
 const GREY = {r: 0.45, g: 0.5, b: 0.56, a: 1};
 const RED = {r: 0.97, g: 0.2, b: 0.2, a: 1};
@@ -32,17 +33,29 @@ function vnorm(a) {
   return n > 1e-9 ? [a[0] / n, a[1] / n, a[2] / n] : null;
 }
 
-// The axes of a disk's plane: its normal is the backbone's tangent, estimated from the neighbouring
-// disks (the base below the first), and slot 0 lies towards the base frame's +x projected into that
-// plane (the slots counted about the tangent). The disk's own orientation, when the server sends it,
-// is used instead (orientation as [qx,qy,qz,qw]).
-function diskAxes(disks, i) {
+function matmul(a, b) {
+  return a.map((row) => [0, 1, 2].map((j) => row[0] * b[0][j] + row[1] * b[1][j] + row[2] * b[2][j]));
+}
+function rotZ(t) { return [[Math.cos(t), -Math.sin(t), 0], [Math.sin(t), Math.cos(t), 0], [0, 0, 1]]; }
+function rotY(t) { return [[Math.cos(t), 0, Math.sin(t)], [0, 1, 0], [-Math.sin(t), 0, Math.cos(t)]]; }
+
+// The axes u (x, towards slot 0) and v (y) of a disk's plane, in {0}. In order of preference:
+// the disk's own orientation when the server sends it ([qx,qy,qz,qw]); the constant-curvature model
+// from the measured joints, ⁰R_d = Rz(roll)·Rz(δ)·Ry(θ·s/L)·Rz(−δ) (the README's frames: {d} with z
+// along the tangent and x towards slot 0°); else the tangent estimated from the neighbouring disks and
+// x the base's +x projected into the disk's plane (slot 0 then only approximately placed).
+function diskAxes(disks, i, model) {
   const d = disks[i];
   if (Array.isArray(d.orientation) && d.orientation.length === 4) {
     const [x, y, z, w] = d.orientation;
     const u = [1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w)];
     const v = [2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w)];
     return {u, v};
+  }
+  if (model && Number.isFinite(model.arc[d.index]) && model.length > 0) {
+    const R = matmul(matmul(matmul(rotZ(model.roll), rotZ(model.plane)), rotY(model.bending * model.arc[d.index] / model.length)),
+                     rotZ(-model.plane));
+    return {u: [R[0][0], R[1][0], R[2][0]], v: [R[0][1], R[1][1], R[2][1]]};
   }
   const prev = i > 0 ? disks[i - 1].position_mm : [0, 0, 0];
   const next = i + 1 < disks.length ? disks[i + 1].position_mm : d.position_mm;
@@ -232,7 +245,7 @@ class ContinuumPanel {
     const lines = [];
     disks.forEach((d, i) => {
       if (!Array.isArray(d.position_mm) || d.position_mm.length !== 3 || !d.position_mm.every(Number.isFinite)) return;
-      const {u, v} = diskAxes(disks, i);
+      const {u, v} = diskAxes(disks, i, this.model());
       const p = d.position_mm;
       const ring = [];
       for (let k = 0; k < this.slots; k++) {
@@ -257,6 +270,22 @@ class ContinuumPanel {
       lines.push({type: 1, points: ring, color: rim, thickness: 1});
     });
     view.applySceneUpdate({entities: [{id: `${ENTITY_PREFIX}disks`, frame_id: '', spheres, lines}]});
+  }
+
+  // Measured joints (stage_roll, bending, bending_plane) for the disks' orientation (diskAxes).
+  onJointState(js) {
+    if (!Array.isArray(js?.name) || !Array.isArray(js?.position)) return;
+    const at = (n) => Number(js.position[js.name.indexOf(n)]);
+    this.joints = {roll: at('stage_roll'), bending: at('bending'), plane: at('bending_plane')};
+  }
+
+  model() {
+    const j = this.joints;
+    const disks = this.info.disks || [];
+    if (!j || ![j.roll, j.bending, j.plane].every(Number.isFinite) || !disks.length) return null;
+    const arc = Object.fromEntries(disks.map((d) => [d.index, Number(d.arc_mm)]));
+    const length = Number(this.info.length_mm) || Math.max(...disks.map((d) => Number(d.arc_mm) || 0));
+    return {...j, arc, length};
   }
 
   updateAge() {
