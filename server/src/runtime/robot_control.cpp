@@ -344,6 +344,16 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
     r.controller->reset(ctx);
   }
   if ((state == OperatingState::kEnabled || held_motion) && s.drives_ready) {
+    // The type's safety filter sees every mode's step (robot_type.hpp limit_step).
+    const double kept = r.controller->limit_step(ctx, {setpoint_before.data(), n});
+    if (kept < 1.0) {
+      if (state == OperatingState::kEnabled && s.mode < kFirstPluginMode && !s.servo_active)
+        r.interpolator->delay((1.0 - kept) * period);
+      else
+        r.interpolator->reset(q_des, t);
+    }
+  }
+  if ((state == OperatingState::kEnabled || held_motion) && s.drives_ready) {
     const JointArray unclamped = s.q_des;
     auto clamp = sup.clamp_setpoint(q_des, qd_des);
     // Tightened operating limits: the setpoint stops at the boundary. A setpoint already outside (the

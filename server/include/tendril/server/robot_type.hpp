@@ -152,6 +152,18 @@ class RobotController {
   }
   // The hold ended (resume, disable, e-stop reset).
   virtual void hold_ended(ControlContext& ctx) noexcept { (void)ctx; }
+  // The type's safety filter on every motion: after the mid-level controller of whatever mode runs (the
+  // core's joint mode with move_jp and servo_jv included) and before the limit clamp, while ENABLED or
+  // while a held motion moves the setpoint. It may shorten the setpoint's step from `before` (the
+  // setpoint the cycle started from) and returns the fraction of the step it kept, in [0, 1] (1:
+  // unchanged). A sensor-based speed law that must hold in every mode (proximity speed scaling) sits
+  // here. The core then delays its joint interpolator by the time the factor withheld, so a move_jp
+  // runs slower along the same path instead of being cut short.
+  virtual double limit_step(ControlContext& ctx, std::span<const double> before) noexcept {
+    (void)ctx;
+    (void)before;
+    return 1.0;
+  }
   // End of the tick: publish the type's state for its API extension (its own LatestValue slots).
   virtual void publish(const ControlContext& ctx) noexcept { (void)ctx; }
 };
