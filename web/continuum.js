@@ -20,6 +20,7 @@ const GREY = {r: 0.45, g: 0.5, b: 0.56, a: 1};
 const RED = {r: 0.97, g: 0.2, b: 0.2, a: 1};
 
 const SUPERVISOR_TEXT = {
+  unbiasing: 'Unbiasing Hall sensors',
   normal: 'Normal',
   slowed: 'Slowed (proximity)',
   stopped_contact: 'STOPPED: contact',
@@ -79,7 +80,7 @@ class ContinuumPanel {
     this.info = c;
     this.dMax = Number(c.speed?.d_max_mm) || 100;
     this.slots = Number(c.disks?.[0]?.slots) || SLOTS_DEFAULT;
-    this.ringMm = Number(c.disks?.[0]?.radius_mm) || DISK_RING_MM;
+    this.ringMm = Number(c.segment?.disk_radius_mm) || Number(c.disks?.[0]?.radius_mm) || DISK_RING_MM;
     const name = ctx.robot.name;
     this.topicState = `/${name}/continuum`;
     this.topicMap = `/${name}/map`;
@@ -118,6 +119,10 @@ class ContinuumPanel {
       onclick: () => this.command('simulation_scene', {action, speed_mm_s: Number(u.armSpeed.value) || 10},
                                   `SIMULATED arm: ${action}`)});
     u.armButtons = [armButton('approach', 'Approach'), armButton('retreat', 'Retreat'), armButton('reset', 'Reset')];
+    u.arm = el('div', {className: 'rp-detail', 'data-testid': 'continuum-arm'});
+    u.unbias = el('button', {type: 'button', className: 'btn', 'data-testid': 'continuum-unbias', text: 'Unbias Hall',
+                             title: 'Take the Hall sensors\' baseline again (refused while in contact)',
+                             onclick: () => this.command('unbias', {}, 'Hall unbias')});
     u.mapButtons = [
       el('button', {type: 'button', className: 'btn', 'data-testid': 'continuum-map-extract', text: 'Extract planes',
                     onclick: () => this.command('map', {action: 'extract'}, 'Plane extraction')}),
@@ -128,26 +133,28 @@ class ContinuumPanel {
 
     this.root.append(
         el('div', {className: 'panel-age'}, 'continuum values ', u.age),
-        group('Safety supervisor', '(no mode bypasses it)', u.supervisor, u.reason, u.contact),
+        group('Safety supervisor', '(no mode bypasses it)', u.supervisor, u.reason, u.contact,
+              el('div', {className: 'form-row'}, u.unbias)),
         group('Speed scale', `(proximity: v_min ${fmt(this.info.speed?.min_mm_s, 2)} … v_max ${fmt(this.info.speed?.max_mm_s, 0)} mm/s over ${fmt(this.dMax, 0)} mm)`,
               el('div', {className: 'rp-scale'},
                  el('div', {className: 'rp-bar', role: 'meter', 'aria-label': 'Speed-scale factor'}, u.scaleBar), u.scale),
               u.scaleDetail),
-        group('HRI mode', '(guidance by hand)', el('div', {className: 'form-row rp-modes'}, Object.values(u.modeButtons))),
+        group('HRI mode', '(the law moves the robot in the Guidance mode)', el('div', {className: 'form-row rp-modes'}, Object.values(u.modeButtons))),
         group('Sensing disks', '(nearest ToF range, largest Hall force)',
               el('table', {className: 'rp-table', 'data-testid': 'continuum-disks'},
                  el('thead', {}, el('tr', {}, ['disk', 'nearest', 'force', 'contact', 'state'].map((h) => el('th', {text: h})))),
                  u.disks)),
         group('Map and bracing', '(/map point cloud, RANSAC planes)', u.map, u.bracing, el('div', {className: 'form-row'}, u.mapButtons)),
         group('SIMULATED human arm', '(the scene the disks see)',
-              el('div', {className: 'form-row'}, el('label', {className: 'rp-label'}, 'speed ', u.armSpeed, ' mm/s'), u.armButtons)),
+              el('div', {className: 'form-row'}, el('label', {className: 'rp-label'}, 'speed ', u.armSpeed, ' mm/s'), u.armButtons),
+              u.arm),
         u.hint);
     this.setCommandable(false, 'Waiting for the robot state…');
   }
 
   setCommandable(ok, hint) {
     this.commandable = ok;
-    const buttons = [...Object.values(this.ui.modeButtons), ...this.ui.armButtons, ...this.ui.mapButtons];
+    const buttons = [...Object.values(this.ui.modeButtons), ...this.ui.armButtons, ...this.ui.mapButtons, this.ui.unbias];
     for (const b of buttons) b.disabled = !ok;
     this.ui.armSpeed.disabled = !ok;
     this.ui.hint.textContent = ok ? '' : hint || '';
@@ -192,7 +199,8 @@ class ContinuumPanel {
     u.scaleBar.style.width = `${Math.round(Math.min(1, Math.max(0, scale || 0)) * 100)}%`;
     u.scaleBar.style.background = `var(--${scale >= 0.999 ? 'go' : scale > 0 ? 'warn' : 'fault'})`;
     u.scaleDetail.textContent = `limit ${fmt(Number(c.speed_limit_mm_s), 2, 'mm/s')} · nearest ${
-      c.nearest_mm === null || c.nearest_mm === undefined ? 'nothing in range' : fmt(Number(c.nearest_mm), 1, 'mm')}`;
+      c.nearest_mm === null || c.nearest_mm === undefined ? 'nothing in range' : fmt(Number(c.nearest_mm), 1, 'mm')}` +
+        (Number.isFinite(Number(c.step_kept)) ? ` · step kept ${(Number(c.step_kept) * 100).toFixed(0)} %` : '');
 
     const contact = !!c.contact;
     u.contact.dataset.contact = String(contact);
@@ -201,7 +209,11 @@ class ContinuumPanel {
     u.contact.textContent = contact ? `CONTACT on disk ${c.contact_disk ?? '?'}, slot ${c.contact_slot ?? '?'}` +
         (Number.isFinite(Number(c.contact_slot)) ? ` (${Math.round(Number(c.contact_slot) * 360 / this.slots)}°)` : '')
       : 'no contact';
+    if (contact && Number.isFinite(Number(c.contact_force_n))) u.contact.textContent += ` · ${Number(c.contact_force_n).toFixed(2)} N`;
     u.contact.classList.toggle('rp-bad', contact);
+    const sim = c.simulation;
+    u.arm.textContent = sim ? `arm ${sim.arm_action || 'still'}${Array.isArray(sim.arm_centre_mm)
+      ? ` at ${sim.arm_centre_mm.map((v) => Number(v).toFixed(0)).join(', ')} mm` : ''}` : 'no SIMULATED arm in this scene';
 
     for (const [m, b] of Object.entries(u.modeButtons)) {
       const on = c.hri_mode === m;
@@ -225,7 +237,8 @@ class ContinuumPanel {
     }));
 
     const map = c.map || {};
-    u.map.textContent = `${Number(map.points) || 0} points · ${Number(map.planes) || 0} planes`;
+    u.map.textContent = `${Number(map.points) || 0} points · ${Number(map.planes) || 0} planes` +
+        (Number.isFinite(Number(map.points_per_s)) ? ` · ${Number(map.points_per_s).toFixed(0)} points/s` : '');
     u.map.dataset.points = String(Number(map.points) || 0);
     u.map.dataset.planes = String(Number(map.planes) || 0);
     const br = map.bracing;
@@ -284,7 +297,7 @@ class ContinuumPanel {
     const disks = this.info.disks || [];
     if (!j || ![j.roll, j.bending, j.plane].every(Number.isFinite) || !disks.length) return null;
     const arc = Object.fromEntries(disks.map((d) => [d.index, Number(d.arc_mm)]));
-    const length = Number(this.info.length_mm) || Math.max(...disks.map((d) => Number(d.arc_mm) || 0));
+    const length = Number(this.info.segment?.length_mm) || Math.max(...disks.map((d) => Number(d.arc_mm) || 0));
     return {...j, arc, length};
   }
 

@@ -278,6 +278,14 @@ class UltrasoundPanel {
     let shapes = 0;
     for (const p of ann?.points || []) {
       const pts = (p.points || []).filter((q) => Number.isFinite(q.x) && Number.isFinite(q.y));
+      if (p.type === 1) {
+        // POINTS (e.g. the ellipse's centre): a small cross each.
+        for (const q of pts) {
+          overlay.append(svgEl('path', {d: `M${q.x - 6},${q.y}h12M${q.x},${q.y - 6}v12`, stroke: rgba(p.outline_color, '#3fb950'),
+                                        'stroke-width': 2, 'vector-effect': 'non-scaling-stroke'}));
+        }
+        continue;
+      }
       if (pts.length < 2) continue;
       const d = pts.map((q) => `${q.x},${q.y}`).join(' ');
       // PointsAnnotationType: 1 points, 2 line loop, 3 line strip, 4 line list
@@ -293,10 +301,12 @@ class UltrasoundPanel {
                                       'vector-effect': 'non-scaling-stroke'}));
       shapes++;
     }
+    const caption = (ann?.texts || []).map((t) => t.text).filter(Boolean).join(' · ');
     overlay.dataset.shapes = String(shapes);
     overlay.dataset.matched = String(matched);
     this.ui.imageInfo.textContent = `${bitmap.width}×${bitmap.height} px · ${this.frames} frames · ellipse ${
-      shapes ? (matched ? 'of this frame' : 'of an earlier frame') : 'not fitted'}`;
+      shapes ? (matched ? 'of this frame' : 'of an earlier frame') : 'not fitted'}${caption ? ` · ${caption}` : ''}` +
+        (Number.isFinite(Number(msg.via_point)) ? ` · via-point ${msg.via_point}` : '');
   }
 
   applyReconstruction(msg) {
