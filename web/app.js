@@ -371,9 +371,11 @@ function formatTime(t) {
 
 function addEvents(list) {
   let changed = false;
+  const known = new Set(state.events.map((e) => e.key));
   for (const ev of list) {
     const key = `${ev.time}|${ev.kind}|${ev.message}`;
-    if (state.events.some((e) => e.key === key)) continue;
+    if (known.has(key)) continue;
+    known.add(key);
     state.events.push({...ev, key});
     changed = true;
   }
@@ -384,8 +386,22 @@ function addEvents(list) {
   // warning, such as images that stopped coming, which causes no state change).
   const cause = state.events.find((e) => e.kind !== 'transition' && e.kind !== 'warning') || state.events[0];
   if (cause) state.lastFaultCause = `${cause.kind ? cause.kind + ': ' : ''}${cause.message || ''}`;
-  renderEvents();
-  updateBanner();
+  scheduleEventsRender();
+}
+
+// The list and the banner drawn at most every EVENTS_RENDER_MS: a robot that logs an event per sample
+// (seen: 100 a second, a contact alternating between two Hall windows) had the page rebuild the
+// 200-row list 100 times a second and fall 9 s behind its stream. The events themselves are taken at
+// once; only the drawing waits.
+const EVENTS_RENDER_MS = 150;
+let eventsRenderTimer = null;
+function scheduleEventsRender() {
+  if (eventsRenderTimer) return;
+  eventsRenderTimer = setTimeout(() => {
+    eventsRenderTimer = null;
+    renderEvents();
+    updateBanner();
+  }, EVENTS_RENDER_MS);
 }
 
 function renderEvents() {

@@ -16,6 +16,7 @@ const SLOTS_DEFAULT = 8;
 // The disks' rim radius when GET /robots does not state it: seed 000 §3's SDU (OD 158 mm).
 const DISK_RING_MM = 79;
 const ENTITY_PREFIX = 'continuum-panel/';
+const PLANE_OPACITY = 0.3;
 const GREY = {r: 0.45, g: 0.5, b: 0.56, a: 1};
 const RED = {r: 0.97, g: 0.2, b: 0.2, a: 1};
 
@@ -177,7 +178,12 @@ class ContinuumPanel {
       this.mapDrawn = n;
     } else if (topic === this.topicPlanes) {
       for (const e of msg.entities || []) this.planeIds.add(e.id);
-      this.ctx.view()?.applySceneUpdate(msg);
+      // The plates drawn translucent: a plane's patch spans hundreds of millimetres and, opaque, hid
+      // the segment and its disks behind it. Their colour (green: carries the bracing patch) stays.
+      const entities = (msg.entities || []).map((e) => ({
+        ...e, cubes: (e.cubes || []).map((c) => ({...c, color: {...(c.color || {r: 0.8, g: 0.6, b: 0.1}), a: Math.min(c.color?.a ?? 1, PLANE_OPACITY)}})),
+      }));
+      this.ctx.view()?.applySceneUpdate({...msg, entities});
     }
   }
 
@@ -273,7 +279,9 @@ class ContinuumPanel {
         const color = inContact ? RED : d.fault || d.fresh === false ? GREY
                     : range === null || range === undefined || !Number.isFinite(Number(range)) ? GREY
                     : rampColor(Number(range) / this.dMax);
-        const size = inContact ? 6 : 2.6;
+        // Marker sizes follow the disk (79 mm rim: 9.5 mm markers, 24 mm for the contact) to stay
+        // readable at the zoom that shows the whole 370 mm segment.
+        const size = this.ringMm * (inContact ? 0.3 : 0.12);
         spheres.push({pose: {position: {x: at[0], y: at[1], z: at[2]}, orientation: {x: 0, y: 0, z: 0, w: 1}},
                       size: {x: size, y: size, z: size}, color});
       }

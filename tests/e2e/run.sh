@@ -47,6 +47,11 @@ TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/ur5_arm.json" start_tendrild
 run_file "$here/two_robots.e2e.mjs"
 stop_tendrild
 
+# The continuum robot's panel (continuum.e2e.mjs): the SIMULATED sdu_continuum beside the catheter.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/sdu_continuum.json" start_tendrild "$binary" || exit 1
+run_file "$here/continuum.e2e.mjs"
+stop_tendrild
+
 # The Tracking tab (tracking.e2e.mjs): tip tracking, segmentation editor and roadmaps, on a fresh server.
 start_tendrild "$binary" || exit 1
 run_file "$here/tracking.e2e.mjs"
