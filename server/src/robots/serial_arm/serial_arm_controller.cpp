@@ -87,7 +87,31 @@ void SerialArmController::integrate(ControlContext& ctx,
   }
 }
 
+void SerialArmController::sweep(ControlContext& ctx) noexcept {
+  UltrasoundSweep& sweep = *robot_.sweep_;
+  for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
+  UltrasoundSweep::Inputs in;
+  in.q = q_;
+  in.force = Eigen::Vector3d(force_.force_n[0], force_.force_n[1], force_.force_n[2]);
+  in.force_valid = force_fresh_;
+  const LimbPoseSample limb = robot_.limb_->tracked();
+  in.world_T_limb = to_isometry(limb.pose);
+  in.t = ctx.t;
+  in.dt = ctx.period;
+  teleop::CartesianCommandResult result;
+  if (!sweep.step(robot_.model(), data_, in, result)) {
+    for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
+    return;
+  }
+  // integrate() checks the workspace box against data_'s tool: the sweep's law left it at q_.
+  integrate(ctx, result);
+}
+
 void SerialArmController::control(ControlContext& ctx) noexcept {
+  if (ctx.mode == kSweepMode && robot_.sweep_) {
+    sweep(ctx);
+    return;
+  }
   if (ctx.mode != kCartesianMode) return;
   for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
   const auto& s = robot_.settings_;
@@ -138,6 +162,7 @@ void SerialArmController::control(ControlContext& ctx) noexcept {
 }
 
 bool SerialArmController::while_held(ControlContext& ctx) noexcept {
+  if (robot_.sweep_) robot_.sweep_->interrupt("the robot is held (see its hold); resume it first");
   // REQ-SAFE-2: out of a force hold, back away along the contact force (the push the tissue gives the
   // tool) at the retract speed until the force is under the resume bound, for at most retract_max_mm.
   if (!retracting_) return false;
@@ -168,6 +193,21 @@ bool SerialArmController::while_held(ControlContext& ctx) noexcept {
 }
 
 void SerialArmController::apply(ControlContext& ctx, const PluginCommand& command) noexcept {
+  if (static_cast<ArmCommand>(command.id) == ArmCommand::sweep_load) {
+    // Data only: taken in any mode and state (the sweep ignores it while one runs).
+    if (robot_.sweep_) robot_.sweep_->load(robot_.plan_slot_.load());
+    return;
+  }
+  if (static_cast<ArmCommand>(command.id) == ArmCommand::sweep_action) {
+    if (!robot_.sweep_ || ctx.mode != kSweepMode || command.count != 1) return;
+    const auto action = static_cast<SweepAction>(static_cast<int>(command.values[0]));
+    // Abort and pause are always taken; the moving actions only while ENABLED with the drives ready.
+    if (action != SweepAction::abort && action != SweepAction::pause &&
+        (ctx.state != OperatingState::kEnabled || !ctx.drives_ready))
+      return;
+    robot_.sweep_->command(action, ctx.t);
+    return;
+  }
   // Re-checked here: the mode or state may have changed since the network thread looked.
   if (ctx.mode != kCartesianMode || ctx.state != OperatingState::kEnabled || !ctx.drives_ready) return;
   const auto& v = command.values;
@@ -178,6 +218,9 @@ void SerialArmController::apply(ControlContext& ctx, const PluginCommand& comman
       motion_ = ArmMotion::servo_cv;
       last_stream_ = ctx.t;
       ctx.supervisor->servo_command_received(ctx.t);
+      return;
+    case ArmCommand::sweep_load:
+    case ArmCommand::sweep_action:
       return;
     case ArmCommand::servo_cp:
     case ArmCommand::move_cp: {
@@ -212,16 +255,21 @@ void SerialArmController::reset(ControlContext& ctx) noexcept {
   motion_ = ArmMotion::none;
   twist_limited_ = false;
   workspace_limited_ = false;
-  (void)ctx;
+  if (robot_.sweep_)
+    robot_.sweep_->interrupt(ctx.mode == kSweepMode
+                                 ? "the setpoint was reset (enable, pause, resume or a clamp)"
+                                 : "the mode changed");
 }
 
 void SerialArmController::operator_lost(ControlContext& ctx) noexcept {
   if (motion_ == ArmMotion::servo_cv || motion_ == ArmMotion::servo_cp) stop(ctx);
+  // A sweep is not the operator's stream, but nobody watches it any more: it pauses, in contact.
+  if (robot_.sweep_) robot_.sweep_->command(SweepAction::pause, ctx.t);
 }
 
 bool SerialArmController::moving(const ControlContext& ctx) const noexcept {
   (void)ctx;
-  return motion_ != ArmMotion::none || retracting_;
+  return motion_ != ArmMotion::none || retracting_ || (robot_.sweep_ && robot_.sweep_->running());
 }
 
 bool SerialArmController::hold_cleared(const ControlContext& ctx, char* why,
@@ -262,6 +310,28 @@ void SerialArmController::publish(const ControlContext& ctx) noexcept {
   s.force_hold = force_hold_;
   s.retracting = retracting_;
   robot_.published_.store(s);
+
+  UltrasoundProbeSample u;
+  u.tick = ++ticks_;
+  u.t = ctx.t;
+  for (std::size_t i = 0; i < teleop::kArmJoints; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q[i];
+  if (robot_.model().forward_kinematics(q_, probe_)) u.world_T_probe = to_array(probe_.tool);
+  u.world_T_limb = to_array(Eigen::Isometry3d::Identity());
+  u.world_T_limb_true = u.world_T_limb;
+  if (robot_.limb_) {
+    u.world_T_limb = robot_.limb_->tracked().pose;
+    u.world_T_limb_true = robot_.limb_->truth().pose;
+  }
+  if (robot_.sweep_) {
+    const SweepSnapshot& sw = robot_.sweep_->snapshot();
+    u.acquiring = robot_.sweep_->acquiring();
+    u.via_point = sw.phase == SweepPhase::idle || sw.phase == SweepPhase::planned ? -1 : sw.via_point;
+    robot_.sweep_published_.store(sw);
+  }
+  // F_n: the tissue pushes the probe back along its axis, which reads as negative z in the tool frame.
+  u.normal_force_n = force_.valid ? -force_.force_n[2] : 0.0;
+  u.in_contact = u.normal_force_n > 0.1;
+  robot_.probe_published_.store(u);
 }
 
 }  // namespace tendril::server

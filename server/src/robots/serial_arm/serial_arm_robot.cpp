@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "serial_arm/serial_arm_schema.hpp"
+#include "serial_arm/ultrasound_topics.hpp"
 #include "tendril/server/config_reader.hpp"
 #include "tendril/server/robot_api_extension.hpp"
 #include "tendril/server/robot_types.hpp"
@@ -218,6 +219,7 @@ Pose ArmDisplayModel::tip(std::span<const double> q) const {
 SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
     : config_(rc),
       settings_(parse_arm_settings(rc)),
+      ultrasound_(parse_ultrasound_settings(rc)),
       model_([&] {
         try {
           teleop::validate(settings_.cartesian);
@@ -238,6 +240,25 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
   surface.pose = Eigen::Isometry3d::Identity();
   surface.pose.translation().z() = -10'000.0;
   if (settings_.surface) surface = *settings_.surface;
+  if (ultrasound_) {
+    // The SIMULATED limb is the tissue: its skin (a height map in the limb frame) is the contact surface,
+    // moved with the limb by LimbMotion.
+    if (settings_.surface)
+      throw ConfigError(file +
+                        ": arm.simulation.contact_surface: remove it: with an \"ultrasound\" section the "
+                        "SIMULATED limb (ultrasound.limb) is the tissue");
+    try {
+      limb_ = std::make_unique<LimbSimulation>(ultrasound_->limb);
+      sweep_ = std::make_unique<UltrasoundSweep>(*ultrasound_, settings_.gains, settings_.cartesian);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError(file + ": ultrasound: " + e.what());
+    }
+    surface = sim::ContactSurfaceParameters{};
+    surface.pose = ultrasound_->limb.rest_pose;
+    surface.stiffness = ultrasound_->limb.stiffness;
+    surface.damping = ultrasound_->limb.damping;
+    surface.height_map = limb_.get();
+  }
   try {
     surface_ = std::make_unique<sim::ContactSurface>(surface);
     auto arm = std::make_unique<sim::SimulatedVelocityArm>(settings_.simulated_arm);
@@ -246,6 +267,10 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
     arm_ = arm.get();
     sensor_ = sensor.get();
     assembly.provide_joints(*arm_);
+    // The limb first: in stepped simulation the force sensor then samples the skin where it is now.
+    if (limb_)
+      assembly.add_component(
+          std::make_unique<LimbMotion>(*limb_, *surface_, "SIMULATED limb of '" + rc.name + "'"));
     // The arm before the sensor: in stepped simulation the sensor then samples the arm's new state.
     assembly.add_component(std::move(arm));
     assembly.add_component(std::move(sensor));
@@ -259,10 +284,34 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
 
 SerialArm::~SerialArm() = default;
 
+// The ultrasound imaging and reconstruction topics (helper usimg; ultrasound_topics.cpp).
+std::vector<std::shared_ptr<TopicSource>> SerialArm::topic_sources() {
+  if (auto topics = make_us_arm_topics(*this)) return {std::move(topics)};
+  return {};
+}
+
 std::vector<ModeInfo> SerialArm::modes() const {
-  return {{"cartesian",
-           "CRTK move_cp (straight line, quintic), servo_cp and servo_cv of the tool, through the damped "
-           "inverse (seed 002 App. A)"}};
+  std::vector<ModeInfo> modes = {
+      {"cartesian",
+       "CRTK move_cp (straight line, quintic), servo_cp and servo_cv of the tool, through the damped "
+       "inverse (seed 002 App. A)"}};
+  if (ultrasound_)
+    modes.push_back({"sweep",
+                     "the ultrasound sweep over the via-points of the plan: hybrid position/force control "
+                     "(seed 002 App. A), the acquisition gate, motion compensation from the limb's tracked "
+                     "pose; driven by POST sweep {\"action\": ...}"});
+  return modes;
+}
+
+void SerialArm::set_sweep_plan(std::shared_ptr<const SweepPlan> plan) {
+  SweepPlanData data;
+  data.count = static_cast<int>(std::min<std::size_t>(plan->via_points.size(), kMaxViaPoints));
+  for (int i = 0; i < data.count; ++i)
+    Eigen::Map<Eigen::Matrix4d>(data.via_points[static_cast<std::size_t>(i)].data()) =
+        plan->via_points[static_cast<std::size_t>(i)].matrix();
+  std::lock_guard lock(plan_mutex_);  // the slot has one writer at a time: the network threads queue here
+  plan_slot_.store(data);
+  plan_ = std::move(plan);
 }
 
 std::optional<ServiceError> SerialArm::dry_run(const Eigen::Isometry3d& start, const teleop::ArmVector& q0,
@@ -421,10 +470,8 @@ std::optional<ServiceError> SerialArm::resume_refusal(const OperatingStateView& 
 
 std::unique_ptr<RobotApiExtension> SerialArm::api(RobotService& service,
                                                   std::function<bool(const PluginCommand&)> post) {
-  // The arm adds no commands of its own: the CRTK commands reach it through cartesian_command().
-  (void)service;
-  (void)post;
-  return make_serial_arm_api(*this);
+  // The CRTK commands reach the arm through cartesian_command(); the sweep command is the API's.
+  return make_serial_arm_api(*this, service, std::move(post));
 }
 
 }  // namespace tendril::server

@@ -27,12 +27,16 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "serial_arm/limb_simulation.hpp"
+#include "serial_arm/ultrasound_probe_state.hpp"
+#include "serial_arm/ultrasound_sweep.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
 #include "tendril/drivers/hardware/sensor_interfaces.hpp"
 #include "tendril/drivers/sim/contact_surface.hpp"
@@ -49,9 +53,12 @@ class SerialArm;
 
 // The type's mode, after the core's joint (and path_following, which the arm does not offer).
 inline constexpr ModeId kCartesianMode = kFirstPluginMode;
+// The ultrasound sweep (robot files with an "ultrasound" section only).
+inline constexpr ModeId kSweepMode = kFirstPluginMode + 1;
 
 // PluginCommand::id of the Cartesian commands.
-enum class ArmCommand : std::uint16_t { move_cp, servo_cp, servo_cv };
+// sweep_load: the plan is in SerialArm's plan slot; sweep_action: values[0] is a SweepAction.
+enum class ArmCommand : std::uint16_t { move_cp, servo_cp, servo_cv, sweep_load, sweep_action };
 
 // What the Cartesian controller is doing.
 enum class ArmMotion : std::uint8_t { none, move_cp, servo_cp, servo_cv };
@@ -122,6 +129,7 @@ class SerialArmController final : public RobotController {
   // the workspace box (then the setpoint stays).
   void integrate(ControlContext& ctx, const teleop::CartesianCommandResult& result) noexcept;
   void stop(ControlContext& ctx) noexcept;
+  void sweep(ControlContext& ctx) noexcept;                        // mode sweep
   Eigen::Vector3d force_base(const ControlContext& ctx) noexcept;  // the reading in the base frame
 
   SerialArm& robot_;
@@ -142,6 +150,7 @@ class SerialArmController final : public RobotController {
   bool force_hold_ = false;
   bool retracting_ = false;
   double retracted_mm_ = 0.0;
+  std::uint64_t ticks_ = 0;  // publish() calls: the probe state's tick
 };
 
 // The tool's kinematics for the API: pose, twist, and a polyline through the joint frames (mm).
@@ -178,11 +187,27 @@ class SerialArm final : public RobotPlugin {
   std::optional<ServiceError> resume_refusal(const OperatingStateView& state) const override;
   std::unique_ptr<RobotApiExtension> api(RobotService& service,
                                          std::function<bool(const PluginCommand&)> post) override;
+  // The ultrasound imaging and reconstruction topics (ultrasound_topics.hpp); none without "ultrasound".
+  std::vector<std::shared_ptr<TopicSource>> topic_sources() override;
+
+  // The ultrasound sweep (nullopt / null without the file's "ultrasound" section).
+  const std::optional<UltrasoundSettings>& ultrasound() const noexcept { return ultrasound_; }
+  const LimbSimulation* limb() const noexcept { return limb_.get(); }
+  SweepSnapshot sweep_snapshot() const noexcept { return sweep_published_.load(); }
+  // The latest plan (network threads; null before the first). Its via-points are in the limb frame.
+  std::shared_ptr<const SweepPlan> sweep_plan() const {
+    std::lock_guard lock(plan_mutex_);
+    return plan_;
+  }
+  // Stores a new plan and hands its via-points to the control thread's slot (network thread).
+  void set_sweep_plan(std::shared_ptr<const SweepPlan> plan);
 
   const RobotConfig& config() const noexcept { return config_; }
   const ArmSettings& settings() const noexcept { return settings_; }
   const teleop::SerialArmKinematics& model() const noexcept { return model_; }
   ArmSnapshot snapshot() const noexcept { return published_.load(); }
+  // The probe and limb poses of the latest control tick (any thread; a seqlock read, never a lock).
+  UltrasoundProbeState probe_state() const noexcept { return to_state(probe_published_.load()); }
   // The SIMULATED devices (for tests and the API's ground truth).
   sim::SimulatedVelocityArm& simulated_arm() noexcept { return *arm_; }
   sim::SimulatedForceSensor& simulated_force_sensor() noexcept { return *sensor_; }
@@ -198,16 +223,25 @@ class SerialArm final : public RobotPlugin {
 
   RobotConfig config_;
   ArmSettings settings_;
+  std::optional<UltrasoundSettings> ultrasound_;
   teleop::SerialArmKinematics model_;
   ArmDisplayModel display_;
+  std::unique_ptr<LimbSimulation> limb_;          // before surface_: its height map outlives the surface
   std::unique_ptr<sim::ContactSurface> surface_;  // owned here: outlives the sensor (runtime-owned)
   sim::SimulatedVelocityArm* arm_ = nullptr;      // owned by the runtime (add_component)
   sim::SimulatedForceSensor* sensor_ = nullptr;   // owned by the runtime (add_component)
   SerialArmController controller_{*this};
   hardware::LatestValue<ArmSnapshot> published_;
+  hardware::LatestValue<UltrasoundProbeSample> probe_published_;
+  std::unique_ptr<UltrasoundSweep> sweep_;  // control thread only
+  hardware::LatestValue<SweepPlanData> plan_slot_;
+  hardware::LatestValue<SweepSnapshot> sweep_published_;
+  mutable std::mutex plan_mutex_;  // network threads only
+  std::shared_ptr<const SweepPlan> plan_;
 };
 
 // The type's part of the network API (serial_arm_api.cpp).
-std::unique_ptr<RobotApiExtension> make_serial_arm_api(SerialArm& robot);
+std::unique_ptr<RobotApiExtension> make_serial_arm_api(SerialArm& robot, RobotService& service,
+                                                       std::function<bool(const PluginCommand&)> post);
 
 }  // namespace tendril::server

@@ -93,5 +93,7 @@ std::unique_ptr<ImageSource> open_image_files(const ImageFilesOptions& options);
 
 // Baseline JPEG of a grey image at `quality` 1..100, written into `out` (cleared first).
 void encode_jpeg(const GreyImage& image, int quality, std::vector<std::uint8_t>& out);
+// Lossless 8-bit grey PNG (for images whose speckle a JPEG would smear), into `out` (cleared first).
+void encode_png(const GreyImage& image, std::vector<std::uint8_t>& out);
 
 }  // namespace tendril::imaging
