@@ -255,10 +255,21 @@ void SerialArmController::reset(ControlContext& ctx) noexcept {
   motion_ = ArmMotion::none;
   twist_limited_ = false;
   workspace_limited_ = false;
-  if (robot_.sweep_)
-    robot_.sweep_->interrupt(ctx.mode == kSweepMode
-                                 ? "the setpoint was reset (enable, pause, resume or a clamp)"
-                                 : "the mode changed");
+  // A running sweep stops for a mode switch or when the robot is not enabled (disable, e-stop; a pause
+  // or a hold comes through state_command() and while_held()). A clamp at a joint limit also resets
+  // the setpoint: the sweep's law runs on the setpoint, so it simply continues from the clamped one.
+  if (robot_.sweep_) {
+    if (ctx.state != OperatingState::kEnabled)
+      robot_.sweep_->interrupt("the robot is not enabled");
+    else if (ctx.mode != kSweepMode)
+      robot_.sweep_->interrupt("the mode changed");
+  }
+}
+
+void SerialArmController::state_command(ControlContext& ctx, safety::StateCommand command) noexcept {
+  (void)ctx;
+  if (robot_.sweep_ && command == safety::StateCommand::kPause)
+    robot_.sweep_->interrupt("the robot was paused (state_command pause); resume it first");
 }
 
 void SerialArmController::operator_lost(ControlContext& ctx) noexcept {

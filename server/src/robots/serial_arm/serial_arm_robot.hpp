@@ -118,6 +118,7 @@ class SerialArmController final : public RobotController {
   void apply(ControlContext& ctx, const PluginCommand& command) noexcept override;
   void delay(ControlContext& ctx, double lost) noexcept override;
   void reset(ControlContext& ctx) noexcept override;
+  void state_command(ControlContext& ctx, safety::StateCommand command) noexcept override;
   void operator_lost(ControlContext& ctx) noexcept override;
   bool moving(const ControlContext& ctx) const noexcept override;
   bool hold_cleared(const ControlContext& ctx, char* why, std::size_t why_size) const noexcept override;
