@@ -314,12 +314,27 @@ class UltrasoundPanel {
     if (!view) return;
     for (const e of msg.entities || []) this.reconIds.add(e.id);
     view.applySceneUpdate(msg);
-    const names = (msg.entities || []).map((e) => e.id).filter(Boolean);
-    if (names.length) {
-      this.reconNames = [...new Set([...(this.reconNames || []), ...names])];
-      this.ui.reconInfo.textContent = `reconstruction: ${this.reconNames.map((n) => n.replace(/^.*\//, '')).join(', ')}`;
-      this.ui.reconInfo.dataset.entities = this.reconNames.join(',');
+    // What each entity holds now (the topic sends every entity in every message, possibly empty).
+    const count = this.reconCount ??= {};
+    for (const e of msg.entities || []) {
+      const name = String(e.id || '').replace(/^.*\//, '');
+      const lines = e.lines || [];
+      count[name] = name === 'surface' ? (e.spheres || []).length
+                  : name === 'via_points' ? Math.max(0, ...lines.map((l) => Math.floor((l.points || []).length / 2)))  // a LINE_LIST per axis: 2 points per via-point
+                  : name === 'contours' ? lines.length
+                  : name === 'artery_mesh' ? (e.triangles || []).reduce((n, t) => n + Math.floor(((t.indices?.length || t.points?.length) || 0) / 3), 0)
+                  : name === 'catheter' ? lines.reduce((n, l) => n + (l.points || []).length, 0)
+                  : name === 'contacts' ? (e.spheres || []).length
+                  : name === 'curvature_warnings' ? (e.texts || []).length
+                  : (lines.length + (e.spheres || []).length + (e.arrows || []).length + (e.triangles || []).length);
     }
+    const info = this.ui.reconInfo;
+    for (const [k, v] of Object.entries(count)) info.dataset[k.replace(/_([a-z])/g, (_, c) => c.toUpperCase())] = String(v);
+    const part = (k, label) => (k in count ? `${count[k]} ${label}` : null);
+    info.textContent = [part('surface', 'skin points'), part('via_points', 'via-points'), part('contours', 'contours'),
+                        part('artery_mesh', 'mesh triangles'), part('catheter', 'catheter points'),
+                        part('contacts', 'contacts'), part('curvature_warnings', 'curvature warnings')]
+      .filter(Boolean).join(' · ') || 'reconstruction: nothing yet';
   }
 
   updateTfInfo() {
