@@ -138,7 +138,8 @@ class UltrasoundPanel {
   }
 
   setTissueView(on) {
-    this.ctx.view()?.setFixedFrame(on ? TISSUE_FRAME : WORLD_FRAME);
+    this.wantFrame = on ? TISSUE_FRAME : WORLD_FRAME;
+    this.ctx.view()?.setFixedFrame(this.wantFrame);
     this.updateTfInfo();
   }
 
@@ -174,7 +175,10 @@ class UltrasoundPanel {
     else if (topic === this.t.annotations) this.keepAnnotations(msg);
     else if (topic === this.t.image) this.applyImage(msg, stampMs);
     else if (topic === this.t.tf) {
-      this.ctx.view()?.setFrameTransforms(msg);
+      const view = this.ctx.view();
+      // The 3D view may have started after the panel (it loads three.js on its own).
+      if (view && view.fixedFrame !== this.wantFrame) view.setFixedFrame(this.wantFrame);
+      view?.setFrameTransforms(msg);
       this.updateTfInfo();
     } else if (topic === this.t.reconstruction) this.applyReconstruction(msg);
   }
@@ -314,6 +318,16 @@ class UltrasoundPanel {
     if (!view) return;
     for (const e of msg.entities || []) this.reconIds.add(e.id);
     view.applySceneUpdate(msg);
+    // Frame the camera on the limb's skin once it is first drawn (unless the operator placed it).
+    if (!this.framed && !view.userCamera) {
+      const surface = (msg.entities || []).find((e) => /(^|\/)surface$/.test(e.id || '') && (e.spheres || []).length);
+      const obj = surface && view.entities.get(surface.id);
+      if (obj && obj.visible) {
+        obj.updateMatrixWorld(true);
+        view.fitTo(obj);
+        this.framed = true;
+      }
+    }
     // What each entity holds now (the topic sends every entity in every message, possibly empty).
     const count = this.reconCount ??= {};
     for (const e of msg.entities || []) {
