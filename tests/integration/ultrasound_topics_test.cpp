@@ -334,6 +334,28 @@ TEST(UltrasoundTopics, RefusesABadProbeStateAndKeepsTheSlices) {
   EXPECT_TRUE(entity(*rig.message("/us_arm/reconstruction"), "contours").at("lines").empty());
 }
 
+// An acquisition shorter than a worker step is not lost: the poller latched it, the next step stores it.
+TEST(UltrasoundTopics, AcquisitionLatchedBetweenStepsIsStored) {
+  Rig rig;
+  rig.topics->set_plan(plan());
+  rig.at_via_point(4, true);
+  rig.topics->poll_once();     // the poller sees the gate open…
+  rig.at_via_point(5, false);  // …and it closed again before the worker's next step
+  rig.topics->poll_once();
+  rig.step();
+  EXPECT_EQ(rig.topics->slices(), 1u);
+  rig.topics->set_demand("/us_arm/reconstruction", true);
+  rig.step();
+  const auto scene = rig.message("/us_arm/reconstruction");
+  ASSERT_TRUE(scene);
+  ASSERT_EQ(entity(*scene, "contours").at("lines").size(), 1u);
+  // The stored contour is at via-point 4's centroid (x = 40 mm), not at via-point 5's.
+  double x = 0.0;
+  for (const auto& p : entity(*scene, "contours").at("lines")[0].at("points"))
+    x += p.at("x").get<double>() / 30.0;
+  EXPECT_NEAR(x, 40.0, 1.0);
+}
+
 TEST(UltrasoundTopics, ImagesOnlyWhileWatched) {
   Rig rig;
   rig.at_via_point(0, false);

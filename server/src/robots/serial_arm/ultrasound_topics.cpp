@@ -1,6 +1,11 @@
 // The us_arm's ultrasound imaging and reconstruction topics; see the header.
 #include "serial_arm/ultrasound_topics.hpp"
 
+#include <pthread.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -144,7 +149,10 @@ UltrasoundTopics::UltrasoundTopics(ultrasound::ReconstructionSessionConfig sessi
   }
   if (!probe_state_) throw std::invalid_argument("ultrasound topics: no probe state reader was given");
   if (settings_.robot.empty()) throw std::invalid_argument("ultrasound topics: the robot name is empty");
-  if (settings_.own_thread) worker_ = std::thread([this] { run(); });
+  if (settings_.own_thread) {
+    worker_ = std::thread([this] { run(); });
+    poller_ = std::thread([this] { poll(); });
+  }
 }
 
 UltrasoundTopics::~UltrasoundTopics() {
@@ -154,6 +162,7 @@ UltrasoundTopics::~UltrasoundTopics() {
   }
   stop_cv_.notify_all();
   if (worker_.joinable()) worker_.join();
+  if (poller_.joinable()) poller_.join();
 }
 
 void UltrasoundTopics::set_plan(ultrasound::SweepPlan plan) {
@@ -165,9 +174,45 @@ void UltrasoundTopics::set_plan(ultrasound::SweepPlan plan) {
 void UltrasoundTopics::reset() {
   std::lock_guard lock(pending_mutex_);
   pending_reset_ = true;
+  pending_acquisitions_.clear();
+  last_latched_via_point_ = -1;
+}
+
+// Below the control and simulation threads: a render may wait, the force sensor's stream may not.
+static void lower_priority(const char* name) {
+  pthread_setname_np(pthread_self(), name);
+  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);  // best effort: nice +10
+}
+
+void UltrasoundTopics::latch(const UltrasoundProbeState& state) {
+  if (!state.acquiring || !state.in_contact || state.via_point < 0 ||
+      !ultrasound::is_rigid(state.world_T_probe) || !ultrasound::is_rigid(state.world_T_limb) ||
+      !ultrasound::is_rigid(state.world_T_limb_true))
+    return;
+  std::lock_guard lock(pending_mutex_);
+  if (state.via_point == last_latched_via_point_) return;
+  last_latched_via_point_ = state.via_point;
+  pending_acquisitions_.push_back(state);
+}
+
+void UltrasoundTopics::poll_once() {
+  if (const auto state = probe_state_()) latch(*state);
+}
+
+void UltrasoundTopics::poll() {
+  lower_priority("us-acquire");
+  for (;;) {
+    try {
+      poll_once();
+    } catch (const std::exception&) {  // NOLINT(bugprone-empty-catch): the worker reports a bad reader
+    }
+    std::unique_lock lock(stop_mutex_);
+    if (stop_cv_.wait_for(lock, std::chrono::milliseconds(10), [this] { return stopping_; })) return;
+  }
 }
 
 void UltrasoundTopics::run() {
+  lower_priority("us-imaging");
   const auto period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
       std::chrono::duration<double>(1.0 / settings_.image_hz));
   auto next = std::chrono::steady_clock::now();
@@ -209,6 +254,9 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
         seen_plan_ = polled;
         reset = true;
         plan = *polled;
+        std::lock_guard lock(pending_mutex_);
+        pending_acquisitions_.clear();
+        last_latched_via_point_ = -1;
       }
     }
     if (reset) session_.reset();
@@ -216,47 +264,67 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     slices_.store(session_.slices().size(), std::memory_order_relaxed);
   }
   const std::optional<UltrasoundProbeState> state = probe_state_();
-  if (!state) return;
-  ultrasound::ProbeSample sample;
-  sample.t = state->t;
-  sample.world_T_probe = state->world_T_probe;
-  sample.world_T_limb = state->world_T_limb;
-  sample.world_T_limb_true = state->world_T_limb_true;  // SIMULATED truth: where the scanner images
-  sample.in_contact = state->in_contact;
-  sample.acquiring = state->acquiring;
-  sample.via_point = state->via_point;
-
-  // Images are made while someone looks at them, and always at an acquisition (the slice is stored
-  // whether or not anyone watches).
-  const bool image_wanted = wanted(image_topic()) || wanted(annotations_topic());
-  if (state->in_contact && (image_wanted || state->acquiring)) {
-    const ultrasound::SessionOutcome outcome = session_.process(sample);
+  if (state) latch(*state);
+  std::vector<UltrasoundProbeState> acquisitions;
+  {
+    std::lock_guard lock(pending_mutex_);
+    acquisitions.swap(pending_acquisitions_);
+  }
+  auto to_sample = [](const UltrasoundProbeState& s) {
+    ultrasound::ProbeSample sample;
+    sample.t = s.t;
+    sample.world_T_probe = s.world_T_probe;
+    sample.world_T_limb = s.world_T_limb;
+    sample.world_T_limb_true = s.world_T_limb_true;  // SIMULATED truth: where the scanner images
+    sample.in_contact = s.in_contact;
+    sample.acquiring = s.acquiring;
+    sample.via_point = s.via_point;
+    return sample;
+  };
+  bool framed = false;
+  auto image = [&](const UltrasoundProbeState& s) {
+    const ultrasound::SessionOutcome outcome = session_.process(to_sample(s));
     if (outcome.status != ultrasound::SessionStatus::ok &&
         outcome.status != ultrasound::SessionStatus::no_contact) {
       std::lock_guard lock(topics_mutex_);
       last_message_ = outcome.message;
       ++refusals_;
     }
-    const bool framed = outcome.status == ultrasound::SessionStatus::ok ||
-                        outcome.status == ultrasound::SessionStatus::no_vessel;
-    if (framed && session_.last_frame()) {
-      const ultrasound::SessionFrame& frame = *session_.last_frame();
-      if (wanted(image_topic())) publish(image_topic(), image_message(frame, now_ns), now_ns);
-      publish(annotations_topic(), annotations_message(frame, now_ns), now_ns);
-      std::lock_guard lock(topics_mutex_);
-      ++images_;
-    }
+    if (outcome.status == ultrasound::SessionStatus::ok ||
+        outcome.status == ultrasound::SessionStatus::no_vessel)
+      framed = true;
+  };
+  // The latched acquisitions first (a slice is stored whether or not anyone looks), then, while the image
+  // or annotations topic is watched, the newest state.
+  for (const auto& a : acquisitions) image(a);
+  if (!state) {
     slices_.store(session_.slices().size(), std::memory_order_relaxed);
-  } else if (!state->in_contact) {
-    // A refused pose shows here too (process() checks the pose before the contact).
-    if (!ultrasound::is_rigid(sample.world_T_probe) || !ultrasound::is_rigid(sample.world_T_limb) ||
-        !ultrasound::is_rigid(state->world_T_limb_true)) {
-      std::lock_guard lock(topics_mutex_);
-      last_message_ = "the probe state was refused: a pose is not finite or not rigid";
-      ++refusals_;
-    }
+    return;
   }
-  if (session_.has_catheter() && now_ns >= next_catheter_ns_) {
+  const bool valid = ultrasound::is_rigid(state->world_T_probe) &&
+                     ultrasound::is_rigid(state->world_T_limb) &&
+                     ultrasound::is_rigid(state->world_T_limb_true) && std::isfinite(state->t);
+  if (!valid) {
+    std::lock_guard lock(topics_mutex_);
+    last_message_ =
+        "the probe state was refused: a pose (probe, tracked or true limb) is not finite or not rigid; "
+        "nothing "
+        "reconstructed was changed";
+    ++refusals_;
+  }
+  const bool image_wanted = wanted(image_topic()) || wanted(annotations_topic());
+  if (valid && state->in_contact && image_wanted && !(state->acquiring && !acquisitions.empty()))
+    image(*state);
+  if (framed && session_.last_frame()) {
+    const ultrasound::SessionFrame& frame = *session_.last_frame();
+    if (wanted(image_topic())) publish(image_topic(), image_message(frame, now_ns), now_ns);
+    publish(annotations_topic(), annotations_message(frame, now_ns), now_ns);
+    std::lock_guard lock(topics_mutex_);
+    ++images_;
+  }
+  slices_.store(session_.slices().size(), std::memory_order_relaxed);
+  const ultrasound::ProbeSample sample = to_sample(*state);
+  if (valid && session_.has_catheter() && now_ns >= next_catheter_ns_) {
     const ultrasound::SessionOutcome outcome = session_.update_catheter(sample);
     if (!outcome.ok()) {
       std::lock_guard lock(topics_mutex_);
@@ -270,8 +338,7 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     scene_revision_ = session_.revision();
     next_scene_ns_ = now_ns + static_cast<std::uint64_t>(1e9 / settings_.scene_hz);
   }
-  if (ultrasound::is_rigid(sample.world_T_probe) && ultrasound::is_rigid(sample.world_T_limb))
-    publish(tf_topic(), tf_message(*state, now_ns), now_ns);
+  if (valid) publish(tf_topic(), tf_message(*state, now_ns), now_ns);
 }
 
 std::string UltrasoundTopics::image_message(const ultrasound::SessionFrame& frame,
@@ -543,7 +610,13 @@ std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm) {
   if (axis.size() >= 2) {
     const Eigen::Vector3d entry = axis.front(), tangent = (axis[1] - axis[0]).normalized();
     for (int k = 400; k >= 1; --k) session.catheter_path.push_back(entry - 0.5 * k * tangent);
-    session.catheter_path.insert(session.catheter_path.end(), axis.begin(), axis.end());
+    // The artery's points are 1 mm apart in x, so a little more along the curve: halve every segment
+    // (the fibre's truth needs segments ≤ 1 mm).
+    session.catheter_path.push_back(axis.front());
+    for (std::size_t i = 1; i < axis.size(); ++i) {
+      session.catheter_path.push_back(0.5 * (axis[i - 1] + axis[i]));
+      session.catheter_path.push_back(axis[i]);
+    }
     double length = 200.0;
     for (std::size_t i = 1; i < axis.size(); ++i) length += (axis[i] - axis[i - 1]).norm();
     if (length < session.fiber.length() + 1.0) session.catheter_path.clear();  // too short: no catheter

@@ -14,9 +14,15 @@
 //                                    world→tissue, {robot}_probe→{robot}_image, world→fbg.
 // Message layouts are in README ("Ultrasound imaging and reconstruction topics (us_arm)").
 //
-// Threads: the worker owns the session; the sweep (any thread) hands it a plan or a reset through
-// set_plan()/reset(), which the worker picks up at its next step; the front end reads the newest
-// serialised messages through latest() (one mutex, held only to swap a shared pointer).
+// Acquisitions are never missed: a light poller thread reads the probe state every 10 ms and latches
+// the first state of each acquisition (gate open at a via-point), which the worker then images and
+// stores even when a step took longer than the gate stays open (rendering in a sanitized build).
+//
+// Threads: the worker (and the poller) run at a lower CPU priority (nice +10), so that on a loaded
+// machine the imaging yields to the control and simulation threads. The worker owns the session; the sweep
+// (any thread) hands it a plan or a reset through set_plan()/reset(), which the worker picks up at its next
+// step; the front end reads the newest serialised messages through latest() (one mutex, held only to swap a
+// shared pointer).
 #pragma once
 
 #include <Eigen/Geometry>
@@ -72,6 +78,9 @@ class UltrasoundTopics final : public TopicSource {
   // One worker step at wall-clock `now_ns`: read the probe state, image/segment/store, the catheter,
   // and publish what is due. The worker thread calls it; tests call it directly (own_thread = false).
   void step(std::uint64_t now_ns);
+  // What the poller does every 10 ms: read the probe state and latch it if it opens an acquisition
+  // (tests call it directly).
+  void poll_once();
 
   std::vector<TopicInfo> topics() const override;
   std::optional<TopicPayload> latest(const std::string& topic, std::uint64_t since_version) const override;
@@ -91,6 +100,8 @@ class UltrasoundTopics final : public TopicSource {
 
  private:
   void run();
+  void poll();
+  void latch(const UltrasoundProbeState& state);
   void publish(const std::string& topic, std::string message, std::uint64_t now_ns);
   bool wanted(const std::string& topic) const;
   std::string image_message(const ultrasound::SessionFrame& frame, std::uint64_t now_ns) const;
@@ -106,6 +117,8 @@ class UltrasoundTopics final : public TopicSource {
   std::mutex pending_mutex_;
   std::optional<ultrasound::SweepPlan> pending_plan_;
   bool pending_reset_ = false;
+  std::vector<UltrasoundProbeState> pending_acquisitions_;  // latched, in order
+  int last_latched_via_point_ = -1;                         // −1: none since the last plan or reset
 
   // Published messages and demand (front end and worker).
   mutable std::mutex topics_mutex_;
@@ -125,6 +138,7 @@ class UltrasoundTopics final : public TopicSource {
   std::condition_variable stop_cv_;
   bool stopping_ = false;
   std::thread worker_;
+  std::thread poller_;
 };
 
 class SerialArm;
