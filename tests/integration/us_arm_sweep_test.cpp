@@ -335,6 +335,29 @@ TEST_F(UsArmSweepTest, ALostForceSensorHoldsTheRobotAndPausesTheSweep) {
   ASSERT_TRUE(step_until([&] { return sweep().slices > slices; }, 30'000)) << sweep().message;
 }
 
+TEST_F(UsArmSweepTest, PausingTheRobotPausesTheSweepAndStartContinuesIt) {
+  start({arm_config()});
+  ready();
+  ASSERT_EQ(action("start").status, 202);
+  ASSERT_TRUE(step_until([&] { return sweep().phase == SweepPhase::approaching; }, 1'000));
+  steps(500);
+  ASSERT_EQ(api->state_command("us_arm", {{"command", "pause"}}).status, 200);
+  steps(5);
+  EXPECT_EQ(op()["state"], "PAUSED");
+  EXPECT_EQ(sweep().phase, SweepPhase::paused);
+  EXPECT_NE(std::string(sweep().message).find("paused"), std::string::npos) << sweep().message;
+  ASSERT_EQ(api->state_command("us_arm", {{"command", "resume"}}).status, 200);
+  steps(5);
+  EXPECT_EQ(sweep().phase, SweepPhase::paused);  // resuming the robot does not restart the sweep
+  ASSERT_EQ(action("start").status, 202);
+  steps(5);
+  EXPECT_EQ(sweep().phase, SweepPhase::approaching);
+  // The sweep's own pause, from there, is taken as well.
+  ASSERT_EQ(action("pause").status, 202);
+  steps(5);
+  EXPECT_EQ(sweep().phase, SweepPhase::paused);
+}
+
 TEST_F(UsArmSweepTest, TheCatheterMovesWhileTheSweepRuns) {
   auto srmc = load_robot_config(kConfig / "srmc.json");
   srmc.settings["catheter"]["simulation"].erase("vessel");  // free space

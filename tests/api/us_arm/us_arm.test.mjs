@@ -1,0 +1,123 @@
+// The ultrasound arm (robot us_arm: config/robots/us_arm.json) beside the catheter in one tendrild, in
+// real time: GET /robots, the sweep command's refusals with reasons, plan, pre_position, start while
+// the catheter moves, the /us_arm/sweep topic, abort. Run by tests/api/us_arm/run.sh.
+import {test, after} from 'node:test';
+import assert from 'node:assert/strict';
+import wsProtocol from '@foxglove/ws-protocol';
+import WebSocket from 'ws';
+import {BASE_URL, TOKEN, get, post, call, holdLease, assertErrorShape, pollUntil} from '../helpers.mjs';
+
+const {FoxgloveClient} = wsProtocol;
+const WS_URL = BASE_URL.replace(/^http/, 'ws') + '/ws';
+const ARM = '/robots/us_arm';
+const CATHETER = '/robots/srmc';
+const open = [];
+
+const state = async (r) => (await get(`${r}/operating_state`)).json;
+const sweep = (action) => post(`${ARM}/sweep`, {action});
+
+async function enable(r) {
+  const res = await post(`${r}/state_command`, {command: 'enable'});
+  assert.equal(res.status, 200, res.text);
+  const ready = await pollUntil(async () => {
+    const s = await state(r);
+    return s.state === 'ENABLED' && s.drives_ready && !s.is_busy ? {done: true} : null;
+  }, {polls: 200, intervalMs: 25});
+  assert.ok(ready && ready.done, `${r} did not become ENABLED: ${JSON.stringify(await state(r))}`);
+}
+
+after(async () => {
+  for (const c of open) c.close();
+  await post(`${ARM}/state_command`, {command: 'disable'});
+  await post(`${CATHETER}/state_command`, {command: 'disable'});
+  await call('DELETE', '/lease');
+});
+
+test('GET /robots describes us_arm with the sweep mode, the sweep command and its ultrasound section', async () => {
+  const robots = (await get('/robots')).json;
+  const arm = robots.find((r) => r.name === 'us_arm');
+  assert.ok(arm, JSON.stringify(robots.map((r) => r.name)));
+  assert.equal(arm.kind, 'serial_arm');
+  assert.deepEqual(arm.modes, ['joint', 'cartesian', 'sweep']);
+  assert.deepEqual(arm.commands, ['sweep']);
+  assert.equal(arm.ultrasound.via_points, 16);
+  assert.equal(arm.ultrasound.force_target_n, 0.8);
+  assert.equal(arm.ultrasound.gate.position_mm, 0.5);
+  assert.equal(arm.ultrasound.gate.angle_rad, 0.01);
+  assert.equal(arm.ultrasound.compensation_hz, 120);
+  assert.equal(arm.ultrasound.simulated, true);
+  assert.equal((await state(ARM)).sweep.phase, 'idle');
+});
+
+test('the sweep is refused out of order, each time with the reason', async () => {
+  await holdLease();
+  let r = await sweep('start');
+  assertErrorShape(r, 409, 'conflict');
+  assert.match(r.json.error.message, /sweep mode/);
+  await enable(ARM);
+  assert.equal((await post(`${ARM}/mode`, {mode: 'sweep'})).status, 200);
+  assert.ok(await pollUntil(async () => (await state(ARM)).mode === 'sweep'));
+  r = await sweep('start');
+  assertErrorShape(r, 409, 'conflict');
+  assert.match(r.json.error.message, /no plan/);
+  assertErrorShape(await sweep('preview'), 409, 'conflict');
+  assertErrorShape(await sweep('fly'), 400, 'bad_request');
+  const plan = await sweep('plan');
+  assert.equal(plan.status, 200, plan.text);
+  assert.equal(plan.json.via_points.length, 16);
+  assert.ok(plan.json.registration.error_mm < 0.3, JSON.stringify(plan.json.registration));
+  assert.ok(await pollUntil(async () => (await state(ARM)).sweep.phase === 'planned'));
+  r = await sweep('start');
+  assertErrorShape(r, 409, 'conflict');
+  assert.match(r.json.error.message, /pre_position first/);
+});
+
+test('a sweep begun while the catheter moves: pre_position, start, acquiring on /us_arm/sweep, abort', async () => {
+  const {lease_token: leaseToken} = await holdLease();
+  await enable(CATHETER);
+  const ws = new WebSocket(`${WS_URL}?token=${encodeURIComponent(TOKEN)}&lease=${leaseToken}`,
+      [FoxgloveClient.SUPPORTED_SUBPROTOCOL], {headers: {'X-Tendril-Client': 'api-test'}});
+  const client = new FoxgloveClient({ws});
+  open.push(client);
+  const channels = new Map();
+  const phases = new Set();
+  client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
+  client.on('message', ({data}) => {
+    const m = JSON.parse(new TextDecoder().decode(data));
+    if (m.sweep) phases.add(m.sweep.phase);
+  });
+  await new Promise((resolve, reject) => {
+    client.on('serverInfo', resolve);
+    client.on('error', reject);
+  });
+  assert.ok(await pollUntil(() => channels.has('/us_arm/sweep'), {polls: 100, intervalMs: 50}),
+      `topics: ${[...channels.keys()].join(', ')}`);
+  assert.equal(channels.get('/us_arm/sweep').schemaName, 'tendril.UltrasoundSweepState');
+  client.subscribe(channels.get('/us_arm/sweep').id);
+
+  assert.equal((await sweep('pre_position')).status, 202);
+  const moveCatheter = await post(`${CATHETER}/move_jp`, {goal: [15, 0, 0, 0]});
+  assert.equal(moveCatheter.status, 202, moveCatheter.text);
+  const ready = await pollUntil(async () => (await state(ARM)).sweep.phase === 'ready', {polls: 600, intervalMs: 100});
+  assert.ok(ready, JSON.stringify(await state(ARM)));
+  assert.equal((await sweep('start')).status, 202);
+  const acquiring = await pollUntil(async () => (await state(ARM)).sweep.phase === 'acquiring',
+      {polls: 600, intervalMs: 50});
+  assert.ok(acquiring, JSON.stringify(await state(ARM)));
+  const s = (await state(ARM)).sweep;
+  assert.ok(Math.abs(s.force_n - 0.8) <= 0.15, JSON.stringify(s));
+  assert.equal(s.force_target_n, 0.8);
+  assert.ok(phases.has('ready') && phases.has('approaching'), [...phases].join(', '));
+  const catheter = (await get(`${CATHETER}/measured_js`)).json.position[0];
+  assert.ok(Math.abs(catheter - 15) < 0.1, `the catheter reached ${catheter} mm`);
+  assert.equal((await sweep('abort')).status, 202);
+  const aborted = await pollUntil(async () => {
+    const w = (await state(ARM)).sweep;
+    return w.phase === 'aborted' && !w.retracting;
+  }, {polls: 200, intervalMs: 50});
+  assert.ok(aborted, JSON.stringify((await state(ARM)).sweep));
+  assert.equal((await state(ARM)).state, 'ENABLED');
+  assert.equal((await state(CATHETER)).state, 'ENABLED');
+  assertErrorShape(await sweep('abort'), 409, 'conflict');
+  client.close();
+});
