@@ -52,6 +52,11 @@ TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/sdu_continuum.json" start_te
 run_file "$here/continuum.e2e.mjs"
 stop_tendrild
 
+# The ultrasound arm's panel (ultrasound.e2e.mjs): a sweep from the console while the catheter moves.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
+run_file "$here/ultrasound.e2e.mjs"
+stop_tendrild
+
 # The Tracking tab (tracking.e2e.mjs): tip tracking, segmentation editor and roadmaps, on a fresh server.
 start_tendrild "$binary" || exit 1
 run_file "$here/tracking.e2e.mjs"
