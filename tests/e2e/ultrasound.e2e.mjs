@@ -214,7 +214,20 @@ test('a sweep runs from the console while the catheter is driven in the same ser
     const tf = await page.evaluate(() => ({...document.querySelector('[data-testid="us-tf-info"]').dataset}));
     assert.equal(tf.fixedFrame, 'tissue');
     assert.equal(tf.tissueKnown, 'true');
+    // Screenshots: the panel scrolled to the image with its ellipse and the force plot; then the 3D
+    // view enlarged on the tissue-fixed reconstruction.
+    await page.evaluate(() => document.querySelector('[data-testid="us-image"]').scrollIntoView({block: 'start'}));
+    await page.waitForTimeout(500);
     await page.screenshot({path: path.join(ARTIFACTS, 'ultrasound.png')});
+    await page.click(tid('enlarge-view'));
+    await page.evaluate(() => {
+      const view = window.tendrilLive.view();
+      const surface = [...view.entities.entries()].find(([id]) => /(^|\/)surface$/.test(id));
+      if (surface) view.fitTo(surface[1]);
+    });
+    await page.waitForTimeout(2500);  // a resize and a frame of the software renderer
+    await page.screenshot({path: path.join(ARTIFACTS, 'ultrasound-3d.png')});
+    await page.click(tid('enlarge-view'));
   } finally {
     driving = false;
     await drive;
