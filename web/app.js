@@ -2,6 +2,7 @@
 // (live joint states, operating state, scene, safety events) to the page. The joint panel is built
 // from GET /api/v1/robots, so any robot the server describes gets its own rows and limits.
 // Terms: CRTK measured_js / setpoint_js / move_jp (see API.md); lease = the right to command.
+import {panelFor} from './robot_panels.js';
 import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';
 import {CatheterPanel} from './catheter.js';
@@ -323,6 +324,12 @@ function updateControls() {
   joints?.setStepsEnabled(!stepBlocked, hint || 'Steps need an ENABLED robot in a joint-space mode.');
   ui.moveHint.textContent = hint;
   ui.movePreview.textContent = joints ? joints.preview() : '';
+  // The robot's own panel: its commands need what a move needs but not ENABLED (a mode or a plan may
+  // be chosen while disabled); the panel disables its motion buttons itself from its robot's state.
+  const panelHint = !os ? 'Waiting for the robot state…' : viewer ? 'Viewer: watch only.'
+      : state.offline ? 'No connection.' : stale ? 'Stale data: commands wait for fresh data.'
+      : !state.leaseHeld ? 'Take the lease to command.' : '';
+  kindPanel?.setCommandable?.(!panelHint, panelHint, {enabled, estop});
 }
 
 // The session's role as the server states it (serverInfo metadata): a viewer may watch and subscribe
@@ -367,9 +374,11 @@ function formatTime(t) {
 
 function addEvents(list) {
   let changed = false;
+  const known = new Set(state.events.map((e) => e.key));
   for (const ev of list) {
     const key = `${ev.time}|${ev.kind}|${ev.message}`;
-    if (state.events.some((e) => e.key === key)) continue;
+    if (known.has(key)) continue;
+    known.add(key);
     state.events.push({...ev, key});
     changed = true;
   }
@@ -380,8 +389,22 @@ function addEvents(list) {
   // warning, such as images that stopped coming, which causes no state change).
   const cause = state.events.find((e) => e.kind !== 'transition' && e.kind !== 'warning') || state.events[0];
   if (cause) state.lastFaultCause = `${cause.kind ? cause.kind + ': ' : ''}${cause.message || ''}`;
-  renderEvents();
-  updateBanner();
+  scheduleEventsRender();
+}
+
+// The list and the banner drawn at most every EVENTS_RENDER_MS: a robot that logs an event per sample
+// (seen: 100 a second, a contact alternating between two Hall windows) had the page rebuild the
+// 200-row list 100 times a second and fall 9 s behind its stream. The events themselves are taken at
+// once; only the drawing waits.
+const EVENTS_RENDER_MS = 150;
+let eventsRenderTimer = null;
+function scheduleEventsRender() {
+  if (eventsRenderTimer) return;
+  eventsRenderTimer = setTimeout(() => {
+    eventsRenderTimer = null;
+    renderEvents();
+    updateBanner();
+  }, EVENTS_RENDER_MS);
 }
 
 function renderEvents() {
@@ -451,6 +474,7 @@ function applyJointState(js, withSetpoint) {
   if (!joints || !js) return;
   joints.updateMeasured(js);
   procedure.onJoints(js);
+  kindPanel?.onJointState?.(js);
   if (withSetpoint && Array.isArray(js.setpoint)) joints.updateSetpoint({name: js.name, position: js.setpoint});
   plotJointState(js.name, js.position, 1);
   if (withSetpoint) plotJointState(js.name, js.setpoint, 0);
@@ -680,6 +704,7 @@ function renderFrame() {
     if (m && key === 'map') view?.setPointCloud(m.msg);
     else if (m) images[key].frame(m.msg, m.stampMs);
   }
+  feedKindPanel(due, start);
   if (start - lastAgeUpdate >= 100) updateAges();
 }
 
@@ -790,7 +815,7 @@ function connectWebSocket(robotName) {
   const t = topicNames(robotName);
   topics = t;
   latest.clear();
-  const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, Object.values(t), {
+  const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, [...Object.values(t), ...kindPanelTopics()], {
     onOpen: () => {
       state.wsLive = true;
       net.answered();
@@ -837,6 +862,15 @@ function connectWebSocket(robotName) {
         try {
           const msg = JSON.parse(new TextDecoder().decode(bytes));
           addEvents(Array.isArray(msg.recent) ? msg.recent : Array.isArray(msg.events) ? msg.events : [msg]);
+        } catch {
+          // not JSON: ignored
+        }
+        return;
+      }
+      if (kindPanel?.everyMessage?.includes(topic)) {
+        // Small, frequent messages (a force plot's samples): every one, not the newest per frame.
+        try {
+          kindPanel.onMessage(topic, JSON.parse(new TextDecoder().decode(bytes)), Number(stampNs) / 1e6);
         } catch {
           // not JSON: ignored
         }
@@ -1206,6 +1240,69 @@ async function loadView() {
   }
 }
 
+// ---------------------------------------------------------------- kind-specific panel
+// The selected robot kind's own panel (robot_panels.js) in the "robot" tab; none for the catheter.
+let kindPanel = null;
+let kindPanelSeq = 0;
+
+function kindPanelTopics() {
+  return kindPanel ? [...new Set([...(kindPanel.topics || []), ...(kindPanel.everyMessage || [])])] : [];
+}
+
+async function mountKindPanel(robot) {
+  const seq = ++kindPanelSeq;
+  const tab = $('#tab-robot');
+  const root = $('#panel-robot');
+  if (kindPanel) {
+    for (const t of kindPanelTopics()) window.tendrilConnection?.removeTopic(t);
+    try {
+      kindPanel.destroy?.();
+    } catch {
+      // a panel that fails to clean up must not stop the robot change
+    }
+    kindPanel = null;
+  }
+  root.replaceChildren();
+  const entry = panelFor(robot);
+  if (!entry) {
+    if (tab.getAttribute('aria-selected') === 'true') selectTab($('#tab-joints'));
+    tab.hidden = true;
+    return;
+  }
+  let mod;
+  try {
+    mod = await entry.load();
+  } catch (err) {
+    root.textContent = `The ${entry.title} panel could not be loaded (${err.message}).`;
+    tab.hidden = false;
+    return;
+  }
+  if (seq !== kindPanelSeq) return;  // another robot was selected meanwhile
+  tab.textContent = entry.title;
+  tab.hidden = false;
+  kindPanel = mod.createPanel(root, {
+    api, robot, view: () => view, status: showStatus, ageMs: (stampMs) => clock.ageMs(stampMs),
+    commandable: () => !state.stale && state.role !== 'viewer' && !state.offline,
+  });
+  for (const t of kindPanelTopics()) window.tendrilConnection?.addTopic(t);
+  updateControls();
+}
+
+function feedKindPanel(due, start) {
+  if (!kindPanel) return;
+  for (const topic of kindPanel.topics || []) {
+    if (!due(topic)) continue;
+    const m = latest.take(topic);
+    lastTaken.set(topic, start);
+    if (!m) continue;
+    try {
+      kindPanel.onMessage(topic, m.msg, m.stampMs);
+    } catch (err) {
+      console.error(`robot panel: ${topic}:`, err);
+    }
+  }
+}
+
 function selectRobot(name) {
   const robot = state.robots.find((r) => r.name === name) || state.robots[0];
   // A status line about the last robot (e.g. "Lease taken") would read as if it were about this one.
@@ -1243,6 +1340,7 @@ function selectRobot(name) {
     pollLease();
   }
   updateControls();
+  mountKindPanel(robot);
   if (window.tendrilConnection) {
     window.tendrilConnection.close();
     connectWebSocket(robot.name);

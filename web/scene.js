@@ -1,6 +1,7 @@
 // 3D view of the catheter: backbone as a tube along the polyline (mm), the tip frame as axes, a
-// millimetre grid, and any other foxglove.SceneUpdate entities (lines, arrows, spheres, cubes) the
-// server publishes. Z is up, as in Foxglove. Renders only when something changed, to leave the CPU
+// millimetre grid, and any other foxglove.SceneUpdate entities (lines, arrows, spheres, cubes,
+// cylinders, triangles, texts) the server publishes, point clouds (foxglove.PointCloud), and frames
+// from /tf (foxglove.FrameTransforms) for a view fixed to a moving frame. Z is up, as in Foxglove. Renders only when something changed, to leave the CPU
 // to the control loop on small machines.
 import * as THREE from 'three';
 import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
@@ -39,6 +40,58 @@ function toInsertionFrame(vecs) {
   return vecs.map((v) => v.clone().sub(start).applyQuaternion(turn));
 }
 
+// Beyond this many spheres in one entity they are drawn as points (see setEntity).
+const MAX_SPHERE_MESHES = 64;
+
+function colorAttribute(colors) {
+  const a = new Float32Array(colors.length * 3);
+  colors.forEach((c, i) => a.set([c?.r ?? 1, c?.g ?? 1, c?.b ?? 1], i * 3));
+  return new THREE.BufferAttribute(a, 3);
+}
+
+function meanSize(spheres) {
+  const sum = spheres.reduce((acc, sp) => acc + (sp.size?.x ?? 1), 0);
+  return Math.max(0.3, sum / spheres.length);
+}
+
+function pointsObject(positions, colors, size) {
+  const geometry = new THREE.BufferGeometry().setFromPoints(positions.map(toVec));
+  geometry.setAttribute('color', colorAttribute(colors.map((c) => c || {r: 0.9, g: 0.9, b: 0.9})));
+  return new THREE.Points(geometry, new THREE.PointsMaterial({size, vertexColors: true, sizeAttenuation: true}));
+}
+
+// foxglove.TextPrimitive as a sprite (always faces the camera, as billboard text does). font_size is
+// in mm unless scale_invariant, then in pixels (drawn at a fixed share of the view's height).
+function textSprite(text) {
+  const canvas = document.createElement('canvas');
+  const ctx = canvas.getContext('2d');
+  const px = 32;
+  ctx.font = `${px}px system-ui, sans-serif`;
+  const lines = String(text.text).split('\n');
+  const width = Math.ceil(Math.max(...lines.map((l) => ctx.measureText(l).width))) + 12;
+  canvas.width = width;
+  canvas.height = lines.length * (px + 6) + 6;
+  ctx.font = `${px}px system-ui, sans-serif`;
+  ctx.fillStyle = 'rgba(11,15,20,0.72)';
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  const c = text.color || {r: 1, g: 1, b: 1};
+  ctx.fillStyle = `rgb(${Math.round(c.r * 255)},${Math.round(c.g * 255)},${Math.round(c.b * 255)})`;
+  ctx.textBaseline = 'top';
+  lines.forEach((l, i) => ctx.fillText(l, 6, 6 + i * (px + 6)));
+  const texture = new THREE.CanvasTexture(canvas);
+  texture.colorSpace = THREE.SRGBColorSpace;
+  const invariant = !!text.scale_invariant;
+  const material = new THREE.SpriteMaterial({map: texture, depthTest: false, sizeAttenuation: !invariant, toneMapped: false});
+  const sprite = new THREE.Sprite(material);
+  const height = invariant ? (text.font_size || 14) / 600 * lines.length : (text.font_size || 5) * lines.length;
+  sprite.scale.set(height * canvas.width / canvas.height, height, 1);
+  sprite.center.set(0, 0);
+  sprite.renderOrder = 10;
+  sprite.userData.text = String(text.text);
+  applyPose(sprite, text.pose);
+  return sprite;
+}
+
 function applyPose(object, pose) {
   if (!pose) return;
   if (pose.position) object.position.set(pose.position.x || 0, pose.position.y || 0, pose.position.z || 0);
@@ -53,7 +106,13 @@ function applyPose(object, pose) {
 function disposeTree(object) {
   object.traverse((child) => {
     child.geometry?.dispose();
-    if (child.material) [].concat(child.material).forEach((m) => { if (!m.userData.shared) m.dispose(); });
+    if (child.material) {
+      [].concat(child.material).forEach((m) => {
+        if (m.userData.shared) return;
+        m.map?.dispose();  // a text sprite's canvas texture
+        m.dispose();
+      });
+    }
   });
 }
 
@@ -86,6 +145,9 @@ export class CatheterView {
     this.lastBackbone = null;
     this.tipFromScene = false;
     this.materials = new Map();  // shared materials by kind and parameters (see disposeTree)
+    this.frames = new Map();  // /tf: child frame -> {parent, matrix (parent <- child)}
+    this.fixedFrame = null;  // null: objects drawn in the coordinates they come in (see setFrameTransforms)
+    this.clouds = new Map();  // point clouds by key (setPointCloud)
     // Without a GPU (software rasteriser) draw cheaper: no multisampling, 1:1 pixels, fewer frames,
     // so the browser does not starve the server on the same small machine.
     this.software = /swiftshader|llvmpipe|software/i.test(probeRenderer());
@@ -309,7 +371,8 @@ export class CatheterView {
 
   setEntity(id, entity) {
     // The stream repeats unchanged entities with new timestamps; rebuild only what changed.
-    const key = JSON.stringify([entity.lines, entity.arrows, entity.spheres, entity.cubes]);
+    const key = JSON.stringify([entity.frame_id, entity.lines, entity.arrows, entity.spheres, entity.cubes,
+                                entity.cylinders, entity.triangles, entity.texts]);
     if (this.entityKeys.get(id) === key) return;
     this.entityKeys.set(id, key);
     this.removeEntity(id);
@@ -319,7 +382,11 @@ export class CatheterView {
       const pts = (line.points || []).map(toVec);
       if (pts.length < 2) continue;
       const geometry = new THREE.BufferGeometry().setFromPoints(pts);
-      const material = this.material('LineBasicMaterial', colorOf(line.color), line.color?.a ?? 1);
+      // Per-point colours (e.g. a strip coloured by curvature) when given for every point.
+      const perPoint = Array.isArray(line.colors) && line.colors.length === pts.length;
+      if (perPoint) geometry.setAttribute('color', colorAttribute(line.colors));
+      const material = perPoint ? this.material('LineBasicMaterial', 0xffffff, 1, {vertexColors: true})
+                                : this.material('LineBasicMaterial', colorOf(line.color), line.color?.a ?? 1);
       // type 0 line strip, 1 line loop, 2 line list
       const obj = line.type === 2 ? new THREE.LineSegments(geometry, material)
                 : line.type === 1 ? new THREE.LineLoop(geometry, material)
@@ -344,7 +411,14 @@ export class CatheterView {
       applyPose(helper, arrow.pose);
       group.add(helper);
     }
-    for (const sphere of entity.spheres || []) {
+    const spheres = entity.spheres || [];
+    if (spheres.length > MAX_SPHERE_MESHES) {
+      // Many small spheres (a sampled surface) as one point set: thousands of meshes would take seconds
+      // per frame in a software renderer. Drawn at the spheres' mean diameter.
+      group.add(pointsObject(spheres.map((sp) => sp.pose?.position || {x: 0, y: 0, z: 0}),
+                             spheres.map((sp) => sp.color), meanSize(spheres)));
+    }
+    for (const sphere of spheres.length > MAX_SPHERE_MESHES ? [] : spheres) {
       const s = sphere.size || {x: 1, y: 1, z: 1};
       const mesh = new THREE.Mesh(new THREE.SphereGeometry(0.5, 20, 14),
                                   this.material(this.software ? 'MeshLambertMaterial' : 'MeshStandardMaterial',
@@ -361,9 +435,130 @@ export class CatheterView {
       applyPose(mesh, cube.pose);
       group.add(mesh);
     }
+    for (const cyl of entity.cylinders || []) {
+      const s = cyl.size || {x: 1, y: 1, z: 1};
+      // Foxglove's cylinder stands on z; three.js's on y.
+      const geometry = new THREE.CylinderGeometry((cyl.top_scale ?? 1) * 0.5, (cyl.bottom_scale ?? 1) * 0.5, 1, 24);
+      geometry.rotateX(Math.PI / 2);
+      const mesh = new THREE.Mesh(geometry, this.material(this.software ? 'MeshLambertMaterial' : 'MeshStandardMaterial',
+                                                          colorOf(cyl.color), cyl.color?.a ?? 1));
+      mesh.scale.set(s.x, s.y, s.z);
+      applyPose(mesh, cyl.pose);
+      group.add(mesh);
+    }
+    for (const tri of entity.triangles || []) {
+      const mesh = this.triangleMesh(tri);
+      if (mesh) group.add(mesh);
+    }
+    for (const text of entity.texts || []) {
+      if (text.text) group.add(textSprite(text));
+    }
     if (group.children.length === 0) return;
     this.entities.set(id, group);
+    this.placeInFrame(group, entity.frame_id);
     this.scene.add(group);
+  }
+
+  // foxglove.TriangleListPrimitive: points taken three at a time, or through indices; one colour or
+  // one per point. Both faces are drawn (a mesh from slices has no consistent winding).
+  triangleMesh(tri) {
+    const pts = (tri.points || []).map(toVec);
+    if (pts.length < 3) return null;
+    const geometry = new THREE.BufferGeometry().setFromPoints(pts);
+    if (Array.isArray(tri.indices) && tri.indices.length >= 3) {
+      if (tri.indices.some((i) => !(i >= 0 && i < pts.length))) return null;  // a broken mesh is not drawn
+      geometry.setIndex(tri.indices.slice(0, tri.indices.length - (tri.indices.length % 3)));
+    } else if (pts.length % 3) {
+      return null;
+    }
+    geometry.computeVertexNormals();
+    const perPoint = Array.isArray(tri.colors) && tri.colors.length === pts.length;
+    if (perPoint) geometry.setAttribute('color', colorAttribute(tri.colors));
+    const opacity = tri.color?.a ?? 1;
+    const material = new THREE.MeshLambertMaterial({
+      color: perPoint ? 0xffffff : colorOf(tri.color), vertexColors: perPoint, side: THREE.DoubleSide,
+      transparent: opacity < 1, opacity, depthWrite: opacity >= 1});
+    const mesh = new THREE.Mesh(geometry, material);
+    applyPose(mesh, tri.pose);
+    return mesh;
+  }
+
+  // ---- frames (foxglove.FrameTransforms on /tf)
+  // The view draws everything in one fixed frame. By default (no fixed frame) objects are drawn in the
+  // coordinates they come in, as before /tf existed. With a fixed frame set (e.g. "tissue", the frame
+  // that moves with the limb) every object whose frame_id is known through /tf is drawn at
+  // fixed <- frame, so the camera stays with that frame: the limb stands still on screen and the arm
+  // moves about it. An object whose frame cannot be reached from the fixed frame is hidden rather than
+  // drawn at a wrong place.
+  setFrameTransforms(msg) {
+    if (!msg || !Array.isArray(msg.transforms)) return;
+    let changed = false;
+    for (const t of msg.transforms) {
+      if (!t.child_frame_id || !t.parent_frame_id || t.child_frame_id === t.parent_frame_id) continue;
+      const p = t.translation || {};
+      const r = t.rotation || {};
+      const q = new THREE.Quaternion(r.x || 0, r.y || 0, r.z || 0, r.w === undefined ? 1 : r.w);
+      if (![p.x || 0, p.y || 0, p.z || 0, q.x, q.y, q.z, q.w].every(Number.isFinite) || q.lengthSq() < 1e-12) continue;
+      const m = new THREE.Matrix4().compose(new THREE.Vector3(p.x || 0, p.y || 0, p.z || 0), q.normalize(),
+                                            new THREE.Vector3(1, 1, 1));
+      const old = this.frames.get(t.child_frame_id);
+      if (old && old.parent === t.parent_frame_id && old.matrix.equals(m)) continue;
+      this.frames.set(t.child_frame_id, {parent: t.parent_frame_id, matrix: m});
+      changed = true;
+    }
+    if (changed) this.placeAll();
+  }
+
+  setFixedFrame(name) {
+    const next = name || null;
+    if (next === this.fixedFrame) return;
+    this.fixedFrame = next;
+    this.placeAll();
+  }
+
+  // root <- frame as {root, matrix}; null for a cycle.
+  chainToRoot(frame) {
+    const matrix = new THREE.Matrix4();
+    let f = frame;
+    for (let depth = 0; depth < 64; depth++) {
+      const link = this.frames.get(f);
+      if (!link) return {root: f, matrix};
+      matrix.premultiply(link.matrix);
+      f = link.parent;
+    }
+    return null;
+  }
+
+  // fixed <- frame, or null when /tf does not connect them (yet).
+  fixedFromFrame(frame) {
+    if (!this.fixedFrame || !frame || frame === this.fixedFrame) return new THREE.Matrix4();
+    const a = this.chainToRoot(frame);
+    const b = this.chainToRoot(this.fixedFrame);
+    if (!a || !b || a.root !== b.root) return null;
+    return b.matrix.clone().invert().multiply(a.matrix);
+  }
+
+  placeInFrame(object, frame) {
+    object.userData.frameId = frame || '';
+    object.matrixAutoUpdate = false;
+    const m = this.fixedFromFrame(frame);
+    object.visible = m !== null;
+    if (m) object.matrix.copy(m);
+    object.matrixWorldNeedsUpdate = true;
+  }
+
+  placeAll() {
+    for (const obj of this.entities.values()) this.placeInFrame(obj, obj.userData.frameId);
+    for (const group of this.clouds.values()) this.placeInFrame(group, group.userData.frameId);
+    this.requestRender();
+  }
+
+  // Where a frame is in the fixed frame (for tests and read-outs): [x, y, z] or null.
+  frameOrigin(frame) {
+    const m = this.fixedFromFrame(frame);
+    if (!m) return null;
+    const v = new THREE.Vector3().setFromMatrixPosition(m);
+    return [v.x, v.y, v.z];
   }
 
   // Vessel centreline of the selected branch (mm) and, when radii are known, its wall as a
@@ -426,33 +621,81 @@ export class CatheterView {
     this.requestRender();
   }
 
-  // foxglove.PointCloud (JSON, base64 data): the float32 x, y, z fields become points.
-  setPointCloud(msg) {
-    if (!this.available || !msg || typeof msg.data !== 'string') return;
+  // foxglove.PointCloud (JSON, base64 data): the float32 (or float64) x, y, z fields become points,
+  // coloured by the rgba fields when the cloud has them (uint8, NumericType 1). One cloud per key (the
+  // core's /maps/vessel is "map"; a plug-in's map has its own), each in its message's frame_id.
+  // Returns the number of points drawn (0 for an empty cloud), or -1 when the message is not a cloud.
+  setPointCloud(msg, key = 'map', color = 0xb07aa1) {
+    if (!this.available || !msg || typeof msg.data !== 'string') return -1;
     const fields = Object.fromEntries((msg.fields || []).map((f) => [f.name, f]));
     const stride = Number(msg.point_stride);
-    if (!fields.x || !fields.y || !fields.z || !(stride > 0)) return;
-    const key = `${msg.data.length}:${msg.data.slice(0, 64)}:${msg.data.slice(-64)}`;
-    if (key === this.cloudKey) return;  // the map is republished unchanged
-    this.cloudKey = key;
-    const bytes = Uint8Array.from(atob(msg.data), (c) => c.charCodeAt(0));
+    if (!fields.x || !fields.y || !fields.z || !(stride > 0)) return -1;
+    const cloudKey = `${msg.frame_id}:${msg.data.length}:${msg.data.slice(0, 64)}:${msg.data.slice(-64)}`;
+    const known = this.clouds.get(key);
+    if (known && known.userData.cloudKey === cloudKey) return known.userData.count;  // republished unchanged
+    let bytes;
+    try {
+      bytes = Uint8Array.from(atob(msg.data), (c) => c.charCodeAt(0));
+    } catch {
+      return -1;  // not base64
+    }
     const view = new DataView(bytes.buffer);
     const n = Math.floor(bytes.length / stride);
+    const sizes = {1: 1, 2: 1, 3: 2, 4: 2, 5: 4, 6: 4, 7: 4, 8: 8};
+    const fits = (f) => f && f.offset >= 0 && f.offset + (sizes[f.type] || 4) <= stride;
+    if (![fields.x, fields.y, fields.z].every(fits)) return -1;
     const positions = new Float32Array(n * 3);
     // foxglove NumericType 7 = FLOAT32, 8 = FLOAT64
     const read = (f, at) => (f.type === 8 ? view.getFloat64(at + f.offset, true) : view.getFloat32(at + f.offset, true));
+    let kept = 0;
     for (let i = 0; i < n; i++) {
-      positions[i * 3] = read(fields.x, i * stride);
-      positions[i * 3 + 1] = read(fields.y, i * stride);
-      positions[i * 3 + 2] = read(fields.z, i * stride);
+      const x = read(fields.x, i * stride);
+      const y = read(fields.y, i * stride);
+      const z = read(fields.z, i * stride);
+      if (!Number.isFinite(x) || !Number.isFinite(y) || !Number.isFinite(z)) continue;  // never a point at NaN
+      positions.set([x, y, z], kept * 3);
+      kept++;
     }
-    this.clearGroup('cloudGroup');
-    const group = this.ensureGroup('cloudGroup');
+    const group = this.cloudGroup(key);
+    for (const child of [...group.children]) {
+      disposeTree(child);
+      group.remove(child);
+    }
+    group.userData.cloudKey = cloudKey;
+    group.userData.count = kept;
     const geometry = new THREE.BufferGeometry();
-    geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
-    group.add(new THREE.Points(geometry, new THREE.PointsMaterial({color: 0xb07aa1, size: 1.2, sizeAttenuation: true})));
-    applyPose(group, msg.pose);
+    geometry.setAttribute('position', new THREE.BufferAttribute(positions.subarray(0, kept * 3), 3));
+    const points = new THREE.Points(geometry, new THREE.PointsMaterial({color, size: 1.2, sizeAttenuation: true}));
+    applyPose(points, msg.pose);
+    group.add(points);
+    this.placeInFrame(group, msg.frame_id);
     this.requestRender();
+    return kept;
+  }
+
+  cloudGroup(key) {
+    let group = this.clouds.get(key);
+    if (!group) {
+      group = new THREE.Group();
+      group.name = `cloud:${key}`;
+      this.clouds.set(key, group);
+      this.scene.add(group);
+    }
+    return group;
+  }
+
+  removePointCloud(key) {
+    const group = this.clouds.get(key);
+    if (!group) return;
+    disposeTree(group);
+    this.scene.remove(group);
+    this.clouds.delete(key);
+    this.requestRender();
+  }
+
+  // Entities whose id starts with `prefix` (a panel's own, when the robot changes).
+  removeEntities(prefix) {
+    for (const id of [...this.entities.keys()]) if (id.startsWith(prefix)) this.removeEntity(id);
   }
 
   // The tip as the bi-plane images see it (world mm, tendril.TipTracking's tip_mm), drawn as a magenta

@@ -52,9 +52,21 @@ TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/mbcr_vd.json" start_tendrild
 run_file "$here/mbcr.e2e.mjs"
 stop_tendrild
 
+# The continuum robot's panel (continuum.e2e.mjs): the SIMULATED sdu_continuum beside the catheter.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/sdu_continuum.json" start_tendrild "$binary" || exit 1
+run_file "$here/continuum.e2e.mjs"
+stop_tendrild
+
+# The ultrasound arm's panel (ultrasound.e2e.mjs): a sweep from the console while the catheter moves.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
+run_file "$here/ultrasound.e2e.mjs"
+stop_tendrild
+
 # The Tracking tab (tracking.e2e.mjs): tip tracking, segmentation editor and roadmaps, on a fresh server.
 start_tendrild "$binary" || exit 1
 run_file "$here/tracking.e2e.mjs"
+# The 3D view's generic pieces (point clouds, SceneUpdate primitives, /tf frames) on the same server.
+run_file "$here/scene_update.e2e.mjs"
 stop_tendrild
 
 # The replay bar (replay.e2e.mjs): a few seconds recorded by a live server (SIGTERM finalises them),

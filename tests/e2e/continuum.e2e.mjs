@@ -1,0 +1,137 @@
+// Browser test of the sdu_continuum panel (web/continuum.js) against a tendrild serving the SIMULATED
+// continuum robot with sensing disk units (config/robots/sdu_continuum.json) beside the catheter
+// (issue 16's scenario from the console): take the lease, enable, command motion toward the SIMULATED
+// human arm, press Approach: the speed-scale factor falls as the arm comes near, then the robot stops on
+// contact and the panel names the disk and the angular slot. Screenshot: tests/e2e/artifacts/continuum.png.
+// Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh starts the server with config/robots/sdu_continuum.json).
+import {test, before, after} from 'node:test';
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import {fileURLToPath} from 'node:url';
+import {chromium} from 'playwright-core';
+
+const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
+const TOKEN = process.env.TENDRIL_TOKEN || '';
+if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
+const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
+const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
+const SCENARIO_WAIT = {timeout: 180000};  // the SIMULATED arm's approach on a sanitized server, two shared cores
+const tid = (id) => `[data-testid="${id}"]`;
+const ROBOT = process.env.TENDRIL_SDU_ROBOT || 'sdu';
+
+let context;
+let page;
+let userDataDir;
+const pageErrors = [];
+
+before(async () => {
+  fs.mkdirSync(ARTIFACTS, {recursive: true});
+  userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-e2e-sdu-'));
+  context = await chromium.launchPersistentContext(userDataDir, {
+    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+    headless: true,
+    viewport: {width: 1280, height: 900},
+    args: ['--headless=new', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
+           '--disable-component-update', '--no-first-run', '--disable-sync', '--disable-quic',
+           '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
+  });
+  page = context.pages()[0] ?? await context.newPage();
+  page.on('pageerror', (err) => pageErrors.push(err.message));
+});
+
+after(async () => {
+  await context?.close();
+  if (userDataDir) fs.rmSync(userDataDir, {recursive: true, force: true});
+});
+
+const panel = () => page.evaluate(() => {
+  const q = (id) => document.querySelector(`[data-testid="${id}"]`);
+  return {
+    supervisor: q('continuum-supervisor')?.dataset.state, reason: q('continuum-reason')?.textContent,
+    scale: Number(q('continuum-speed-scale')?.dataset.value), contact: q('continuum-contact')?.dataset.contact,
+    disk: q('continuum-contact')?.dataset.disk, slot: q('continuum-contact')?.dataset.slot,
+    text: q('continuum-contact')?.textContent, status: q('command-status')?.textContent,
+  };
+});
+
+test('the continuum scenario from the console: approach slows the robot, touch stops it, disk and slot shown', async () => {
+  await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
+  await page.waitForFunction((r) => [...document.querySelectorAll('[data-testid="robot-select"] option')].some((o) => o.value === r),
+    ROBOT, WAIT);
+  await page.locator(tid('robot-select')).selectOption(ROBOT);
+  await page.locator(`${tid('tab-robot')}:not([hidden])`).waitFor(WAIT);
+  assert.equal((await page.locator(tid('tab-robot')).textContent()).trim(), 'Continuum');
+  await page.click(tid('tab-robot'));
+  // The live state arrives: the supervisor's state and the speed scale with nothing near.
+  await page.waitForFunction(() => document.querySelector('[data-testid="continuum-supervisor"]').dataset.state, null, WAIT);
+  await page.waitForFunction(() => document.querySelectorAll('[data-testid^="continuum-disk-"]').length >= 5, null, WAIT);
+
+  await page.locator('#lease-button').click();
+  await page.waitForFunction((r) => new RegExp(`lease: yours \\(${r}\\)`).test(
+    document.querySelector('[data-testid="lease-status"]').textContent), ROBOT, WAIT);
+  // The SIMULATED arm starts from its configured place.
+  await page.waitForFunction(() => !document.querySelector('[data-testid="continuum-arm-reset"]').disabled, null, WAIT);
+  await page.click(tid('continuum-arm-reset'));
+  await page.waitForFunction(() => !document.querySelector('[data-testid="enable-button"]').disabled, null, WAIT);
+  await page.click(tid('enable-button'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').textContent.includes('ENABLED'), null, WAIT);
+  const before = await panel();
+  assert.equal(before.contact, 'false', JSON.stringify(before));
+
+  // Command motion toward the arm: bend the segment (the joint panel's goal in rad, and Move).
+  await page.click(tid('tab-joints'));
+  await page.fill(tid('joint-goal-bending'), String(process.env.TENDRIL_SDU_BEND_RAD || 0.4));
+  await page.click(tid('move-button'));
+  await page.click(tid('tab-robot'));
+
+  // The arm approaches: the speed scale falls below 1 (slowed by proximity) …
+  await page.fill(tid('continuum-arm-speed'), '20');
+  await page.click(tid('continuum-arm-approach'));
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="continuum-speed-scale"]').dataset.value) < 0.9,
+    null, SCENARIO_WAIT);
+  const slowed = await panel();
+  assert.ok(slowed.scale < 0.9, JSON.stringify(slowed));
+  // … and on touch the robot stops: contact on a disk and a slot, the supervisor says why.
+  await page.waitForFunction(() => document.querySelector('[data-testid="continuum-contact"]').dataset.contact === 'true',
+    null, SCENARIO_WAIT);
+  await page.waitForFunction(() => /stop/.test(document.querySelector('[data-testid="continuum-supervisor"]').dataset.state),
+    null, WAIT);
+  const stopped = await panel();
+  assert.match(stopped.disk, /^\d+$/, JSON.stringify(stopped));
+  assert.match(stopped.slot, /^\d+$/, JSON.stringify(stopped));
+  assert.match(stopped.text, /CONTACT on disk \d+, slot \d+/);
+  assert.ok(stopped.reason.length > 0, 'the supervisor gives a reason');
+  assert.ok(stopped.scale <= slowed.scale, JSON.stringify({slowed, stopped}));
+  const row = page.locator(tid(`continuum-disk-${stopped.disk}`));
+  assert.equal(await row.getAttribute('data-contact'), 'true');
+  // The 3D view shows the contact slot's marker: a large red sphere on the contact disk's ring.
+  const marker = await page.evaluate(() => {
+    const view = window.tendrilLive.view();
+    const disks = view.entities.get('continuum-panel/disks');
+    const big = disks.children.filter((c) => c.type === 'Mesh' && c.scale.x > 20);
+    return big.map((m) => ({r: m.material.color.r, g: m.material.color.g}));
+  });
+  assert.equal(marker.length, 1, `one contact marker: ${JSON.stringify(marker)}`);
+  assert.ok(marker[0].r > 0.9 && marker[0].g < 0.3, JSON.stringify(marker));
+  await page.locator(tid('continuum-supervisor')).scrollIntoViewIfNeeded();
+  await page.evaluate(() => window.tendrilLive.view().fit());
+  await page.waitForTimeout(1500);  // a frame of the software renderer
+  // The page keeps up with the stream while the robot is held on the contact (no STALE).
+  await page.waitForFunction(() => document.querySelector('[data-testid="age-joints"]').dataset.stale === 'false', null, WAIT);
+  await page.screenshot({path: path.join(ARTIFACTS, 'continuum.png')});
+
+  // Retreat: the arm leaves (the robot stays stopped until the operator acts; the panel keeps the cause).
+  // Retreat: pressed as soon as the page has fresh data (the button is disabled while the page is
+  // STALE, which a loaded two-core machine makes happen for seconds at a time).
+  const pressed = await page.waitForFunction(() => {
+    const b = document.querySelector('[data-testid="continuum-arm-retreat"]');
+    if (b.disabled) return false;
+    b.click();
+    return true;
+  }, null, {timeout: 60000, polling: 100}).then(() => true, () => false);
+  assert.ok(pressed, `Retreat stayed disabled for 60 s: ${await page.locator(tid('continuum-hint')).textContent()}`);
+  await page.waitForFunction(() => /retreat/.test(document.querySelector('[data-testid="continuum-arm"]').textContent), null, WAIT);
+  assert.deepEqual(pageErrors, []);
+});
