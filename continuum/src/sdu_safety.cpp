@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -352,9 +353,15 @@ void SduSupervisor::log_change(std::int64_t now_ns, const SduSafetyDecision& bef
   const auto& d = decision_;
   const bool first = !logged_any_;
   logged_any_ = true;
-  if (!first && d.state == before.state && d.cause == before.cause && d.disk == before.disk &&
-      d.slot == before.slot)
-    return;
+  if (!first && d.state == before.state && d.cause == before.cause && d.disk == before.disk) {
+    if (d.slot == before.slot) return;
+    // A contact between two neighbouring Hall windows moves its strongest window back and forth with
+    // the noise (every 10 ms sample in the simulation): the same contact, not a new event — logging
+    // each move flooded the event log with 100 warnings a second. The state still names the window.
+    const int apart = std::abs(d.slot - before.slot);
+    const int slots = static_cast<int>(kHallPerSdu);
+    if (d.cause == SduCause::kContact && (apart == 1 || apart == slots - 1)) return;
+  }
   safety::SafetyEvent e;
   e.time = static_cast<double>(now_ns) * 1e-9;
   switch (d.state) {

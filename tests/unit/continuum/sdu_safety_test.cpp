@@ -270,6 +270,22 @@ TEST_F(SduSupervisorTest, ContactStopsInTheCycleItIsSeenAndOnlyRetreatIsAllowed)
   EXPECT_EQ(apply_sdu_roll(d, params_, std::nan("")), 0.0);
   char buf[96];
   EXPECT_STREQ(describe(d, buf, sizeof buf), "contact on SDU 4 Hall 2 (112.5 deg), 1.00 N: stopped");
+  // A contact between windows 2 and 3 whose strongest window alternates is one event, not one per
+  // sample; a contact that jumps to a window across the disk is logged.
+  drain();
+  for (int k = 0; k < 10; ++k) {
+    sense();
+    samples_[4].hall_mT[2 + k % 2][2] = supervisor_->bias()[4].b0_mT[2 + k % 2][2] + 0.26;
+    samples_[4].hall_mT[3 - k % 2][2] = supervisor_->bias()[4].b0_mT[3 - k % 2][2] + 0.2;
+    EXPECT_EQ(step().slot, 2 + k % 2);
+  }
+  EXPECT_TRUE(drain().empty());
+  sense();
+  samples_[4].hall_mT[6][2] = supervisor_->bias()[4].b0_mT[6][2] + 0.26;
+  EXPECT_EQ(step().slot, 6);
+  const auto moved = drain();
+  ASSERT_EQ(moved.size(), 1U);
+  EXPECT_NE(moved.front().find("Hall 6"), std::string::npos) << moved.front();
   // Hysteresis: 0.3 N keeps the contact, 0.1 N releases it.
   sense();
   samples_[4].hall_mT[2][2] = supervisor_->bias()[4].b0_mT[2][2] + 0.3 * 0.26;
