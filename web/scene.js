@@ -301,7 +301,8 @@ export class CatheterView {
     }
     // Re-frame when the catheter grows out of the framed region (unless the operator moved the camera).
     const shapeBox = new THREE.Box3().setFromPoints(clean);
-    if (!this.hasFitted || (!this.userCamera && this.fittedBox && !this.fittedBox.containsBox(shapeBox))) this.fit(false);
+    if (!this.hasFitted ||
+        (!this.userCamera && !this.focus && this.fittedBox && !this.fittedBox.containsBox(shapeBox))) this.fit(false);
     this.requestRender();
   }
 
@@ -733,19 +734,35 @@ export class CatheterView {
     this.requestRender();
   }
 
-  // Frame the camera on one object (e.g. a newly loaded vessel).
-  fitTo(object) {
+  // Frame the camera on one object (e.g. a newly loaded vessel), with the grid origin unless withOrigin
+  // is false.
+  fitTo(object, {withOrigin = true} = {}) {
     const box = new THREE.Box3().setFromObject(object);
     if (box.isEmpty()) return;
-    box.expandByPoint(new THREE.Vector3(0, 0, 0));
+    if (withOrigin) box.expandByPoint(new THREE.Vector3(0, 0, 0));
     this.frameBox(box);
   }
 
-  // Frame the camera on the backbone (and the grid origin). The Fit view button (byUser) also hands
-  // framing back to the console.
+  // Keep the camera on `object` (a panel's subject, e.g. an ultrasound arm's reconstruction half a metre
+  // from the arm's base) instead of re-framing on the robot's shape whenever it moves; null gives framing
+  // back to the robot. The Fit view button frames the whole robot again and ends the focus.
+  setFocus(object) {
+    this.focus = object || null;
+    if (this.focus && this.available && !this.userCamera) this.fitTo(this.focus, {withOrigin: false});
+  }
+
+  // Frame the camera on the backbone (and the grid origin), or on the focus while one is set. The Fit
+  // view button (byUser) also hands framing back to the console.
   fit(byUser = true) {
-    if (byUser) this.userCamera = false;
+    if (byUser) {
+      this.userCamera = false;
+      this.focus = null;
+    }
     if (!this.available) return;
+    if (this.focus) {
+      this.fitTo(this.focus, {withOrigin: false});
+      return;
+    }
     const box = new THREE.Box3().setFromObject(this.backboneGroup);
     if (box.isEmpty()) box.set(new THREE.Vector3(-20, -20, 0), new THREE.Vector3(20, 20, 60));
     box.expandByPoint(new THREE.Vector3(0, 0, 0));

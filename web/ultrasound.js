@@ -318,13 +318,14 @@ class UltrasoundPanel {
     if (!view) return;
     for (const e of msg.entities || []) this.reconIds.add(e.id);
     view.applySceneUpdate(msg);
-    // Frame the camera on the limb's skin once it is first drawn (unless the operator placed it).
+    // Keep the camera on the limb's skin once it is first drawn (unless the operator placed it): the
+    // reconstruction is the subject here, not the arm (whose base is half a metre away).
     if (!this.framed && !view.userCamera) {
       const surface = (msg.entities || []).find((e) => /(^|\/)surface$/.test(e.id || '') && (e.spheres || []).length);
       const obj = surface && view.entities.get(surface.id);
       if (obj && obj.visible) {
         obj.updateMatrixWorld(true);
-        view.fitTo(obj);
+        view.setFocus(obj);
         this.framed = true;
       }
     }
@@ -380,6 +381,7 @@ class UltrasoundPanel {
     const view = this.ctx.view();
     if (!view) return;
     view.setFixedFrame(null);
+    view.setFocus(null);
     for (const id of this.reconIds) view.removeEntity(id);
     view.removeEntities(ENTITY_PREFIX);
   }
