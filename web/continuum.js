@@ -72,6 +72,11 @@ export function createPanel(root, ctx) {
   return new ContinuumPanel(root, ctx);
 }
 
+// The roll stream: 0.05 rad/s asked (the server caps the disk centre at 5 mm/s, 0.063 rad/s on a 79 mm
+// rim), refreshed every 50 ms, well within the robot's 150 ms command timeout.
+const ROLL_RATE_RAD_S = 0.05;
+const ROLL_REFRESH_MS = 50;
+
 class ContinuumPanel {
   constructor(root, ctx) {
     this.root = root;
@@ -82,6 +87,11 @@ class ContinuumPanel {
     this.dMax = Number(c.speed?.d_max_mm) || 100;
     this.slots = Number(c.disks?.[0]?.slots) || SLOTS_DEFAULT;
     this.ringMm = Number(c.segment?.disk_radius_mm) || Number(c.disks?.[0]?.radius_mm) || DISK_RING_MM;
+    // Window angles around a disk (degrees from its x axis): the Hall windows sit between the ToF ones.
+    const num = (v, fallback) => (Number.isFinite(Number(v)) ? Number(v) : fallback);
+    this.pitchDeg = num(c.segment?.slot_pitch_deg, 360 / this.slots);
+    this.tofSlot0Deg = num(c.segment?.tof_slot0_deg, 0);
+    this.hallSlot0Deg = num(c.segment?.hall_slot0_deg, this.pitchDeg / 2);
     const name = ctx.robot.name;
     this.topicState = `/${name}/continuum`;
     this.topicMap = `/${name}/map`;
@@ -131,11 +141,21 @@ class ContinuumPanel {
                     onclick: () => this.command('map', {action: 'clear'}, 'Map cleared')}),
     ];
     u.hint = el('div', {className: 'rp-hint', 'data-testid': 'continuum-hint'});
+    // The no-slip roll about a contact (the way out of a contact hold besides moving the object): a
+    // stream while a button is held, refreshed within the robot's command timeout, stopped on release.
+    const rollButton = (sign, label) => {
+      const b = el('button', {type: 'button', className: 'btn', 'data-testid': `continuum-roll-${sign > 0 ? 'plus' : 'minus'}`,
+                              text: label, title: 'Hold to roll along the contact (the disk centre at most 5 mm/s)'});
+      b.addEventListener('pointerdown', () => this.startRoll(sign * ROLL_RATE_RAD_S));
+      for (const ev of ['pointerup', 'pointerleave', 'pointercancel', 'blur']) b.addEventListener(ev, () => this.stopRoll());
+      return b;
+    };
+    u.rollButtons = [rollButton(-1, '◀ Roll'), rollButton(1, 'Roll ▶')];
 
     this.root.append(
         el('div', {className: 'panel-age'}, 'continuum values ', u.age),
         group('Safety supervisor', '(no mode bypasses it)', u.supervisor, u.reason, u.contact,
-              el('div', {className: 'form-row'}, u.unbias)),
+              el('div', {className: 'form-row'}, u.unbias, u.rollButtons)),
         group('Speed scale', `(proximity: v_min ${fmt(this.info.speed?.min_mm_s, 2)} … v_max ${fmt(this.info.speed?.max_mm_s, 0)} mm/s over ${fmt(this.dMax, 0)} mm)`,
               el('div', {className: 'rp-scale'},
                  el('div', {className: 'rp-bar', role: 'meter', 'aria-label': 'Speed-scale factor'}, u.scaleBar), u.scale),
@@ -157,8 +177,32 @@ class ContinuumPanel {
     this.commandable = ok;
     const buttons = [...Object.values(this.ui.modeButtons), ...this.ui.armButtons, ...this.ui.mapButtons, this.ui.unbias];
     for (const b of buttons) b.disabled = !ok;
+    this.updateRollButtons();
     this.ui.armSpeed.disabled = !ok;
     this.ui.hint.textContent = ok ? '' : hint || '';
+  }
+
+  // Roll only while commandable and held on a contact; a lost condition ends a running roll.
+  updateRollButtons() {
+    const ok = this.commandable && this.inContact;
+    for (const b of this.ui.rollButtons) b.disabled = !ok;
+    if (!ok) this.stopRoll();
+  }
+
+  startRoll(rate) {
+    this.stopRoll();
+    if (!this.commandable || !this.inContact) return;
+    const send = () => robotCommand(this.ctx.api, this.robot.name, 'roll', {rate_rad_s: rate}).catch((err) => {
+      this.stopRoll();
+      this.ctx.status(`Roll: ${describe(err)}`, 'error');
+    });
+    send();
+    this.rollTimer = setInterval(send, ROLL_REFRESH_MS);
+  }
+
+  stopRoll() {
+    if (this.rollTimer) clearInterval(this.rollTimer);
+    this.rollTimer = null;
   }
 
   async command(name, body, label) {
@@ -209,11 +253,13 @@ class ContinuumPanel {
         (Number.isFinite(Number(c.step_kept)) ? ` · step kept ${(Number(c.step_kept) * 100).toFixed(0)} %` : '');
 
     const contact = !!c.contact;
+    this.inContact = contact;
+    this.updateRollButtons();
     u.contact.dataset.contact = String(contact);
     u.contact.dataset.disk = contact && c.contact_disk !== null && c.contact_disk !== undefined ? String(c.contact_disk) : '';
     u.contact.dataset.slot = contact && c.contact_slot !== null && c.contact_slot !== undefined ? String(c.contact_slot) : '';
     u.contact.textContent = contact ? `CONTACT on disk ${c.contact_disk ?? '?'}, slot ${c.contact_slot ?? '?'}` +
-        (Number.isFinite(Number(c.contact_slot)) ? ` (${Math.round(Number(c.contact_slot) * 360 / this.slots)}°)` : '')
+        (Number.isFinite(Number(c.contact_slot)) ? ` (${(this.hallSlot0Deg + Number(c.contact_slot) * this.pitchDeg) % 360}°)` : '')
       : 'no contact';
     if (contact && Number.isFinite(Number(c.contact_force_n))) u.contact.textContent += ` · ${Number(c.contact_force_n).toFixed(2)} N`;
     u.contact.classList.toggle('rp-bad', contact);
@@ -267,24 +313,31 @@ class ContinuumPanel {
       const {u, v} = diskAxes(disks, i, this.model());
       const p = d.position_mm;
       const ring = [];
+      const r = this.ringMm;
+      const onRim = (deg) => {
+        const a = (deg * Math.PI) / 180;
+        return [p[0] + r * (Math.cos(a) * u[0] + Math.sin(a) * v[0]),
+                p[1] + r * (Math.cos(a) * u[1] + Math.sin(a) * v[1]),
+                p[2] + r * (Math.cos(a) * u[2] + Math.sin(a) * v[2])];
+      };
+      // Marker sizes follow the disk (79 mm rim: 9.5 mm markers, 24 mm for the contact) to stay
+      // readable at the zoom that shows the whole 370 mm segment.
+      const marker = (at, size, color) => spheres.push({
+        pose: {position: {x: at[0], y: at[1], z: at[2]}, orientation: {x: 0, y: 0, z: 0, w: 1}},
+        size: {x: size, y: size, z: size}, color});
+      // One marker per ToF window, coloured by its range.
       for (let k = 0; k < this.slots; k++) {
-        const a = (2 * Math.PI * k) / this.slots;
-        const r = this.ringMm;
-        const at = [p[0] + r * (Math.cos(a) * u[0] + Math.sin(a) * v[0]),
-                    p[1] + r * (Math.cos(a) * u[1] + Math.sin(a) * v[1]),
-                    p[2] + r * (Math.cos(a) * u[2] + Math.sin(a) * v[2])];
+        const at = onRim(this.tofSlot0Deg + k * this.pitchDeg);
         ring.push({x: at[0], y: at[1], z: at[2]});
         const range = Array.isArray(d.ranges_mm) ? d.ranges_mm[k] : null;
-        const inContact = d.contact && c.contact_disk === d.index && c.contact_slot === k;
-        const color = inContact ? RED : d.fault || d.fresh === false ? GREY
+        const color = d.fault || d.fresh === false ? GREY
                     : range === null || range === undefined || !Number.isFinite(Number(range)) ? GREY
                     : rampColor(Number(range) / this.dMax);
-        // Marker sizes follow the disk (79 mm rim: 9.5 mm markers, 24 mm for the contact) to stay
-        // readable at the zoom that shows the whole 370 mm segment.
-        const size = this.ringMm * (inContact ? 0.3 : 0.12);
-        spheres.push({pose: {position: {x: at[0], y: at[1], z: at[2]}, orientation: {x: 0, y: 0, z: 0, w: 1}},
-                      size: {x: size, y: size, z: size}, color});
+        marker(at, r * 0.12, color);
       }
+      // The contact at its Hall window (between two ToF windows), large and red.
+      if (d.contact && c.contact_disk === d.index && Number.isFinite(Number(c.contact_slot)))
+        marker(onRim(this.hallSlot0Deg + Number(c.contact_slot) * this.pitchDeg), r * 0.3, RED);
       // The disk's rim: amber when the disk is silent or faulty, red in contact, else the nearest range's colour.
       const rim = d.contact ? RED : d.fault || d.fresh === false ? {r: 0.82, g: 0.6, b: 0.13, a: 1}
                 : d.nearest_mm === null || d.nearest_mm === undefined ? GREY : rampColor(Number(d.nearest_mm) / this.dMax);
@@ -317,6 +370,7 @@ class ContinuumPanel {
   }
 
   destroy() {
+    this.stopRoll();
     const view = this.ctx.view();
     if (!view) return;
     view.removeEntities(ENTITY_PREFIX);

@@ -103,6 +103,11 @@ test('the continuum scenario from the console: approach slows the robot, touch s
   assert.match(stopped.slot, /^\d+$/, JSON.stringify(stopped));
   assert.match(stopped.text, /CONTACT on disk \d+, slot \d+/);
   assert.ok(stopped.reason.length > 0, 'the supervisor gives a reason');
+  // The panel's angle of the contact slot is the server's (the Hall windows sit between the ToF ones).
+  const server = /Hall (\d+) \(([\d.]+) deg\)/.exec(stopped.reason);
+  const shown = /slot (\d+) \(([\d.]+)°\)/.exec(stopped.text);
+  assert.ok(server && shown, JSON.stringify(stopped));
+  if (server[1] === shown[1]) assert.equal(Number(shown[2]), Number(server[2]), JSON.stringify(stopped));
   assert.ok(stopped.scale <= slowed.scale, JSON.stringify({slowed, stopped}));
   const row = page.locator(tid(`continuum-disk-${stopped.disk}`));
   assert.equal(await row.getAttribute('data-contact'), 'true');
@@ -121,6 +126,26 @@ test('the continuum scenario from the console: approach slows the robot, touch s
   // The page keeps up with the stream while the robot is held on the contact (no STALE).
   await page.waitForFunction(() => document.querySelector('[data-testid="age-joints"]').dataset.stale === 'false', null, WAIT);
   await page.screenshot({path: path.join(ARTIFACTS, 'continuum.png')});
+
+  // The way out from the console: holding Roll ▶ rolls the segment along the contact (the robot stays
+  // held; the no-slip roll is the one motion allowed besides backing away), releasing it stops the roll.
+  const measured = async () => (await (await fetch(`${BASE_URL}/api/v1/robots/${ROBOT}/measured_js`, {
+    headers: {Authorization: `Bearer ${TOKEN}`}})).json()).position;
+  await page.waitForFunction(() => !document.querySelector('[data-testid="continuum-roll-plus"]').disabled, null, WAIT);
+  const q0 = await measured();
+  const roll = page.locator(tid('continuum-roll-plus'));
+  await roll.hover();
+  await page.mouse.down();
+  await page.waitForTimeout(1500);
+  await page.mouse.up();
+  await page.waitForTimeout(500);  // the stream's end reaches the robot
+  const q1 = await measured();
+  await page.waitForTimeout(500);
+  const q2 = await measured();
+  const moved = Math.max(...q1.map((v, i) => Math.abs(v - q0[i])));
+  const after = Math.max(...q2.map((v, i) => Math.abs(v - q1[i])));
+  assert.ok(moved > 0.005, `the roll moved the joints: ${JSON.stringify({q0, q1})}`);
+  assert.ok(after < 0.002, `released, the roll stopped: ${JSON.stringify({q1, q2})}`);
 
   // Retreat: the arm leaves (the robot stays stopped until the operator acts; the panel keeps the cause).
   // Retreat: pressed as soon as the page has fresh data (the button is disabled while the page is

@@ -61,7 +61,12 @@ class SduApi final : public RobotApiExtension {
                         {"segment",
                          {{"length_mm", s.model.length_mm},
                           {"disk_radius_mm", s.model.disk_radius_mm},
-                          {"max_bending_rad", s.model.max_bending_rad}}},
+                          {"max_bending_rad", s.model.max_bending_rad},
+                          // Where the windows sit around a disk (from its x axis): the ToF windows and
+                          // the Hall windows between them, so a contact slot is drawn at its own angle.
+                          {"tof_slot0_deg", s.model.tof_slot0_rad * 180.0 / M_PI},
+                          {"hall_slot0_deg", s.model.hall_slot0_rad * 180.0 / M_PI},
+                          {"slot_pitch_deg", s.model.slot_pitch_rad * 180.0 / M_PI}}},
                         {"hri_modes", {"off", "contactless", "contact"}},
                         {"speed",
                          {{"max_mm_s", s.supervisor.proximity.v_max_mm_s},
