@@ -123,3 +123,24 @@ check_clean_shutdown() {
   echo "not ok - SIGTERM: exit status $status; log tail:"; tail -n 20 "$TENDRIL_LOG"
   return 1
 }
+
+# One suite of API tests against a server of its own that adds a robot file to the catheter (two
+# robots in one tendrild), so the single-robot suite (tests/api/run.sh) keeps its timing: starts it,
+# runs <suite dir>/*.test.mjs, then checks that SIGTERM disables every robot's drives and ends the
+# process cleanly; the server's log tail on failure. Returns the suite's status.
+# Usage: run_extra_robot_suite <robot file under config/robots> <suite dir> [tendrild]
+run_extra_robot_suite() {
+  local robot_file="$1" suite="$2" binary="${3:-${TENDRILD:-$repo_root/build/server/tendrild}}"
+  trap stop_tendrild EXIT INT TERM
+  [ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; return 2; }
+  export TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/$robot_file"
+  start_tendrild "$binary" || return 1
+  node --test --test-concurrency=1 "$suite"/*.test.mjs
+  local status=$?
+  check_clean_shutdown || status=1
+  if [ $status -ne 0 ]; then
+    echo "--- last lines of the tendrild log ---" >&2
+    tail -n 40 "$TENDRIL_LOG" >&2
+  fi
+  return $status
+}

@@ -1,22 +1,9 @@
 #!/usr/bin/env bash
 # API tests of the sensing-disk continuum robot (config/robots/sdu_continuum.json, kind sdu_continuum)
-# beside the catheter in one tendrild, over REST and WebSocket. A server of its own, so the
-# single-robot suite (tests/api/run.sh) keeps its timing. Usage: tests/api/continuum/run.sh [tendrild]
+# beside the catheter in one tendrild, over REST and WebSocket, a server of its own (tests/api/server.sh
+# run_extra_robot_suite). Usage: tests/api/continuum/run.sh [tendrild]
 set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 # shellcheck source=tests/api/server.sh
 source "$here/../server.sh"
-trap stop_tendrild EXIT INT TERM
-
-[ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
-export TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/sdu_continuum.json"
-start_tendrild "${1:-${TENDRILD:-$repo_root/build/server/tendrild}}" || exit 1
-node --test --test-concurrency=1 "$here"/*.test.mjs
-status=$?
-# Last: SIGTERM must disable every robot' drives and end the process cleanly.
-check_clean_shutdown || status=1
-if [ $status -ne 0 ]; then
-  echo "--- last lines of the tendrild log ---" >&2
-  tail -n 40 "$TENDRIL_LOG" >&2
-fi
-exit $status
+run_extra_robot_suite sdu_continuum.json "$here" "${1:-}"

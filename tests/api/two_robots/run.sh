@@ -1,22 +1,9 @@
 #!/usr/bin/env bash
 # API tests of two robots in one server (seed 002's set-up): the catheter and the UR5 arm
-# (config/robots/ur5_arm.json) in one tendrild, over REST and WebSocket. A server of its own, so the
-# single-robot suite (tests/api/run.sh) keeps its timing. Usage: tests/api/two_robots/run.sh [tendrild]
+# (config/robots/ur5_arm.json) in one tendrild, over REST and WebSocket, a server of its own.
+# Usage: tests/api/two_robots/run.sh [tendrild]
 set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 # shellcheck source=tests/api/server.sh
 source "$here/../server.sh"
-trap stop_tendrild EXIT INT TERM
-
-[ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
-export TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/ur5_arm.json"
-start_tendrild "${1:-${TENDRILD:-$repo_root/build/server/tendrild}}" || exit 1
-node --test --test-concurrency=1 "$here"/*.test.mjs
-status=$?
-# Last: SIGTERM must disable both robots' drives and end the process cleanly.
-check_clean_shutdown || status=1
-if [ $status -ne 0 ]; then
-  echo "--- last lines of the tendrild log ---" >&2
-  tail -n 40 "$TENDRIL_LOG" >&2
-fi
-exit $status
+run_extra_robot_suite ur5_arm.json "$here" "${1:-}"
