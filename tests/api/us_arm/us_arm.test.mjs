@@ -100,6 +100,8 @@ test('a sweep begun while the catheter moves: pre_position, start, acquiring on 
   assert.equal(moveCatheter.status, 202, moveCatheter.text);
   const ready = await pollUntil(async () => (await state(ARM)).sweep.phase === 'ready', {polls: 600, intervalMs: 100});
   assert.ok(ready, JSON.stringify(await state(ARM)));
+  // The topic carries the phase too (at 20 Hz: wait for its message, the sweep stays ready until start).
+  assert.ok(await pollUntil(() => phases.has('ready'), {polls: 100, intervalMs: 20}), [...phases].join(', '));
   assert.equal((await sweep('start')).status, 202);
   const acquiring = await pollUntil(async () => (await state(ARM)).sweep.phase === 'acquiring',
       {polls: 600, intervalMs: 50});

@@ -2,10 +2,12 @@
 // the server library: config.cpp and the robot-specific settings parsers share it).
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
 
+#include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
 #include "tendril/server/config.hpp"
@@ -99,5 +101,16 @@ class Reader {
   std::string file_;
   std::string path_;
 };
+
+// Three finite numbers at `key` (a position in mm, an axis), or `fallback` when the key is absent.
+inline Eigen::Vector3d vector3(const Reader& r, const std::string& key, const Eigen::Vector3d& fallback) {
+  if (!r.has(key)) return fallback;
+  const auto& v = r.raw(key);
+  if (!v.is_array() || v.size() != 3 || !std::all_of(v.begin(), v.end(), [](const nlohmann::json& x) {
+        return x.is_number() && std::isfinite(x.get<double>());
+      }))
+    r.fail(key, "three finite numbers", v);
+  return {v[0].get<double>(), v[1].get<double>(), v[2].get<double>()};
+}
 
 }  // namespace tendril::server::detail

@@ -21,6 +21,7 @@ namespace tendril::server {
 namespace {
 
 using detail::Reader;
+using detail::vector3;
 namespace cont = tendril::continuum;
 
 class SduContinuumType final : public RobotType {
@@ -39,16 +40,6 @@ class SduContinuumType final : public RobotType {
     return std::make_unique<SduContinuum>(config, assembly);
   }
 };
-
-Eigen::Vector3d vector3(const Reader& r, const std::string& key, const Eigen::Vector3d& fallback) {
-  if (!r.has(key)) return fallback;
-  const auto& v = r.raw(key);
-  if (!v.is_array() || v.size() != 3 || !std::all_of(v.begin(), v.end(), [](const nlohmann::json& x) {
-        return x.is_number() && std::isfinite(x.get<double>());
-      }))
-    r.fail(key, "three finite numbers", v);
-  return {v[0].get<double>(), v[1].get<double>(), v[2].get<double>()};
-}
 
 cont::SurfaceFinish finish(const Reader& r) {
   const std::string f = r.string_or("finish", "matte");
@@ -434,11 +425,17 @@ SduContinuum::SduContinuum(const RobotConfig& rc, RobotAssembly& assembly)
   // other's disks as their own. Refused here (the last step, so that a refusal leaves nothing claimed).
   std::lock_guard lock(buses_mutex());
   for (const auto& [name, robot] : buses_in_use())
-    if (name == bus_key())
-      throw ConfigError(file + ": continuum.disks.bus: robot '" + robot + "' has its sensing disks on bus '" +
-                        settings_.bus +
-                        "' already; the disks' frame ids (0x680 + 8 x disk) would clash: give each SDU robot "
-                        "a bus of its own");
+    if (name == bus_key()) {
+      std::string message = file;
+      message += ": continuum.disks.bus: robot '";
+      message += robot;
+      message += "' has its sensing disks on bus '";
+      message += settings_.bus;
+      message +=
+          "' already; the disks' frame ids (0x680 + 8 x disk) would clash: give each SDU robot a bus "
+          "of its own";
+      throw ConfigError(message);
+    }
   buses_in_use().emplace_back(bus_key(), rc.name);
   registered_ = true;
 }

@@ -68,7 +68,11 @@ void validate(const LimbParameters& p) {
 
 LimbSimulation::LimbSimulation(LimbParameters parameters) : parameters_(std::move(parameters)) {
   validate(parameters_);
-  for (double x = parameters_.artery_x_start; x <= parameters_.artery_x_end + 1e-9; x += 1.0) {
+  // Every millimetre along the artery (integer steps: a float counter would drift).
+  const int artery_steps =
+      static_cast<int>(std::floor(parameters_.artery_x_end - parameters_.artery_x_start + 1e-9));
+  for (int i = 0; i <= artery_steps; ++i) {
+    const double x = parameters_.artery_x_start + i * 1.0;
     artery_.points.push_back(artery_point(x));
     artery_.radii.push_back(parameters_.artery_radius);
   }
@@ -141,7 +145,9 @@ std::vector<Eigen::Vector3d> LimbSimulation::ct_wall_cloud() const {
   std::normal_distribution<double> noise(0.0, 1.0);
   std::vector<Eigen::Vector3d> out;
   constexpr int kRing = 24;
-  for (double x = p.artery_x_start; x <= p.artery_x_end + 1e-9; x += 2.0) {
+  const int rings = static_cast<int>(std::floor((p.artery_x_end - p.artery_x_start) / 2.0 + 1e-9));
+  for (int i = 0; i <= rings; ++i) {
+    const double x = p.artery_x_start + i * 2.0;  // a ring every 2 mm
     const Eigen::Vector3d c = artery_point(x);
     const Eigen::Vector3d tangent = (artery_point(x + 0.5) - artery_point(x - 0.5)).normalized();
     const Eigen::Vector3d u = tangent.cross(Eigen::Vector3d::UnitZ()).normalized();
@@ -161,9 +167,15 @@ std::vector<Eigen::Vector3d> LimbSimulation::skin_scan(double spacing) const {
   std::normal_distribution<double> noise(0.0, 1.0);
   std::vector<Eigen::Vector3d> out;
   const double half = 0.5 * p.cylinder_radius;
-  for (double x = p.artery_x_start - 5.0; x <= p.artery_x_end + 5.0 + 1e-9; x += spacing)
-    for (double y = -half; y <= half + 1e-9; y += spacing)
+  const double x0 = p.artery_x_start - 5.0;
+  const int nx = static_cast<int>(std::floor((p.artery_x_end + 5.0 - x0) / spacing + 1e-9));
+  const int ny = static_cast<int>(std::floor(2.0 * half / spacing + 1e-9));
+  for (int i = 0; i <= nx; ++i)
+    for (int j = 0; j <= ny; ++j) {
+      const double x = x0 + i * spacing;
+      const double y = -half + j * spacing;
       out.emplace_back(x, y, height(x, y) + p.scan_noise * noise(rng));
+    }
   return out;
 }
 
@@ -178,8 +190,10 @@ std::vector<Eigen::Vector3d> stick_points(double step, double corner_y) {
   for (const auto& [axis, length] : rods) {
     const Eigen::Vector3d u = axis.unitOrthogonal();
     const Eigen::Vector3d v = axis.cross(u);
-    for (double s = 0.0; s <= length + 1e-9; s += step)
+    const int n = static_cast<int>(std::floor(length / step + 1e-9));
+    for (int i = 0; i <= n; ++i)
       for (int k = 0; k < 12; ++k) {
+        const double s = i * step;
         const double a = 2.0 * std::numbers::pi * k / 12;
         out.push_back(corner + s * axis + kRadius * (std::cos(a) * u + std::sin(a) * v));
       }

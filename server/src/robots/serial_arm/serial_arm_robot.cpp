@@ -20,6 +20,7 @@ namespace tendril::server {
 namespace {
 
 using detail::Reader;
+using detail::vector3;
 
 class SerialArmType final : public RobotType {
  public:
@@ -37,16 +38,6 @@ class SerialArmType final : public RobotType {
     return std::make_unique<SerialArm>(config, assembly);
   }
 };
-
-Eigen::Vector3d vector3(const Reader& r, const std::string& key, const Eigen::Vector3d& fallback) {
-  if (!r.has(key)) return fallback;
-  const auto& v = r.raw(key);
-  if (!v.is_array() || v.size() != 3 || !std::all_of(v.begin(), v.end(), [](const nlohmann::json& x) {
-        return x.is_number() && std::isfinite(x.get<double>());
-      }))
-    r.fail(key, "three finite numbers", v);
-  return {v[0].get<double>(), v[1].get<double>(), v[2].get<double>()};
-}
 
 std::string format(const char* fmt, double a, double b = 0.0) {
   char buf[64];

@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 
 #include "tendril/server/config_reader.hpp"
@@ -239,13 +238,6 @@ UltrasoundSweep::UltrasoundSweep(const UltrasoundSettings& settings, const teleo
       limits_(limits),
       controller_(teleop::HybridControlParameters{gains, settings.force, settings.gate}),
       rest_(settings.limb.rest_pose.translation()) {}
-
-void UltrasoundSweep::set_message(const char* fmt, ...) noexcept {
-  va_list args;
-  va_start(args, fmt);
-  std::vsnprintf(snapshot_.message, sizeof snapshot_.message, fmt, args);
-  va_end(args);
-}
 
 bool UltrasoundSweep::running() const noexcept {
   return active_phase(snapshot_.phase) || snapshot_.retracting;

@@ -28,6 +28,7 @@
 
 #include <array>
 #include <cstdint>
+#include <cstdio>
 #include <memory>
 #include <optional>
 #include <string>
@@ -164,7 +165,11 @@ class UltrasoundSweep {
  private:
   Eigen::Isometry3d target(int i, const Eigen::Isometry3d& world_T_limb) const noexcept;
   Eigen::Matrix4d plan_via(int i) const noexcept;  // H_i^P of via-point i (clamped to the plan)
-  void set_message(const char* fmt, ...) noexcept;
+  // The operator's sentence, formatted into the snapshot's fixed buffer (no allocation).
+  template <typename... Args>
+  void set_message(const char* fmt, Args... args) noexcept {
+    std::snprintf(snapshot_.message, sizeof snapshot_.message, fmt, args...);
+  }
   void start_retraction(SweepPhase phase) noexcept;
 
   UltrasoundSettings settings_;

@@ -348,7 +348,8 @@ std::string UltrasoundTopics::image_message(const ultrasound::SessionFrame& fram
   grey.height = frame.image.geometry.rows;
   grey.pixels.resize(frame.image.pixels.size());
   for (std::size_t i = 0; i < grey.pixels.size(); ++i)
-    grey.pixels[i] = static_cast<std::uint8_t>(std::clamp(frame.image.pixels[i], 0.0F, 1.0F) * 255.0F + 0.5F);
+    grey.pixels[i] =
+        static_cast<std::uint8_t>(std::lround(std::clamp(frame.image.pixels[i], 0.0F, 1.0F) * 255.0F));
   std::vector<std::uint8_t> png;
   imaging::encode_png(grey, png);
   std::string out =
