@@ -165,6 +165,8 @@ export class TrackingPanel {
         return;
       }
     }
+    // Said before the request goes out, so nothing reads the previous "applied" as this change's.
+    this.setSegStatus('sending…', 'pending');
     try {
       await this.api.request('PUT', `/imaging/segmentation/${planeName}`, body);
     } catch (err) {

@@ -145,7 +145,8 @@ test('a threshold edited in the form is applied by the server', async () => {
   const threshold = before.threshold + 3;
   await page.fill(tid('seg-threshold'), String(threshold));
   await page.click(tid('seg-apply-button'));
-  await waitOn(() => /applied/.test(document.querySelector('[data-testid="seg-status"]').textContent) &&
+  // The click handler replaces the previous "parameters applied" before its request goes out.
+  await waitOn(() => /parameters applied/.test(document.querySelector('[data-testid="seg-status"]').textContent) &&
                      document.querySelector('[data-testid="seg-status"]').dataset.kind === 'ok');
   const after = (await rest('GET', '/imaging/segmentation')).json.planes.ap;
   assert.equal(after.parameters.threshold, threshold);
