@@ -110,6 +110,40 @@ test('the topics /sdu/continuum, /sdu/map and /sdu/planes are advertised and dec
   assert.ok(Array.isArray(messages.get('/sdu/planes').entities));
 });
 
+test('/sdu/scene draws the SIMULATED scene: the wall plate, the cabinet and the arm, which moves on approach', async () => {
+  await holdLease();
+  await post(`${SDU}/simulation_scene`, {action: 'reset'});
+  const ws = new WebSocket(`${WS_URL}?token=${encodeURIComponent(TOKEN)}`, [FoxgloveClient.SUPPORTED_SUBPROTOCOL],
+      {headers: {'X-Tendril-Client': 'api-test'}});
+  const client = new FoxgloveClient({ws});
+  open.push(client);
+  const channels = new Map();
+  client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
+  assert.ok(await pollUntil(() => channels.has('/sdu/scene'), {polls: 100, intervalMs: 50}));
+  let latest = null;
+  client.on('message', ({data}) => {
+    const msg = JSON.parse(new TextDecoder().decode(data));
+    const e = (msg.entities || []).find((x) => x.id === 'sdu/simulated_scene');
+    if (e) latest = e;
+  });
+  client.subscribe(channels.get('/sdu/scene').id);
+  const armY = () => latest?.cylinders?.[0]?.pose?.position?.y;
+  assert.ok(await pollUntil(() => latest !== null && Math.abs(armY() + 330) < 1e-6, {polls: 200, intervalMs: 25}),
+      JSON.stringify(latest)?.slice(0, 400));
+  assert.equal(latest.cubes.length, 2, 'one plate for the wall plane, one cube for the cabinet');
+  const cabinet = latest.cubes[1];
+  assert.deepEqual([cabinet.size.x, cabinet.size.y, cabinet.size.z], [120, 80, 300]);
+  assert.deepEqual([cabinet.pose.position.x, cabinet.pose.position.y, cabinet.pose.position.z], [0, 260, 150]);
+  assert.equal(latest.cylinders[0].size.x, 50.8, 'the seed\'s 50.8 mm rod');
+  assert.ok(latest.metadata.some((m) => m.key === 'simulated' && m.value === 'true'));
+  const approach = await post(`${SDU}/simulation_scene`, {action: 'approach', speed_mm_s: 100});
+  assert.equal(approach.status, 202, approach.text);
+  assert.ok(await pollUntil(() => armY() > -320, {polls: 200, intervalMs: 25}), `arm y ${armY()}`);
+  await post(`${SDU}/simulation_scene`, {action: 'reset'});
+  assert.ok(await pollUntil(() => Math.abs(armY() + 330) < 1e-6, {polls: 200, intervalMs: 25}), `arm y ${armY()}`);
+  client.close();
+});
+
 test('commands: hri_mode, simulation_scene, map clear; bad bodies get clear errors', async () => {
   await holdLease();
   const mode = await post(`${SDU}/hri_mode`, {mode: 'contactless'});

@@ -190,6 +190,55 @@ class SduApi final : public RobotApiExtension {
                       "continuum.simulation", "continuum.supervisor.reason"}};
   }
 
+  // The SIMULATED scene the disks sense, drawn beside the robot so that a person sees what they range:
+  // the planes as 400 mm square plates (they are infinite), the boxes, and the moving arm cylinder.
+  void scene(json& entities) const override {
+    if (robot_.simulation() == nullptr || !entities.is_array() || entities.empty()) return;
+    const auto& sim = robot_.settings().simulation;
+    json e = entities[0];  // the backbone entity: same stamp and frame (the base frame {0})
+    for (const char* key :
+         {"lines", "arrows", "spheres", "cubes", "cylinders", "triangles", "texts", "models"})
+      e.erase(key);
+    e["id"] = robot_.config().name + "/simulated_scene";
+    e["metadata"] = json::array({{{"key", "simulated"}, {"value", "true"}}});
+    const auto pose = [](const Eigen::Vector3d& at, const Eigen::Quaterniond& q) {
+      return json{{"position", {{"x", at.x()}, {"y", at.y()}, {"z", at.z()}}},
+                  {"orientation", {{"x", q.x()}, {"y", q.y()}, {"z", q.z()}, {"w", q.w()}}}};
+    };
+    const auto size = [](double x, double y, double z) { return json{{"x", x}, {"y", y}, {"z", z}}; };
+    const auto colour = [](double r, double g, double b, double a) {
+      return json{{"r", r}, {"g", g}, {"b", b}, {"a", a}};
+    };
+    auto cubes = json::array();
+    for (const auto& p : sim.planes) {
+      const auto q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), p.normal.normalized());
+      cubes.push_back({{"pose", pose(p.point, q)},
+                       {"size", size(400.0, 400.0, 2.0)},
+                       {"color", colour(0.55, 0.55, 0.6, 0.25)}});
+    }
+    for (const auto& b : sim.boxes) {
+      const Eigen::Quaterniond q(b.pose.rotation());
+      const Eigen::Vector3d extent = 2.0 * b.half_extent_mm;
+      cubes.push_back({{"pose", pose(b.pose.translation(), q)},
+                       {"size", size(extent.x(), extent.y(), extent.z())},
+                       {"color", colour(0.6, 0.5, 0.35, 0.35)}});
+    }
+    e["cubes"] = std::move(cubes);
+    auto cylinders = json::array();
+    if (sim.arm && robot_.simulation()->has_arm()) {
+      const auto& arm = *sim.arm;
+      const auto q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), arm.axis.normalized());
+      const double d = 2.0 * arm.radius_mm;
+      cylinders.push_back({{"pose", pose(robot_.simulation()->arm_centre(), q)},
+                           {"size", size(d, d, 2.0 * arm.half_length_mm)},
+                           {"bottom_scale", 1.0},
+                           {"top_scale", 1.0},
+                           {"color", colour(0.85, 0.62, 0.5, 0.45)}});
+    }
+    e["cylinders"] = std::move(cylinders);
+    entities.push_back(std::move(e));
+  }
+
   std::vector<RobotCommandInfo> commands() const override {
     const json number = {{"type", "number"}};
     return {{"hri_mode",
