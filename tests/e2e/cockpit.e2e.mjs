@@ -8,16 +8,10 @@ import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import {fileURLToPath} from 'node:url';
 import {chromium} from 'playwright-core';
+import {ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, WAIT, serverUnderTest, tid} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
-const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
-const tid = (id) => `[data-testid="${id}"]`;
-const CHROMIUM_ARGS = ['--headless=new', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader'];
+const {BASE_URL, TOKEN} = serverUnderTest();
 
 let browser;
 let page;
@@ -25,7 +19,7 @@ const pageErrors = [];
 
 before(async () => {
   fs.mkdirSync(ARTIFACTS, {recursive: true});
-  browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true, args: CHROMIUM_ARGS});
+  browser = await chromium.launch({executablePath: CHROMIUM, headless: true, args: CHROMIUM_ARGS});
   page = await (await browser.newContext({viewport: {width: 1280, height: 800}})).newPage();
   page.on('pageerror', (err) => pageErrors.push(err.message));
 });

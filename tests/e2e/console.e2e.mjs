@@ -12,35 +12,18 @@ import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import {fileURLToPath} from 'node:url';
 import {chromium} from 'playwright-core';
+import {ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
-const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
+const {BASE_URL, TOKEN} = serverUnderTest();
 
 let context;
 let page;
-let userDataDir;
+let closeBrowser;
 const pageErrors = [];
 
-const tid = (id) => `[data-testid="${id}"]`;
-
 before(async () => {
-  fs.mkdirSync(ARTIFACTS, {recursive: true});
-  userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-e2e-'));
-  context = await chromium.launchPersistentContext(userDataDir, {
-    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-    headless: true,
-    viewport: {width: 1280, height: 800},
-    args: ['--headless=new', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--no-first-run', '--disable-sync', '--disable-quic',
-           // WebGL without a GPU: SwiftShader (software) is what renders here.
-           '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-  });
-  page = context.pages()[0] ?? await context.newPage();
+  ({context, page, close: closeBrowser} = await openBrowser('console'));
   page.on('pageerror', (err) => pageErrors.push(err.message));
 });
 
@@ -51,8 +34,7 @@ after(async () => {
   } catch {
     // the server may already be gone
   }
-  await context?.close();
-  if (userDataDir) fs.rmSync(userDataDir, {recursive: true, force: true});
+  await closeBrowser?.();
 });
 
 // Pixels of the 3D canvas, downscaled, read back through a 2D canvas.
@@ -799,9 +781,7 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
 test('screenshots at 1280x800 and on a 4K screen (device scale 1 and 2)', async () => {
   // A 4K screen at 100 % (3840x2160 CSS pixels) and at 200 % (1920x1080 CSS pixels, scale 2): each in
   // its own browser context, i.e. a second console session (a viewer, since it takes no lease).
-  const browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
-                                         args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader',
-                                                '--enable-unsafe-swiftshader']});
+  const browser = await chromium.launch({executablePath: CHROMIUM, headless: true, args: CHROMIUM_ARGS});
   // The 4K pages take minutes in software rendering on two cores: scripts/test.sh --full
   // (TENDRIL_E2E_FULL=1) takes them; the blocking run takes the laptop size.
   const shots = [

@@ -6,44 +6,25 @@
 // Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh starts the server with config/robots/sdu_continuum.json).
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import os from 'node:os';
 import path from 'node:path';
-import {fileURLToPath} from 'node:url';
-import {chromium} from 'playwright-core';
+import {ARTIFACTS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
-const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
+const {BASE_URL, TOKEN} = serverUnderTest();
 const SCENARIO_WAIT = {timeout: 180000};  // the SIMULATED arm's approach on a sanitized server, two shared cores
-const tid = (id) => `[data-testid="${id}"]`;
 const ROBOT = process.env.TENDRIL_SDU_ROBOT || 'sdu';
 
 let context;
 let page;
-let userDataDir;
+let closeBrowser;
 const pageErrors = [];
 
 before(async () => {
-  fs.mkdirSync(ARTIFACTS, {recursive: true});
-  userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-e2e-sdu-'));
-  context = await chromium.launchPersistentContext(userDataDir, {
-    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-    headless: true,
-    viewport: {width: 1280, height: 900},
-    args: ['--headless=new', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--no-first-run', '--disable-sync', '--disable-quic',
-           '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-  });
-  page = context.pages()[0] ?? await context.newPage();
+  ({context, page, close: closeBrowser} = await openBrowser('sdu', {width: 1280, height: 900}));
   page.on('pageerror', (err) => pageErrors.push(err.message));
 });
 
 after(async () => {
-  await context?.close();
-  if (userDataDir) fs.rmSync(userDataDir, {recursive: true, force: true});
+  await closeBrowser?.();
 });
 
 const panel = () => page.evaluate(() => {

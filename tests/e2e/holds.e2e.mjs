@@ -9,15 +9,10 @@ import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import {fileURLToPath} from 'node:url';
 import {chromium} from 'playwright-core';
+import {ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, WAIT, serverUnderTest, tid} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_VESSEL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_VESSEL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
-const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
-const tid = (id) => `[data-testid="${id}"]`;
+const {BASE_URL, TOKEN} = serverUnderTest('TENDRIL_VESSEL_URL', 'TENDRIL_VESSEL_TOKEN');
 
 let browser;
 let page;
@@ -25,9 +20,7 @@ const pageErrors = [];
 
 before(async () => {
   fs.mkdirSync(ARTIFACTS, {recursive: true});
-  browser = await chromium.launch({executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
-                                   args: ['--headless=new', '--no-sandbox', '--use-angle=swiftshader',
-                                          '--enable-unsafe-swiftshader']});
+  browser = await chromium.launch({executablePath: CHROMIUM, headless: true, args: CHROMIUM_ARGS});
   // The console tests' 1280x800: at 1920x1080 software rendering on two loaded cores took ~280 ms a
   // frame, so the page was (truthfully) STALE and offered no command.
   const context = await browser.newContext({viewport: {width: 1280, height: 800}});

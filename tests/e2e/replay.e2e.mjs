@@ -6,23 +6,16 @@
 // Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh sets them); CHROMIUM (default /usr/bin/chromium).
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import os from 'node:os';
 import path from 'node:path';
-import {fileURLToPath} from 'node:url';
-import {chromium} from 'playwright-core';
+import {ARTIFACTS, openBrowser, serverUnderTest, tid} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
+const {BASE_URL, TOKEN} = serverUnderTest();
 const WAIT = {timeout: 30000};  // bound on a hung page or server, not a speed assertion
 
 let context;
 let page;
-let userDataDir;
+let closeBrowser;
 const pageErrors = [];
-const tid = (id) => `[data-testid="${id}"]`;
 
 async function replay(method = 'GET', body) {
   const response = await fetch(`${BASE_URL}/api/v1/replay`, {
@@ -48,23 +41,12 @@ async function until(check, what) {
 }
 
 before(async () => {
-  fs.mkdirSync(ARTIFACTS, {recursive: true});
-  userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-e2e-'));
-  context = await chromium.launchPersistentContext(userDataDir, {
-    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-    headless: true,
-    viewport: {width: 1280, height: 800},
-    args: ['--headless=new', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--no-first-run', '--disable-sync', '--disable-quic',
-           '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-  });
-  page = context.pages()[0] ?? await context.newPage();
+  ({context, page, close: closeBrowser} = await openBrowser('replay'));
   page.on('pageerror', (err) => pageErrors.push(err.message));
 });
 
 after(async () => {
-  await context?.close();
-  if (userDataDir) fs.rmSync(userDataDir, {recursive: true, force: true});
+  await closeBrowser?.();
 });
 
 test('the replay bar controls the server\'s replay: pause, play, rate, position; no commands offered', async () => {

@@ -7,40 +7,24 @@
 // Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh starts the server).
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import os from 'node:os';
-import path from 'node:path';
-import {chromium} from 'playwright-core';
+import {WAIT, openBrowser, serverUnderTest} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const WAIT = {timeout: 20000};
+const {BASE_URL, TOKEN} = serverUnderTest();
 
 let context;
 let page;
-let userDataDir;
+let closeBrowser;
 const pageErrors = [];
 
 before(async () => {
-  userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-e2e-scene-'));
-  context = await chromium.launchPersistentContext(userDataDir, {
-    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-    headless: true,
-    viewport: {width: 1280, height: 800},
-    args: ['--headless=new', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--no-first-run', '--disable-sync', '--disable-quic',
-           '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-  });
-  page = context.pages()[0] ?? await context.newPage();
+  ({context, page, close: closeBrowser} = await openBrowser('scene'));
   page.on('pageerror', (err) => pageErrors.push(err.message));
   await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
   await page.waitForFunction(() => window.tendrilLive?.view()?.available, null, WAIT);
 });
 
 after(async () => {
-  await context?.close();
-  if (userDataDir) fs.rmSync(userDataDir, {recursive: true, force: true});
+  await closeBrowser?.();
 });
 
 test('the catheter has no kind-specific panel: the Robot tab stays hidden', async () => {

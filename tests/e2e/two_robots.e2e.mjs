@@ -5,22 +5,14 @@
 // Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh starts the server with config/robots/ur5_arm.json).
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import os from 'node:os';
 import path from 'node:path';
-import {fileURLToPath} from 'node:url';
-import {chromium} from 'playwright-core';
+import {ARTIFACTS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
 
-const BASE_URL = (process.env.TENDRIL_URL || '').replace(/\/$/, '');
-const TOKEN = process.env.TENDRIL_TOKEN || '';
-if (!BASE_URL || !TOKEN) throw new Error('Set TENDRIL_URL and TENDRIL_TOKEN, or run tests/e2e/run.sh <tendrild>');
-const ARTIFACTS = path.join(path.dirname(fileURLToPath(import.meta.url)), 'artifacts');
-const WAIT = {timeout: 20000};  // bound on a hung page, not a speed assertion
-const tid = (id) => `[data-testid="${id}"]`;
+const {BASE_URL, TOKEN} = serverUnderTest();
 
 let context;
 let page;
-let userDataDir;
+let closeBrowser;
 const pageErrors = [];
 
 // The lab engineer's script: REST with a lease token of its own.
@@ -37,24 +29,13 @@ async function engineerCall(method, urlPath, body) {
 }
 
 before(async () => {
-  fs.mkdirSync(ARTIFACTS, {recursive: true});
-  userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'tendril-e2e-two-'));
-  context = await chromium.launchPersistentContext(userDataDir, {
-    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-    headless: true,
-    viewport: {width: 1280, height: 800},
-    args: ['--headless=new', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
-           '--disable-component-update', '--no-first-run', '--disable-sync', '--disable-quic',
-           '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-  });
-  page = context.pages()[0] ?? await context.newPage();
+  ({context, page, close: closeBrowser} = await openBrowser('two'));
   page.on('pageerror', (err) => pageErrors.push(err.message));
 });
 
 after(async () => {
   await engineerCall('DELETE', '/lease').catch(() => {});
-  await context?.close();
-  if (userDataDir) fs.rmSync(userDataDir, {recursive: true, force: true});
+  await closeBrowser?.();
 });
 
 const leaseBadge = () => page.locator(tid('lease-status'));
