@@ -171,6 +171,28 @@ void UltrasoundTopics::set_plan(ultrasound::SweepPlan plan) {
   pending_plan_ = std::move(plan);
 }
 
+void UltrasoundTopics::apply_calibrations() {
+  if (settings_.image_calibration_reader) {
+    const auto image = settings_.image_calibration_reader();
+    if (image && image->first != image_version_.load(std::memory_order_relaxed)) {
+      session_.set_image_calibration(image->second);  // a stored calibration is valid: it was checked
+      image_version_.store(image->first, std::memory_order_relaxed);
+    }
+  }
+  if (settings_.fiber_calibration_reader) {
+    const auto fiber = settings_.fiber_calibration_reader();
+    if (fiber && fiber->first != fiber_version_.load(std::memory_order_relaxed)) {
+      session_.set_fiber_in_base(fiber->second);
+      fiber_version_.store(fiber->first, std::memory_order_relaxed);
+    }
+  }
+}
+
+std::optional<Eigen::Vector3d> UltrasoundTopics::last_slice_centroid() const {
+  std::lock_guard lock(topics_mutex_);
+  return last_centroid_;
+}
+
 void UltrasoundTopics::reset() {
   std::lock_guard lock(pending_mutex_);
   pending_reset_ = true;
@@ -262,6 +284,7 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     if (reset) session_.reset();
     if (plan) session_.set_plan(std::move(*plan));
     slices_.store(session_.slices().size(), std::memory_order_relaxed);
+    apply_calibrations();
   }
   const std::optional<UltrasoundProbeState> state = probe_state_();
   if (state) latch(*state);
@@ -293,6 +316,11 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     if (outcome.status == ultrasound::SessionStatus::ok ||
         outcome.status == ultrasound::SessionStatus::no_vessel)
       framed = true;
+    if (outcome.stored_slice) {
+      std::lock_guard lock(topics_mutex_);
+      for (const auto& stored : session_.slices())
+        if (stored.via_point == s.via_point) last_centroid_ = stored.slice.centroid;
+    }
   };
   // The latched acquisitions first (a slice is stored whether or not anyone looks), then, while the image
   // or annotations topic is watched, the newest state.
