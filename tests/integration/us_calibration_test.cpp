@@ -124,8 +124,8 @@ struct Reconstruction {
   Reconstruction(const UltrasoundCalibrationSimulation& sim,
                  std::function<std::optional<std::pair<int, us::ImageCalibration>>()> reader) {
     us::ReconstructionSessionConfig c;
-    for (double x = -100.0; x <= 100.0; x += 1.0) {
-      c.artery.points.emplace_back(x, -30.0, 0.0);
+    for (int x = -100; x <= 100; ++x) {
+      c.artery.points.emplace_back(static_cast<double>(x), -30.0, 0.0);
       c.artery.radii.push_back(5.0);
     }
     c.errors.enabled = false;  // only the calibration differs

@@ -200,28 +200,27 @@ std::vector<EchoSpot> detect_echo_spots(const BModeImage& image, const EchoSpotP
   };
   // Separable Gaussian blur, clamped at the borders.
   const int half = static_cast<int>(std::ceil(3.0 * parameters.blur_sigma_px));
-  std::vector<double> kernel(static_cast<std::size_t>(2 * half + 1));
+  std::vector<double> kernel(static_cast<std::size_t>(2 * half) + 1);
   double sum = 0.0;
-  for (int i = -half; i <= half; ++i) {
-    kernel[static_cast<std::size_t>(i + half)] =
-        std::exp(-0.5 * i * i / (parameters.blur_sigma_px * parameters.blur_sigma_px));
-    sum += kernel[static_cast<std::size_t>(i + half)];
+  for (std::size_t k = 0; k < kernel.size(); ++k) {
+    const double i = static_cast<double>(k) - half;
+    kernel[k] = std::exp(-0.5 * i * i / (parameters.blur_sigma_px * parameters.blur_sigma_px));
+    sum += kernel[k];
   }
   for (double& k : kernel) k /= sum;
   std::vector<double> rows(g.pixel_count()), blurred(g.pixel_count());
   for (int r = 0; r < h; ++r)
     for (int c = 0; c < w; ++c) {
       double acc = 0.0;
-      for (int i = -half; i <= half; ++i)
-        acc +=
-            kernel[static_cast<std::size_t>(i + half)] * image.pixels[index(std::clamp(c + i, 0, w - 1), r)];
+      for (std::size_t k = 0; k < kernel.size(); ++k)
+        acc += kernel[k] * image.pixels[index(std::clamp(c + static_cast<int>(k) - half, 0, w - 1), r)];
       rows[index(c, r)] = acc;
     }
   for (int r = 0; r < h; ++r)
     for (int c = 0; c < w; ++c) {
       double acc = 0.0;
-      for (int i = -half; i <= half; ++i)
-        acc += kernel[static_cast<std::size_t>(i + half)] * rows[index(c, std::clamp(r + i, 0, h - 1))];
+      for (std::size_t k = 0; k < kernel.size(); ++k)
+        acc += kernel[k] * rows[index(c, std::clamp(r + static_cast<int>(k) - half, 0, h - 1))];
       blurred[index(c, r)] = acc;
     }
   // 8-connected components over the threshold; centroid weighted by the height above it.
