@@ -191,6 +191,17 @@ TEST_F(UsCalibrationTest, ImageCalibrationIsStoredAndTheReconstructionMapsWithIt
   EXPECT_EQ(nominal.topics->image_calibration_version(), 0);
   EXPECT_GT(nominal_offset, 0.8);
   EXPECT_LT(calibrated_offset, 0.3);
+
+  // The hook-up make_us_arm_topics uses: the truths into the SIMULATED scanner and fibre, the readers.
+  us::ReconstructionSessionConfig session;
+  UltrasoundTopicsSettings settings;
+  use_ultrasound_calibrations(*calibrations, session, settings);
+  ASSERT_TRUE(session.simulated_true_image);
+  EXPECT_EQ(session.simulated_true_image->s_u, truth.s_u);
+  ASSERT_TRUE(session.simulated_true_fiber_in_base);
+  ASSERT_TRUE(settings.image_calibration_reader && settings.fiber_calibration_reader);
+  EXPECT_EQ(settings.image_calibration_reader()->first, 1);
+  EXPECT_FALSE(settings.fiber_calibration_reader());  // no catheter calibration yet
 }
 
 TEST_F(UsCalibrationTest, OneRoutineAtATime) {

@@ -212,4 +212,13 @@ std::optional<std::pair<int, Eigen::Isometry3d>> UltrasoundCalibrations::fiber_i
   return std::make_pair(record->version, transform->second);
 }
 
+void use_ultrasound_calibrations(const UltrasoundCalibrations& calibrations,
+                                 ultrasound::ReconstructionSessionConfig& session,
+                                 UltrasoundTopicsSettings& settings) {
+  session.simulated_true_image = calibrations.simulation().true_image;
+  session.simulated_true_fiber_in_base = calibrations.simulation().mold.simulated_true_fiber_in_base;
+  settings.image_calibration_reader = [&calibrations] { return calibrations.image_in_use(); };
+  settings.fiber_calibration_reader = [&calibrations] { return calibrations.fiber_in_use(); };
+}
+
 }  // namespace tendril::server

@@ -34,6 +34,7 @@
 #include <utility>
 
 #include "serial_arm/calibration_runner.hpp"
+#include "serial_arm/ultrasound_topics.hpp"
 #include "tendril/ultrasound/mold_calibration.hpp"
 #include "tendril/ultrasound/probe_calibration.hpp"
 
@@ -89,5 +90,12 @@ class UltrasoundCalibrations {
   std::uint64_t runs_ = 0;
   std::atomic<bool> stopping_{false};
 };
+
+// Hooks the reconstruction up to the calibrations: the session's SIMULATED scanner and fibre get the
+// true image plane and H_F^C, and the topics' worker reads the versions in use (`calibrations` must
+// outlive the topics).
+void use_ultrasound_calibrations(const UltrasoundCalibrations& calibrations,
+                                 ultrasound::ReconstructionSessionConfig& session,
+                                 UltrasoundTopicsSettings& settings);
 
 }  // namespace tendril::server
