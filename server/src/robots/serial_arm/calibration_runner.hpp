@@ -60,6 +60,7 @@ class CalibrationRunner {
   std::optional<Progress> running() const;
   std::optional<Outcome> last() const;
   CalibrationStore& store() noexcept { return store_; }
+  const CalibrationStore& store() const noexcept { return store_; }
 
   // operating_state's "calibration" object: {"<kind>": null | {"version","taken_unix_s","taken_utc",
   // "valid","residual_mm","summary","method"}, …, "running": null | {"kind","step","steps","message"},
