@@ -169,6 +169,15 @@ test('a sweep runs from the console while the catheter is driven in the same ser
     console.log(`robot calibration from the console: ${calibration} (${lastCalibration})`);
     assert.ok(calibrated, `calibration: ${lastCalibration} / ${await page.locator(tid('us-cal-running')).textContent()}`);
     assert.equal(await page.locator(tid('us-cal-robot')).getAttribute('data-version'), '1', lastCalibration);
+    // The image-to-probe calibration, which the sweep requires too: the SIMULATED N-wire phantom, a few
+    // seconds and no arm motion, from the same sub-panel.
+    await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-us-calibrate"]').disabled, null, WAIT);
+    await page.click(tid('us-cal-us-calibrate'));
+    await page.waitForFunction(() => document.querySelector('[data-testid="us-cal-us"]').dataset.version !== '',
+        null, {timeout: 120000, polling: 500});
+    console.log(`image calibration from the console: ${await page.locator(tid('us-cal-us')).textContent()}`);
+    assert.equal(await page.locator(tid('us-cal-us')).getAttribute('data-version'), '1',
+        await page.locator(tid('us-cal-last')).textContent());
     assert.equal(await page.locator(tid('us-cal-missing')).textContent(), '');
 
     // Sweep mode (the mode bar); a switch refused while the arm settles after Enable is tried again.

@@ -4,7 +4,10 @@
 // stored and used (a restart finds it); the refusals; a tracker that goes silent ends the routine with
 // the previous calibration in use; the sweep refuses without a calibration and plans after it.
 #include <gtest/gtest.h>
+
 #include <unistd.h>
+#include <chrono>
+#include <thread>
 
 #include <Eigen/Geometry>
 #include <cmath>
@@ -84,6 +87,23 @@ class UsArmCalibrationTest : public ::testing::Test {
     steps(2);
   }
   // Steps until the routine has ended (the worker solves on its own thread: give it wall time too).
+  // A routine on a worker thread ("us", "catheter"): waited for in real time, the runtime stepped meanwhile.
+  bool until_finished_in(double seconds) {
+    const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (arm().calibrations()->running()) {
+      if (std::chrono::steady_clock::now() > until) return false;
+      runtime->step();
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return true;
+  }
+  // The image-to-probe calibration (helper uscal's N-wire routine), which the sweep also requires.
+  void calibrate_image() {
+    const auto r = calibrate("us");
+    ASSERT_EQ(r.status, 202) << r.message;
+    ASSERT_TRUE(until_finished_in(120.0)) << op()["calibration"].dump();
+    ASSERT_TRUE(op()["calibration"]["last"]["ok"].get<bool>()) << op()["calibration"].dump();
+  }
   bool until_finished(int max_steps) {
     return step_until(
         [&] {
@@ -112,8 +132,8 @@ TEST_F(UsArmCalibrationTest, DescribesItsCalibrationsAndTheSweepRefusesWithoutOn
   start();
   const auto robots = api->robots();
   ASSERT_EQ(robots.size(), 1u);
-  EXPECT_EQ(robots[0]["calibrations"]["kinds"], json({"robot"}));
-  EXPECT_EQ(robots[0]["calibrations"]["required"], json({"robot"}));
+  EXPECT_EQ(robots[0]["calibrations"]["kinds"], json({"robot", "us", "catheter"}));
+  EXPECT_EQ(robots[0]["calibrations"]["required"], json({"robot", "us"}));
   EXPECT_EQ(robots[0]["calibrations"]["store"], (state_dir_ / "calibrations" / "us_arm").string());
   // The SIMULATED tracker's truth comes from the file's ultrasound.simulation.tracker.
   EXPECT_TRUE(
@@ -123,7 +143,7 @@ TEST_F(UsArmCalibrationTest, DescribesItsCalibrationsAndTheSweepRefusesWithoutOn
   const auto c = op()["calibration"];
   EXPECT_TRUE(c["robot"].is_null());
   EXPECT_TRUE(c["running"].is_null());
-  EXPECT_EQ(c["missing"], json({"robot"}));
+  EXPECT_EQ(c["missing"], json({"robot", "us"}));
   enable();
   mode("sweep");
   const auto plan = api->robot_command("us_arm", "sweep", {{"action", "plan"}});
@@ -170,7 +190,7 @@ TEST_F(UsArmCalibrationTest, TheRoutineRecoversTheBaseInTheTrackersFrameAndTheSw
   ASSERT_TRUE(c["last"]["ok"].get<bool>()) << c.dump();
   ASSERT_EQ(c["robot"]["version"], 1) << c.dump();
   EXPECT_TRUE(c["robot"]["valid"].get<bool>());
-  EXPECT_EQ(c["missing"], json::array());
+  EXPECT_EQ(c["missing"], json({"us"}));
   const auto record = arm().calibrations()->store().current("robot");
   ASSERT_TRUE(record);
   const Eigen::Isometry3d estimate = record->transforms.at("H_B^G");
@@ -195,8 +215,11 @@ TEST_F(UsArmCalibrationTest, TheRoutineRecoversTheBaseInTheTrackersFrameAndTheSw
   // The arm is back where it started, still, and enabled.
   EXPECT_EQ(op()["state"], "ENABLED");
 
-  // The sweep plans now, and maps the tracked limb through the calibrated H_B^G: the limb it sees is
-  // off the true one by the calibration's error only.
+  // With the image calibration too, the sweep plans now, and maps the tracked limb through the
+  // calibrated H_B^G: the limb it sees is off the true one by the calibration's error only.
+  calibrate_image();
+  EXPECT_EQ(op()["calibration"]["us"]["version"], 1);
+  EXPECT_EQ(op()["calibration"]["missing"], json::array());
   mode("sweep");
   const auto plan = api->robot_command("us_arm", "sweep", {{"action", "plan"}});
   ASSERT_EQ(plan.status, 200) << plan.message;

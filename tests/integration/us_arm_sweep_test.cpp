@@ -63,6 +63,17 @@ class UsArmSweepTest : public ::testing::Test {
     truth.valid = true;
     truth.summary = "the truth";
     arm().calibrations()->store().save(truth);
+    // And the image-to-probe calibration the sweep also requires: the SIMULATED scanner's truth.
+    const auto& image = arm().ultrasound_calibrations()->simulation().true_image;
+    CalibrationRecord us;
+    us.kind = "us";
+    us.method = "test fixture: the SIMULATED scanner's true H_I^U and pixel scales";
+    us.transforms["H_I^U"] = image.image_in_probe;
+    us.values["s_u_mm_per_px"] = image.s_u;
+    us.values["s_v_mm_per_px"] = image.s_v;
+    us.valid = true;
+    us.summary = "the truth";
+    arm().calibrations()->store().save(us);
     arm().publish_calibration_in_use();
   }
   static RobotConfig arm_config() { return load_robot_config(kConfig / "us_arm.json"); }

@@ -1,7 +1,7 @@
 // The ultrasound arm (robot us_arm: config/robots/us_arm.json) beside the catheter in one tendrild, in
 // real time: GET /robots, the sweep command's refusals with reasons (no sweep without a robot
-// calibration), the robot calibration routine, plan, pre_position, start while the catheter moves, the
-// /us_arm/sweep topic, abort. Run by tests/api/us_arm/run.sh (with a calibration store of its own).
+// calibration), the robot and image calibration routines, plan, pre_position, start while the catheter
+// moves, the /us_arm/sweep topic, abort. Run by tests/api/us_arm/run.sh (with a calibration store of its own).
 import {test, after} from 'node:test';
 import assert from 'node:assert/strict';
 import wsProtocol from '@foxglove/ws-protocol';
@@ -123,7 +123,20 @@ test('the sweep is refused out of order, each time with the reason', async () =>
   assert.equal(done.c.last.ok, true, JSON.stringify(done.c));
   assert.equal(done.c.robot.version, 1, JSON.stringify(done.c));
   assert.ok(done.c.robot.residual_mm < 1.3, JSON.stringify(done.c));
-  assert.deepEqual(done.c.missing, []);
+  assert.deepEqual(done.c.missing, ['us']);
+  // The image-to-probe calibration (the SIMULATED N-wire phantom, a few seconds, no arm motion), which
+  // the sweep requires too.
+  r = await post(`${ARM}/calibrate`, {kind: 'us'});
+  assert.equal(r.status, 202, r.text);
+  const image = await pollUntil(async () => {
+    const c = (await state(ARM)).calibration;
+    return c.running === null ? {done: true, c} : null;
+  }, {polls: 600, intervalMs: 200});
+  assert.ok(image && image.done, JSON.stringify((await state(ARM)).calibration));
+  assert.equal(image.c.last.ok, true, JSON.stringify(image.c));
+  assert.equal(image.c.us.version, 1, JSON.stringify(image.c));
+  assert.ok(image.c.us.residual_mm < 0.5, JSON.stringify(image.c));
+  assert.deepEqual(image.c.missing, []);
   await switchMode(ARM, 'sweep');
   const plan = await sweep('plan');
   assert.equal(plan.status, 200, plan.text);

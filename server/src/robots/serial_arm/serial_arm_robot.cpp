@@ -337,6 +337,17 @@ void SerialArm::set_up_calibrations() {
          "transform, from 12 poses near the current one",
          "POST /api/v1/robots/" + config_.name + "/calibrate {\"kind\":\"robot\"}", true},
         [this](const OperatingStateView& state) { return start_robot_calibration(state); });
+    // The image-to-probe ("us", required by the sweep) and catheter mold calibrations (helper uscal).
+    us_calibrations_ = std::make_unique<UltrasoundCalibrations>(
+        config_.name, *runner_, UltrasoundCalibrationSimulation::standard(),
+        [this]() -> std::optional<std::string> {
+          const SweepPhase phase = sweep_snapshot().phase;
+          if (phase == SweepPhase::idle || phase == SweepPhase::planned || phase == SweepPhase::done ||
+              phase == SweepPhase::aborted)
+            return std::nullopt;
+          return std::string("calibrate: the sweep is using the probe (phase ") + to_string(phase) +
+                 "); abort it (POST …/sweep {\"action\":\"abort\"}) before calibrating the image";
+        });
   } catch (const CalibrationStoreError& e) {
     throw ConfigError(config_.file.string() + ": ultrasound: " + e.what());
   }

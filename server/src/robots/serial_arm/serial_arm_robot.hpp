@@ -41,6 +41,7 @@
 #include "serial_arm/calibration_runner.hpp"
 #include "serial_arm/calibration_store.hpp"
 #include "serial_arm/limb_simulation.hpp"
+#include "serial_arm/ultrasound_calibrations.hpp"
 #include "serial_arm/ultrasound_probe_state.hpp"
 #include "serial_arm/ultrasound_sweep.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
@@ -228,6 +229,8 @@ class SerialArm final : public RobotPlugin {
   void set_sweep_plan(std::shared_ptr<const SweepPlan> plan);
 
   // The calibrations (null without the "ultrasound" section): the store, the routines and their state.
+  // The "us" and "catheter" calibrations (ultrasound_calibrations.hpp); null without "ultrasound".
+  const UltrasoundCalibrations* ultrasound_calibrations() const noexcept { return us_calibrations_.get(); }
   CalibrationRunner* calibrations() noexcept { return runner_.get(); }
   const CalibrationRunner* calibrations() const noexcept { return runner_.get(); }
   CalibrationSnapshot calibration_snapshot() const noexcept { return calibration_published_.load(); }
@@ -297,8 +300,9 @@ class SerialArm final : public RobotPlugin {
   std::atomic<bool> marker_hidden_{false};
   std::unique_ptr<CalibrationStore> store_;
   std::unique_ptr<CalibrationRunner> runner_;
-  std::function<bool(const PluginCommand&)> post_;  // the control thread's mailbox (set by api())
-  std::mutex worker_mutex_;                         // guards worker_ and run_
+  std::unique_ptr<UltrasoundCalibrations> us_calibrations_;  // after runner_: its worker ends first
+  std::function<bool(const PluginCommand&)> post_;           // the control thread's mailbox (set by api())
+  std::mutex worker_mutex_;                                  // guards worker_ and run_
   std::thread worker_;
   std::uint32_t run_ = 0;
   std::atomic<bool> stopping_{false};

@@ -652,6 +652,10 @@ std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm) {
   }
   UltrasoundTopicsSettings settings;
   settings.robot = arm.config().name;
+  // The SIMULATED scanner and fibre at their true calibrations, the reconstruction mapping with the
+  // versions in use (helper uscal's "us" and "catheter").
+  if (const UltrasoundCalibrations* calibrations = arm.ultrasound_calibrations())
+    use_ultrasound_calibrations(*calibrations, session, settings);
   // The plan as the arm holds it, converted once per new plan (this lambda runs on the worker only).
   settings.plan_reader = [&arm, seen = std::shared_ptr<const SweepPlan>(),
                           converted = std::shared_ptr<const ultrasound::SweepPlan>()]() mutable {
