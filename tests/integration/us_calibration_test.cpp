@@ -11,10 +11,16 @@
 #include <mutex>
 #include <thread>
 
+#include <unistd.h>
+
+#include "json_api.hpp"
 #include "serial_arm/calibration_runner.hpp"
 #include "serial_arm/calibration_store.hpp"
+#include "serial_arm/serial_arm_robot.hpp"
 #include "serial_arm/ultrasound_calibrations.hpp"
 #include "serial_arm/ultrasound_topics.hpp"
+#include "tendril/server/config.hpp"
+#include "tendril/server/robot_runtime.hpp"
 
 namespace tendril::server {
 namespace {
@@ -216,6 +222,85 @@ TEST_F(UsCalibrationTest, OneRoutineAtATime) {
   while (runner->running() && std::chrono::steady_clock::now() < until)
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   EXPECT_FALSE(runner->running());
+}
+
+// Through the runtime and the JSON API with config/robots/us_arm.json: the kinds in GET /robots, the
+// commands, the progress and outcome in operating_state, a restart finding the versions.
+class UsArmRuntimeCalibrationTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    state_dir = std::filesystem::temp_directory_path() /
+                ("tendril-uscal-runtime-" + std::to_string(::getpid()) + "-" +
+                 ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::remove_all(state_dir);
+    ::setenv("TENDRIL_STATE_DIR", state_dir.c_str(), 1);
+  }
+  void TearDown() override {
+    stop();
+    ::unsetenv("TENDRIL_STATE_DIR");
+    std::filesystem::remove_all(state_dir);
+  }
+  void start() {
+    RuntimeOptions o;
+    o.stepped = true;
+    o.control_rate_hz = 1000;
+    const auto config = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots/us_arm.json";
+    runtime = std::make_unique<RobotRuntime>(std::vector<RobotConfig>{load_robot_config(config)}, o,
+                                             builtin_robot_types());
+    api = json_api(*runtime);
+    runtime->start();
+    for (int i = 0; i < 20; ++i) runtime->step();
+  }
+  void stop() {
+    if (runtime) runtime->stop();
+    api.reset();
+    runtime.reset();
+  }
+  nlohmann::json calibration() { return api->operating_state("us_arm").body["calibration"]; }
+  // Posts the kind and waits in real time (the routine is on a worker thread), stepping the runtime.
+  nlohmann::json calibrate(const std::string& kind) {
+    const auto r = api->robot_command("us_arm", "calibrate", {{"kind", kind}});
+    EXPECT_EQ(r.status, 202) << r.message;
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    while (!calibration()["running"].is_null() && std::chrono::steady_clock::now() < until) {
+      runtime->step();
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return calibration();
+  }
+  std::filesystem::path state_dir;
+  std::unique_ptr<RobotRuntime> runtime;
+  std::unique_ptr<JsonControlApi> api;
+};
+
+TEST_F(UsArmRuntimeCalibrationTest, CatheterAndImageCalibrationsThroughTheApi) {
+  start();
+  const auto robots = api->robots();
+  ASSERT_EQ(robots.size(), 1U);
+  EXPECT_EQ(robots[0]["calibrations"]["kinds"], nlohmann::json({"robot", "us", "catheter"}));
+  EXPECT_EQ(robots[0]["calibrations"]["required"], nlohmann::json({"robot", "us"}));
+  auto c = calibrate("catheter");
+  ASSERT_TRUE(c["last"]["ok"].get<bool>()) << c.dump();
+  EXPECT_EQ(c["catheter"]["version"], 1);
+  EXPECT_LE(c["catheter"]["residual_mm"].get<double>(), 0.82);
+  c = calibrate("us");
+  std::printf("through the API: %s\n", c["us"]["summary"].get<std::string>().c_str());
+  ASSERT_TRUE(c["last"]["ok"].get<bool>()) << c.dump();
+  EXPECT_EQ(c["us"]["version"], 1);
+  EXPECT_LT(c["us"]["residual_mm"].get<double>(), 0.5);
+  EXPECT_EQ(c["missing"], nlohmann::json({"robot"}));
+  EXPECT_EQ(api->robot_command("us_arm", "calibrate", {{"kind", "ultrasound"}}).status, 400);
+  // The arm's topics map with the versions in use.
+  SerialArm& arm = dynamic_cast<SerialArm&>(*runtime->plugin("us_arm"));
+  ASSERT_NE(arm.ultrasound_calibrations(), nullptr);
+  EXPECT_EQ(arm.ultrasound_calibrations()->image_in_use()->first, 1);
+  EXPECT_EQ(arm.ultrasound_calibrations()->fiber_in_use()->first, 1);
+  // A restart finds both versions.
+  stop();
+  start();
+  c = calibration();
+  EXPECT_EQ(c["us"]["version"], 1) << c.dump();
+  EXPECT_EQ(c["catheter"]["version"], 1) << c.dump();
 }
 
 }  // namespace

@@ -53,12 +53,12 @@ UltrasoundCalibrations::UltrasoundCalibrations(std::string robot, CalibrationRun
   simulation_.phantom.validate();
   runner_.add(
       {"us", "image-to-probe: H_I^U and the pixel scales s_u, s_v (seed 002 §4.3, REQ-TF-5), N-wire phantom",
-       "POST /api/v1/robots/" + robot_ + "/calibrate {\"kind\": \"us\"}", true},
+       "POST /api/v1/robots/" + robot_ + "/calibrate {\"kind\":\"us\"}", true},
       [this](const OperatingStateView& state) { return start(state, true); });
   runner_.add({"catheter",
                "catheter mold: H_F^C of the FBG fibre in the catheter base (seed 002 §4.1, REQ-TF-3), "
                "validated on channel III",
-               "POST /api/v1/robots/" + robot_ + "/calibrate {\"kind\": \"catheter\"}", false},
+               "POST /api/v1/robots/" + robot_ + "/calibrate {\"kind\":\"catheter\"}", false},
               [this](const OperatingStateView& state) { return start(state, false); });
 }
 
