@@ -90,7 +90,7 @@ test('the sweep is refused out of order, each time with the reason', async () =>
   // REQ-TF-7: no plan without a robot calibration; the routine runs in cartesian mode.
   r = await sweep('plan');
   assertErrorShape(r, 409, 'conflict');
-  assert.match(r.json.error.message, /no valid robot calibration.*calibrate \{"kind":"robot"\}/);
+  assert.match(r.json.error.message, /no valid robot, us calibration.*calibrate \{"kind":"robot"\}.*calibrate \{"kind":"us"\}/);
   r = await post(`${ARM}/calibrate`, {kind: 'robot'});
   assertErrorShape(r, 409, 'conflict');
   assert.match(r.json.error.message, /switch to cartesian mode/);
