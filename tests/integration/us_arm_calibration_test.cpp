@@ -10,11 +10,13 @@
 #include <thread>
 
 #include <Eigen/Geometry>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "json_api.hpp"
@@ -230,6 +232,30 @@ TEST_F(UsArmCalibrationTest, TheRoutineRecoversTheBaseInTheTrackersFrameAndTheSw
   EXPECT_LT(limb_error, 2.5);
   EXPECT_GT(limb_error, 0.0);
 
+  // /tf: "world" is now the tracker's frame {G}; world→us_arm_base is the calibrated H_B^G.
+  {
+    auto sources = arm().topic_sources();
+    ASSERT_EQ(sources.size(), 1u);
+    std::optional<TopicPayload> tf;
+    for (int i = 0; i < 400 && !tf; ++i) {
+      steps(5);
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      tf = sources[0]->latest("/tf", 0);
+    }
+    ASSERT_TRUE(tf);
+    bool found = false;
+    const json frames = json::parse(*tf->payload);
+    for (const auto& t : frames.at("transforms"))
+      if (t.at("parent_frame_id") == "world" && t.at("child_frame_id") == "us_arm_base") {
+        found = true;
+        const auto& v = t.at("translation");
+        EXPECT_NEAR(v.at("x").get<double>(), estimate.translation().x(), 0.01) << t.dump();
+        EXPECT_NEAR(v.at("y").get<double>(), estimate.translation().y(), 0.01) << t.dump();
+        EXPECT_NEAR(v.at("z").get<double>(), estimate.translation().z(), 0.01) << t.dump();
+      }
+    EXPECT_TRUE(found) << tf->payload->substr(0, 400);
+  }
+
   // A restart finds version 1 and uses it.
   stop();
   start();
@@ -266,6 +292,46 @@ TEST_F(UsArmCalibrationTest, ASilentTrackerEndsTheRoutineAndTheArmStaysStill) {
   for (std::size_t i = 0; i < before.size(); ++i) EXPECT_NEAR(before[i], after[i], 1e-9);
   EXPECT_EQ(op()["state"], "ENABLED");
   arm().set_marker_hidden(false);
+}
+
+TEST_F(UsArmCalibrationTest, TheRoutineIsRefusedWhileTheSweepRuns) {
+  start();
+  CalibrationRecord truth;
+  truth.kind = "robot";
+  truth.method = "test";
+  truth.transforms["H_B^G"] = arm().tracker_settings()->global_T_base;
+  truth.valid = true;
+  truth.summary = "the truth";
+  arm().calibrations()->store().save(truth);
+  // The image-to-probe calibration the sweep requires too: the SIMULATED scanner's truth.
+  const auto& image = arm().ultrasound_calibrations()->simulation().true_image;
+  CalibrationRecord us;
+  us.kind = "us";
+  us.method = "test";
+  us.transforms["H_I^U"] = image.image_in_probe;
+  us.values["s_u_mm_per_px"] = image.s_u;
+  us.values["s_v_mm_per_px"] = image.s_v;
+  us.valid = true;
+  us.summary = "the truth";
+  arm().calibrations()->store().save(us);
+  arm().publish_calibration_in_use();
+  enable();
+  mode("sweep");
+  ASSERT_EQ(api->robot_command("us_arm", "sweep", {{"action", "plan"}}).status, 200);
+  steps(2);
+  ASSERT_EQ(api->robot_command("us_arm", "sweep", {{"action", "pre_position"}}).status, 202);
+  steps(50);
+  ASSERT_EQ(arm().sweep_snapshot().phase, SweepPhase::pre_positioning);
+  const auto r = calibrate();
+  EXPECT_EQ(r.status, 409);
+  EXPECT_NE(r.message.find("the sweep is pre_positioning; abort it first"), std::string::npos) << r.message;
+  // The image calibration too (the probe is the sweep's); the mold one needs no probe and runs.
+  const auto image_refusal = calibrate("us");
+  EXPECT_EQ(image_refusal.status, 409);
+  EXPECT_NE(image_refusal.message.find("the sweep is using the probe"), std::string::npos)
+      << image_refusal.message;
+  EXPECT_FALSE(arm().calibrations()->running());
+  EXPECT_EQ(arm().calibration_snapshot().phase, CalibrationPhase::idle);
 }
 
 TEST_F(UsArmCalibrationTest, ABadTrackerSectionIsRefusedWithItsKey) {

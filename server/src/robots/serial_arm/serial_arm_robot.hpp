@@ -240,6 +240,12 @@ class SerialArm final : public RobotPlugin {
   }
   // SIMULATED: hides the probe's marker from the tracker (its samples stop), for tests.
   void set_marker_hidden(bool hidden) noexcept { marker_hidden_.store(hidden); }
+  // The robot calibration in use's H_B^G (any thread; nullopt before one).
+  std::optional<Eigen::Isometry3d> calibrated_global_T_base() const noexcept {
+    const auto b = base_calibration_.load();
+    if (!b.valid) return std::nullopt;
+    return to_isometry(b.global_T_base);
+  }
   // Hands the robot calibration in use (its H_B^G) to the control thread's slot (network threads).
   void publish_calibration_in_use();
 

@@ -528,9 +528,10 @@ std::string UltrasoundTopics::tf_message(const UltrasoundProbeState& state, std:
   const std::string base = settings_.robot + "_base", probe = settings_.robot + "_probe",
                     image = settings_.robot + "_image";
   json transforms = json::array();
-  transforms.push_back(transform("world", base, settings_.world_T_base, now_ns));
-  transforms.push_back(
-      transform(base, probe, settings_.world_T_base.inverse() * state.world_T_probe, now_ns));
+  const Eigen::Isometry3d world_T_base =
+      settings_.world_T_base_reader ? settings_.world_T_base_reader() : settings_.world_T_base;
+  transforms.push_back(transform("world", base, world_T_base, now_ns));
+  transforms.push_back(transform(base, probe, world_T_base.inverse() * state.world_T_probe, now_ns));
   transforms.push_back(transform("world", "tissue", state.world_T_limb, now_ns));
   transforms.push_back(transform(probe, image, session_.config().image_in_probe, now_ns));
   const ultrasound::CatheterState& c = session_.catheter();
@@ -675,10 +676,21 @@ std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm) {
     }
     return converted;
   };
+  // "world" is the optical tracker's global frame {G} once the arm has a robot calibration: the arm's
+  // base at the calibrated H_B^G, and the probe state (in the base frame) brought into {G} with it, so
+  // every world pose the session and /tf use agrees (before a calibration world = the base frame).
+  settings.world_T_base_reader = [&arm] {
+    return arm.calibrated_global_T_base().value_or(Eigen::Isometry3d::Identity());
+  };
   return std::make_shared<UltrasoundTopics>(std::move(session), std::move(settings),
                                             [&arm]() -> std::optional<UltrasoundProbeState> {
                                               UltrasoundProbeState s = arm.probe_state();
                                               if (s.tick == 0) return std::nullopt;  // nothing published yet
+                                              if (const auto g = arm.calibrated_global_T_base()) {
+                                                s.world_T_probe = *g * s.world_T_probe;
+                                                s.world_T_limb = *g * s.world_T_limb;
+                                                s.world_T_limb_true = *g * s.world_T_limb_true;
+                                              }
                                               return s;
                                             });
 }

@@ -51,6 +51,9 @@ struct UltrasoundTopicsSettings {
   double catheter_hz = 5.0;      // FBG frames
   double scene_hz = 2.0;         // /reconstruction while watched (at once, too, on a new slice or plan)
   Eigen::Isometry3d world_T_base = Eigen::Isometry3d::Identity();  // the arm's base in the world
+  // Polled at each /tf (optional): the arm's base in the world now (the us_arm: the calibrated H_B^G of
+  // the robot calibration in use); when set it replaces world_T_base.
+  std::function<Eigen::Isometry3d()> world_T_base_reader;
   std::size_t max_surface_points = 600;  // the scene's skin cloud, evenly thinned to this many
   bool own_thread = true;                // false: the caller drives step() (tests)
   // Polled by the worker at each step (optional): a plan pointer it has not seen is set (and the
