@@ -208,7 +208,7 @@ Eigen::Vector2d UltrasoundReconstructionSession::seed_for(const ProbeSample& sam
   if (sample.via_point >= 0 && i < plan_.centroids.size()) {
     const Eigen::Vector3d p = tissue_T_image.inverse() * plan_.centroids[i];
     // Calibrated {I} → the segmenter's millimetres of the geometry's pixel size.
-    const Eigen::Vector2d yz(p.y() / scale_u(), p.z() / scale_v());
+    Eigen::Vector2d yz(p.y() / scale_u(), p.z() / scale_v());
     if (inside(yz)) return yz;
   }
   // Between via-points (or without a plan): follow the last contour's centre; else the image's middle.
