@@ -51,7 +51,7 @@ std::optional<std::pair<std::string, int>> parse_file_name(const std::string& na
 
 json matrix_json(const Eigen::Isometry3d& transform) {
   json rows = json::array();
-  const Eigen::Matrix4d m = transform.matrix();
+  const Eigen::Matrix4d& m = transform.matrix();
   for (int r = 0; r < 4; ++r)
     for (int c = 0; c < 4; ++c) rows.push_back(m(r, c));
   return rows;

@@ -25,7 +25,7 @@ Eigen::Vector3d SerialArmController::force_base(const ControlContext& ctx) noexc
 }
 
 Eigen::Isometry3d SerialArmController::limb_in_base(const LimbPoseSample& limb) const noexcept {
-  const Eigen::Isometry3d tracked = to_isometry(limb.pose);
+  Eigen::Isometry3d tracked = to_isometry(limb.pose);
   if (!base_calibrated_ || !robot_.tracker_settings_) return tracked;
   // The tracker reports the limb in {G}; the calibrated H_B^G brings it into the base frame, so the
   // calibration's error shows in where the sweep and the reconstruction put the limb.

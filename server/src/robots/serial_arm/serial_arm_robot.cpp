@@ -472,6 +472,7 @@ void SerialArm::robot_calibration_worker(std::uint32_t run) {
     return;
   }
   std::vector<ultrasound::HandEyePair> input;
+  input.reserve(static_cast<std::size_t>(pairs.count));
   for (int k = 0; k < pairs.count; ++k)
     input.push_back({to_isometry(pairs.tracked[static_cast<std::size_t>(k)]),
                      to_isometry(pairs.kinematic[static_cast<std::size_t>(k)])});
