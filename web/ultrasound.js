@@ -10,6 +10,7 @@
 //   the limb stands still on screen while it moves in the world, and the arm and probe move about it.
 import {el, group, fmt, describe, robotCommand} from './panel_kit.js';
 import {TimePlot} from './plot.js';
+import {CalibrationPanel} from './us_calibration.js';
 
 const ENTITY_PREFIX = 'ultrasound-panel/';
 const TISSUE_FRAME = 'tissue';
@@ -111,6 +112,7 @@ class UltrasoundPanel {
     u.tfInfo = el('div', {className: 'rp-detail', 'data-testid': 'us-tf-info', text: '/tf: waiting for the tissue frame'});
     u.reconInfo = el('div', {className: 'rp-detail', 'data-testid': 'us-recon-info', text: 'reconstruction: nothing yet'});
     u.hint = el('div', {className: 'rp-hint', 'data-testid': 'us-hint'});
+    this.calibration = new CalibrationPanel(this.ctx, this.robot);
 
     this.root.append(
         el('div', {className: 'panel-age'}, 'sweep values ', u.age),
@@ -120,6 +122,7 @@ class UltrasoundPanel {
                           u.progress),
               u.viaPoint, u.gate, u.message,
               el('div', {className: 'form-row rp-modes'}, Object.values(u.buttons))),
+        group('Calibration', '(robot–world and the others the sweep needs)', this.calibration.element),
         group('Ultrasound image', '(SIMULATED B-mode, fitted ellipse in green)', u.image, u.imageInfo),
         group('Contact force', '(normal force vs target)',
               el('div', {className: 'plot-box rp-plot'}, u.forceCanvas), u.forceValue),
@@ -146,6 +149,7 @@ class UltrasoundPanel {
   setCommandable(ok, hint) {
     this.commandable = ok;
     this.commandHint = hint;
+    this.calibration?.setCommandable(ok);
     this.updateButtons();
   }
 
@@ -184,6 +188,7 @@ class UltrasoundPanel {
   }
 
   applySweep(msg, stampMs) {
+    if (msg?.calibration) this.calibration.apply(msg.calibration);
     const s = msg?.sweep;
     if (!s) return;
     this.stampMs = stampMs;

@@ -132,6 +132,54 @@ test('a sweep runs from the console while the catheter is driven in the same ser
     await page.click(tid('enable-button'));
     await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').textContent.includes('ENABLED'),
       null, WAIT);
+    // The robot calibration first (REQ-TF-7: no sweep without it), from the Calibration sub-panel: in
+    // cartesian mode, the Calibrate button, then about 65 s of motion through 12 poses.
+    assert.match(await page.locator(tid('us-cal-missing')).textContent(), /robot/);
+    const inCartesian = await page.waitForFunction(() => {
+      const b = document.querySelector('[data-testid="mode-cartesian"]');
+      if (b.getAttribute('aria-pressed') === 'true') return true;
+      if (!window.__cartesianClickAt || Date.now() - window.__cartesianClickAt > 3000) {
+        window.__cartesianClickAt = Date.now();
+        if (!b.disabled) b.click();
+      }
+      return false;
+    }, null, {timeout: 30000, polling: 250}).then(() => true, () => false);
+    assert.ok(inCartesian, `cartesian mode: ${await page.locator(tid('command-status')).textContent()}`);
+    // A hold of the arm ends the routine with its reason (on a loaded machine the SIMULATED force
+    // sensor's thread can fall silent > 20 ms): Resume and Calibrate again, as an operator would, up to 3.
+    let calibrated = false;
+    for (let attempt = 1; attempt <= 3 && !calibrated; attempt++) {
+      if (/PAUSED/.test(await page.locator(tid('state-badge')).textContent())) {
+        const resume = await page.locator(tid('resume-button')).isVisible().catch(() => false) ? 'resume-button' : 'banner-resume-button';
+        await page.click(tid(resume));
+        await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').textContent.includes('ENABLED'), null, WAIT);
+      }
+      await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-robot-calibrate"]').disabled, null, WAIT);
+      await page.click(tid('us-cal-robot-calibrate'));
+      await page.waitForTimeout(1000);  // the routine's state arrives on /us_arm/sweep (20 Hz)
+      await page.waitForFunction(() => document.querySelector('[data-testid="us-cal-running"]').dataset.kind === 'robot' ||
+          document.querySelector('[data-testid="us-cal-last"]').dataset.ok !== '', null, WAIT);
+      await page.waitForFunction(() => document.querySelector('[data-testid="us-cal-running"]').dataset.kind !== 'robot',
+          null, {timeout: 300000, polling: 500}).catch(() => {});
+      calibrated = (await page.locator(tid('us-cal-robot')).getAttribute('data-version')) !== '';
+      if (!calibrated) console.log(`# calibration attempt ${attempt}: ${await page.locator(tid('us-cal-last')).textContent()}`);
+    }
+    const calibration = await page.locator(tid('us-cal-robot')).textContent();
+    const lastCalibration = await page.locator(tid('us-cal-last')).textContent();
+    console.log(`robot calibration from the console: ${calibration} (${lastCalibration})`);
+    assert.ok(calibrated, `calibration: ${lastCalibration} / ${await page.locator(tid('us-cal-running')).textContent()}`);
+    assert.equal(await page.locator(tid('us-cal-robot')).getAttribute('data-version'), '1', lastCalibration);
+    // The image-to-probe calibration, which the sweep requires too: the SIMULATED N-wire phantom, a few
+    // seconds and no arm motion, from the same sub-panel.
+    await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-us-calibrate"]').disabled, null, WAIT);
+    await page.click(tid('us-cal-us-calibrate'));
+    await page.waitForFunction(() => document.querySelector('[data-testid="us-cal-us"]').dataset.version !== '',
+        null, {timeout: 120000, polling: 500});
+    console.log(`image calibration from the console: ${await page.locator(tid('us-cal-us')).textContent()}`);
+    assert.equal(await page.locator(tid('us-cal-us')).getAttribute('data-version'), '1',
+        await page.locator(tid('us-cal-last')).textContent());
+    assert.equal(await page.locator(tid('us-cal-missing')).textContent(), '');
+
     // Sweep mode (the mode bar); a switch refused while the arm settles after Enable is tried again.
     const inSweep = await page.waitForFunction(() => {
       const b = document.querySelector('[data-testid="mode-sweep"]');

@@ -50,15 +50,30 @@ bool is_rigid(const Eigen::Isometry3d& pose) noexcept {
          std::abs(r.determinant() - 1.0) < 1e-6;
 }
 
+namespace {
+// The B-mode simulation's parameters with the scanner's true pixel scales.
+SimulatedBModeParameters true_scanner(const ReconstructionSessionConfig& config) {
+  SimulatedBModeParameters p = config.bmode;
+  if (config.simulated_true_image) {
+    p.lateral_scale = config.simulated_true_image->s_u / config.geometry.pixel_size;
+    p.axial_scale = config.simulated_true_image->s_v / config.geometry.pixel_size;
+  }
+  return p;
+}
+}  // namespace
+
 UltrasoundReconstructionSession::UltrasoundReconstructionSession(ReconstructionSessionConfig config)
     : config_(std::move(config)),
-      scanner_(config_.artery, config_.geometry, config_.bmode),
+      scanner_(config_.artery, config_.geometry, true_scanner(config_)),
       segmenter_(config_.geometry, config_.ekf),
       engine_(config_.errors.seed) {
   if (!is_rigid(config_.image_in_probe))
     throw UltrasoundSetupError("ultrasound session: the image-to-probe transform H_I^U is not rigid");
-  if (!is_rigid(config_.fiber_in_base))
+  if (!is_rigid(config_.fiber_in_base) ||
+      (config_.simulated_true_fiber_in_base && !is_rigid(*config_.simulated_true_fiber_in_base)))
     throw UltrasoundSetupError("ultrasound session: the fibre-to-catheter-base transform H_F^C is not rigid");
+  if (config_.simulated_true_image) config_.simulated_true_image->validate();
+  image_calibration().validate();
   const auto& e = config_.errors;
   for (double v : {e.robot_mm, e.robot_sd_mm, e.tracker_mm, e.tracker_sd_mm, e.angle_sd_rad}) {
     if (!std::isfinite(v) || v < 0.0)
@@ -146,8 +161,10 @@ SessionOutcome UltrasoundReconstructionSession::process(const ProbeSample& sampl
     probe_true = perturbed(sample.world_T_probe, config_.errors.robot_mm, config_.errors.robot_sd_mm);
     limb_measured = perturbed(sample.world_T_limb, config_.errors.tracker_mm, config_.errors.tracker_sd_mm);
   }
+  const Eigen::Isometry3d& true_image_in_probe =
+      config_.simulated_true_image ? config_.simulated_true_image->image_in_probe : config_.image_in_probe;
   const Eigen::Isometry3d image_true =
-      sample.world_T_limb_true.value_or(sample.world_T_limb).inverse() * probe_true * config_.image_in_probe;
+      sample.world_T_limb_true.value_or(sample.world_T_limb).inverse() * probe_true * true_image_in_probe;
   const Eigen::Isometry3d image_measured =
       limb_measured.inverse() * sample.world_T_probe * config_.image_in_probe;
   const BModeImage image = scanner_.render(image_true, config_.errors.seed * 1'000'003ULL + image_count_++);
@@ -190,7 +207,9 @@ Eigen::Vector2d UltrasoundReconstructionSession::seed_for(const ProbeSample& sam
   const auto i = static_cast<std::size_t>(sample.via_point);
   if (sample.via_point >= 0 && i < plan_.centroids.size()) {
     const Eigen::Vector3d p = tissue_T_image.inverse() * plan_.centroids[i];
-    if (inside({p.y(), p.z()})) return {p.y(), p.z()};
+    // Calibrated {I} → the segmenter's millimetres of the geometry's pixel size.
+    Eigen::Vector2d yz(p.y() / scale_u(), p.z() / scale_v());
+    if (inside(yz)) return yz;
   }
   // Between via-points (or without a plan): follow the last contour's centre; else the image's middle.
   if (frame_ && frame_->segmentation.valid && inside(frame_->segmentation.centre))
@@ -221,7 +240,7 @@ SessionOutcome UltrasoundReconstructionSession::segment_and_store(
   StoredSlice stored;
   stored.via_point = sample.via_point;
   stored.t = sample.t;
-  stored.slice = map_slice(result, tissue_T_image);  // Eq. 5
+  stored.slice = map_slice(calibrated(result), tissue_T_image);  // Eq. 5 with the calibrated s_u, s_v
   stored.tissue_T_image = tissue_T_image;
   segmenter_.lumen_mask(result, stored.mask);
   const auto i = static_cast<std::size_t>(sample.via_point);
@@ -252,7 +271,8 @@ SessionOutcome UltrasoundReconstructionSession::update_catheter(const ProbeSampl
   // the tracker sees the base and the limb with its error.
   const Eigen::Isometry3d limb_true = sample.world_T_limb_true.value_or(sample.world_T_limb);
   const Eigen::Isometry3d base_true =
-      limb_true * catheter_truth_.fiber_pose * config_.fiber_in_base.inverse();
+      limb_true * catheter_truth_.fiber_pose *
+      config_.simulated_true_fiber_in_base.value_or(config_.fiber_in_base).inverse();
   Eigen::Isometry3d base_measured = base_true, limb_measured = sample.world_T_limb;
   if (config_.errors.enabled) {
     base_measured = perturbed(base_true, config_.errors.tracker_mm, config_.errors.tracker_sd_mm);
@@ -285,6 +305,43 @@ SessionOutcome UltrasoundReconstructionSession::update_catheter(const ProbeSampl
   c.world_T_fbg = base_measured * config_.fiber_in_base;
   catheter_ = std::move(c);
   return {};
+}
+
+double UltrasoundReconstructionSession::scale_u() const noexcept {
+  return config_.image_scale_u > 0.0 ? config_.image_scale_u / config_.geometry.pixel_size : 1.0;
+}
+double UltrasoundReconstructionSession::scale_v() const noexcept {
+  return config_.image_scale_v > 0.0 ? config_.image_scale_v / config_.geometry.pixel_size : 1.0;
+}
+
+SliceSegmentation UltrasoundReconstructionSession::calibrated(const SliceSegmentation& segmentation) const {
+  // The segmenter measures in the geometry's pixel size; the calibration says what a pixel really is.
+  SliceSegmentation out = segmentation;
+  const Eigen::Vector2d scale(scale_u(), scale_v());
+  out.centre = out.centre.cwiseProduct(scale);
+  for (auto& p : out.contour) p = p.cwiseProduct(scale);
+  return out;
+}
+
+void UltrasoundReconstructionSession::set_image_calibration(const ImageCalibration& calibration) {
+  calibration.validate();
+  config_.image_in_probe = calibration.image_in_probe;
+  config_.image_scale_u = calibration.s_u;
+  config_.image_scale_v = calibration.s_v;
+}
+
+ImageCalibration UltrasoundReconstructionSession::image_calibration() const noexcept {
+  ImageCalibration c;
+  c.image_in_probe = config_.image_in_probe;
+  c.s_u = config_.image_scale_u > 0.0 ? config_.image_scale_u : config_.geometry.pixel_size;
+  c.s_v = config_.image_scale_v > 0.0 ? config_.image_scale_v : config_.geometry.pixel_size;
+  return c;
+}
+
+void UltrasoundReconstructionSession::set_fiber_in_base(const Eigen::Isometry3d& fiber_in_base) {
+  if (!is_rigid(fiber_in_base))
+    throw UltrasoundSetupError("ultrasound session: the fibre-to-catheter-base transform H_F^C is not rigid");
+  config_.fiber_in_base = fiber_in_base;
 }
 
 void UltrasoundReconstructionSession::reset() {

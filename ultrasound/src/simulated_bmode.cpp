@@ -51,6 +51,11 @@ SimulatedBModeProbe::SimulatedBModeProbe(teleop::CenterlinePolyline vessel, cons
   check_finite_non_negative(parameters_.wall_specular, "wall_specular");
   check_finite_non_negative(parameters_.attenuation, "attenuation");
   check_finite_non_negative(parameters_.noise_sigma, "noise_sigma");
+  for (const double scale : {parameters_.lateral_scale, parameters_.axial_scale}) {
+    if (!std::isfinite(scale) || scale < 0.5 || scale > 2.0)
+      throw UltrasoundSetupError("simulated B-mode: a pixel scale factor must be in [0.5, 2], got " +
+                                 std::to_string(scale));
+  }
   if (parameters_.wall_specular > 1.0) {
     throw UltrasoundSetupError("simulated B-mode: wall_specular is a fraction in [0, 1], got " +
                                std::to_string(parameters_.wall_specular));
@@ -122,7 +127,9 @@ BModeImage SimulatedBModeProbe::render(const Eigen::Isometry3d& image_pose, std:
   const auto& p = parameters_;
   for (int row = 0; row < geometry_.rows; ++row) {
     for (int column = 0; column < geometry_.columns; ++column) {
-      const Eigen::Vector2d yz = geometry_.plane_point(column, row);
+      const Eigen::Vector2d yz =
+          geometry_.plane_point(column, row)
+              .cwiseProduct(Eigen::Vector2d(parameters_.lateral_scale, parameters_.axial_scale));
       double echo = p.tissue_echo;
       if (crossing) {
         const AxisDistance d = axis_distance(image_pose, *crossing, yz.x(), yz.y());
@@ -150,7 +157,9 @@ LumenMask SimulatedBModeProbe::lumen_mask(const Eigen::Isometry3d& image_pose) c
   if (!crossing) return mask;
   for (int row = 0; row < geometry_.rows; ++row) {
     for (int column = 0; column < geometry_.columns; ++column) {
-      const Eigen::Vector2d yz = geometry_.plane_point(column, row);
+      const Eigen::Vector2d yz =
+          geometry_.plane_point(column, row)
+              .cwiseProduct(Eigen::Vector2d(parameters_.lateral_scale, parameters_.axial_scale));
       if (axis_distance(image_pose, *crossing, yz.x(), yz.y()).distance < crossing->lumen_radius) {
         mask[static_cast<std::size_t>(row) * static_cast<std::size_t>(geometry_.columns) +
              static_cast<std::size_t>(column)] = 1;

@@ -1,6 +1,7 @@
 // The ultrasound arm (robot us_arm: config/robots/us_arm.json) beside the catheter in one tendrild, in
-// real time: GET /robots, the sweep command's refusals with reasons, plan, pre_position, start while
-// the catheter moves, the /us_arm/sweep topic, abort. Run by tests/api/us_arm/run.sh.
+// real time: GET /robots, the sweep command's refusals with reasons (no sweep without a robot
+// calibration), the robot and image calibration routines, plan, pre_position, start while the catheter
+// moves, the /us_arm/sweep topic, abort. Run by tests/api/us_arm/run.sh (with a calibration store of its own).
 import {test, after} from 'node:test';
 import assert from 'node:assert/strict';
 import wsProtocol from '@foxglove/ws-protocol';
@@ -26,6 +27,25 @@ async function enable(r) {
   assert.ok(ready && ready.done, `${r} did not become ENABLED: ${JSON.stringify(await state(r))}`);
 }
 
+// A mode switch, tried again while the arm settles; a hold (on a loaded machine the SIMULATED force
+// sensor's thread can fall silent > 20 ms) is resumed first, as an operator would. Logs each refusal.
+async function switchMode(r, mode) {
+  for (let i = 0; i < 40; i++) {
+    const s = await state(r);
+    if (s.mode === mode) return;
+    if (i % 20 === 0) await holdLease();
+    if (s.state === 'PAUSED') {
+      console.log(`switching to ${mode}: resuming from ${JSON.stringify(s.hold)}`);
+      await post(`${r}/state_command`, {command: 'resume'});
+    } else {
+      const res = await post(`${r}/mode`, {mode});
+      if (res.status !== 200) console.log(`switching to ${mode}: ${res.status} ${res.text}`);
+    }
+    await new Promise((res) => setTimeout(res, 250));
+  }
+  assert.equal((await state(r)).mode, mode, JSON.stringify(await state(r)));
+}
+
 after(async () => {
   for (const c of open) c.close();
   await post(`${ARM}/state_command`, {command: 'disable'});
@@ -39,7 +59,12 @@ test('GET /robots describes us_arm with the sweep mode, the sweep command and it
   assert.ok(arm, JSON.stringify(robots.map((r) => r.name)));
   assert.equal(arm.kind, 'serial_arm');
   assert.deepEqual(arm.modes, ['joint', 'cartesian', 'sweep']);
-  assert.deepEqual(arm.commands, ['sweep']);
+  assert.deepEqual(arm.commands, ['calibrate', 'sweep']);
+  assert.deepEqual(arm.calibrations.kinds.includes('robot'), true);
+  assert.deepEqual(arm.calibrations.required.includes('robot'), true);
+  const calibration = (await state(ARM)).calibration;
+  assert.equal(calibration.robot, null, JSON.stringify(calibration));
+  assert.equal(calibration.running, null);
   assert.equal(arm.ultrasound.via_points, 16);
   assert.equal(arm.ultrasound.force_target_n, 0.8);
   assert.equal(arm.ultrasound.gate.position_mm, 0.5);
@@ -62,6 +87,57 @@ test('the sweep is refused out of order, each time with the reason', async () =>
   assert.match(r.json.error.message, /no plan/);
   assertErrorShape(await sweep('preview'), 409, 'conflict');
   assertErrorShape(await sweep('fly'), 400, 'bad_request');
+  // REQ-TF-7: no plan without a robot calibration; the routine runs in cartesian mode.
+  r = await sweep('plan');
+  assertErrorShape(r, 409, 'conflict');
+  assert.match(r.json.error.message, /no valid robot, us calibration.*calibrate \{"kind":"robot"\}.*calibrate \{"kind":"us"\}/);
+  r = await post(`${ARM}/calibrate`, {kind: 'robot'});
+  assertErrorShape(r, 409, 'conflict');
+  assert.match(r.json.error.message, /switch to cartesian mode/);
+  assertErrorShape(await post(`${ARM}/calibrate`, {kind: 'laser'}), 400, 'bad_request');
+  await switchMode(ARM, 'cartesian');
+  // About 65 s of motion through 12 poses at the 0.1 rad/s cap, then the solve. A hold of the arm (on
+  // a loaded machine the SIMULATED force sensor's thread can fall silent > 20 ms) ends the routine with
+  // its reason: resumed and run again as an operator would, up to three times.
+  let done = null;
+  for (let attempt = 1; attempt <= 3; attempt++) {
+    await holdLease();
+    if ((await state(ARM)).state === 'PAUSED') {
+      assert.equal((await post(`${ARM}/state_command`, {command: 'resume'})).status, 200);
+      assert.ok(await pollUntil(async () => (await state(ARM)).state === 'ENABLED', {polls: 100, intervalMs: 50}));
+    }
+    r = await post(`${ARM}/calibrate`, {kind: 'robot'});
+    assert.equal(r.status, 202, r.text);
+    if (attempt === 1) assertErrorShape(await post(`${ARM}/calibrate`, {kind: 'robot'}), 409, 'conflict');
+    let polls = 0;
+    done = await pollUntil(async () => {
+      // The lease lapses 30 s after the last command: the operator keeps it while the routine runs.
+      if (++polls % 50 === 0) await holdLease();
+      const c = (await state(ARM)).calibration;
+      return c.running === null ? {done: true, c} : null;
+    }, {polls: 900, intervalMs: 200});
+    assert.ok(done && done.done, JSON.stringify((await state(ARM)).calibration));
+    if (done.c.last.ok) break;
+    console.log(`calibration attempt ${attempt}: ${done.c.last.message}; hold: ${JSON.stringify((await state(ARM)).hold)}`);
+  }
+  assert.equal(done.c.last.ok, true, JSON.stringify(done.c));
+  assert.equal(done.c.robot.version, 1, JSON.stringify(done.c));
+  assert.ok(done.c.robot.residual_mm < 1.3, JSON.stringify(done.c));
+  assert.deepEqual(done.c.missing, ['us']);
+  // The image-to-probe calibration (the SIMULATED N-wire phantom, a few seconds, no arm motion), which
+  // the sweep requires too.
+  r = await post(`${ARM}/calibrate`, {kind: 'us'});
+  assert.equal(r.status, 202, r.text);
+  const image = await pollUntil(async () => {
+    const c = (await state(ARM)).calibration;
+    return c.running === null ? {done: true, c} : null;
+  }, {polls: 600, intervalMs: 200});
+  assert.ok(image && image.done, JSON.stringify((await state(ARM)).calibration));
+  assert.equal(image.c.last.ok, true, JSON.stringify(image.c));
+  assert.equal(image.c.us.version, 1, JSON.stringify(image.c));
+  assert.ok(image.c.us.residual_mm < 0.5, JSON.stringify(image.c));
+  assert.deepEqual(image.c.missing, []);
+  await switchMode(ARM, 'sweep');
   const plan = await sweep('plan');
   assert.equal(plan.status, 200, plan.text);
   assert.equal(plan.json.via_points.length, 16);

@@ -445,6 +445,99 @@ TEST(ReconstructionSession, ImagesAtTheTrueLimbAndMapsThroughTheTrackedOne) {
   EXPECT_EQ(exact.slices().size(), 1u);
 }
 
+// REQ-TF-5 in the reconstruction: the SIMULATED scanner images through its TRUE H_I^U and pixel scales
+// (0.8 mm and 1° off the nominal plane, scales 1.6 % off), the session maps through the calibration it
+// is given. With the nominal one the centroids are off; with the N-wire calibration's result they are not.
+TEST(ReconstructionSession, MapsWithTheCalibratedImagePlaneWhileTheScannerImagesWithTheTrueOne) {
+  ReconstructionSessionConfig c = session_config(11);
+  c.catheter_path.clear();
+  c.errors.enabled = false;
+  ImageCalibration truth;
+  truth.image_in_probe = pose(rotation(kPi / 180.0, Vector3d(1.0, 0.4, -0.3)),
+                              Vector3d(0.0, 0.0, 0.5) + 0.8 * Vector3d(0.5, -0.7, 0.5).normalized());
+  truth.s_u = 0.127;
+  truth.s_v = 0.123;
+  c.simulated_true_image = truth;
+  UltrasoundReconstructionSession nominal(c), calibrated(c), perfect(c);
+  perfect.set_image_calibration(truth);
+  // The calibration of the scanner on the SIMULATED N-wire phantom (no robot error here: the pose
+  // errors are tested with the routine itself).
+  const SimulatedNWireScanner phantom_scanner(NWirePhantom{}, c.geometry, truth);
+  std::vector<CalibrationShot> shots;
+  for (const Isometry3d& p : n_wire_calibration_poses(Isometry3d::Identity(), 16)) shots.push_back({p, p});
+  const ImageCalibrationRun run = run_n_wire_calibration(phantom_scanner, Isometry3d::Identity(), shots,
+                                                         ImageCalibration::nominal(c.geometry));
+  calibrated.set_image_calibration(run.fit.calibration);
+  EXPECT_NEAR(calibrated.image_calibration().s_u, 0.127, 0.001);
+  nominal.set_plan(plan());
+  calibrated.set_plan(plan());
+  perfect.set_plan(plan());
+  // The same images (one seed) in the three sessions: the centroids differ only by the mapping.
+  double nominal_sum = 0.0, calibrated_sum = 0.0, perfect_sum = 0.0, nominal_offset = 0.0,
+         calibrated_offset = 0.0;
+  const std::vector<int> via_points{2, 5, 8, 11, 14};
+  for (const int i : via_points) {
+    const Isometry3d probe = kTissueAtRest * plan().via_points[static_cast<std::size_t>(i)].pose();
+    const ProbeSample s = sample_at(0.0, probe, kTissueAtRest, true, true, i);
+    ASSERT_TRUE(nominal.process(s).stored_slice);
+    ASSERT_TRUE(calibrated.process(s).stored_slice);
+    ASSERT_TRUE(perfect.process(s).stored_slice);
+    nominal_sum += nominal.slices().back().centroid_error;
+    calibrated_sum += calibrated.slices().back().centroid_error;
+    perfect_sum += perfect.slices().back().centroid_error;
+    const Vector3d& truly = perfect.slices().back().slice.centroid;
+    nominal_offset = std::max(nominal_offset, (nominal.slices().back().slice.centroid - truly).norm());
+    calibrated_offset =
+        std::max(calibrated_offset, (calibrated.slices().back().slice.centroid - truly).norm());
+  }
+  const double n = static_cast<double>(via_points.size());
+  std::printf(
+      "centroid error vs the plan with the nominal H_I^U %.3f mm, with the N-wire calibration %.3f mm, "
+      "with the truth %.3f mm (mean of %d); centroids off the true mapping's by up to %.3f (nominal) and "
+      "%.3f mm (calibrated)\n",
+      nominal_sum / n, calibrated_sum / n, perfect_sum / n, static_cast<int>(n), nominal_offset,
+      calibrated_offset);
+  EXPECT_GT(nominal_offset, 0.8);     // the calibration error shows in the reconstruction
+  EXPECT_LT(calibrated_offset, 0.2);  // and the calibration removes it
+  EXPECT_LT(calibrated_sum, nominal_sum);
+  ImageCalibration bad = truth;
+  bad.s_v = -0.1;
+  EXPECT_THROW(calibrated.set_image_calibration(bad), UltrasoundSetupError);
+  EXPECT_NEAR(calibrated.image_calibration().s_v, run.fit.calibration.s_v, 1e-12);  // unchanged
+}
+
+// REQ-TF-3 in the reconstruction: the fibre truly sits at one H_F^C, Eq. 2 uses the configured one; a
+// new calibration (set_fiber_in_base) takes effect at the next catheter update.
+TEST(ReconstructionSession, MapsTheCatheterWithTheCalibratedFibreInBase) {
+  ReconstructionSessionConfig c = session_config(13);
+  c.errors.enabled = false;
+  const Isometry3d truth = c.fiber_in_base;
+  c.simulated_true_fiber_in_base = truth;
+  c.fiber_in_base = truth * pose(rotation(0.5 * kPi / 180.0, Vector3d::UnitX()), Vector3d(1.0, 0.0, 0.0));
+  UltrasoundReconstructionSession session(c);
+  ProbeSample s;
+  s.world_T_limb = kTissueAtRest;
+  const auto worst = [&]() {
+    double w = 0.0;
+    const CatheterState& state = session.catheter();
+    for (std::size_t g = 0; g < state.world.size(); ++g)
+      w = std::max(w, (state.world[g] - state.simulated_true_world[g]).norm());
+    return w;
+  };
+  ASSERT_TRUE(session.update_catheter(s).ok());
+  const double wrong = worst();
+  session.set_fiber_in_base(truth);
+  ASSERT_TRUE(session.update_catheter(s).ok());
+  const double right = worst();
+  std::printf("catheter with a wrong H_F^C (1 mm, 0.5 deg): %.3f mm worst; calibrated: %.3f mm\n", wrong,
+              right);
+  EXPECT_GT(wrong, 1.5);
+  EXPECT_LT(right, 0.6);  // the interrogator's noise alone (1.2 pm per frame, one frame)
+  Isometry3d skew = Isometry3d::Identity();
+  skew.linear()(0, 1) = 0.3;
+  EXPECT_THROW(session.set_fiber_in_base(skew), UltrasoundSetupError);
+}
+
 TEST(ReconstructionSession, RefusesABadSetUp) {
   ReconstructionSessionConfig short_catheter = session_config(1);
   short_catheter.catheter_path.resize(100);  // 10 mm, the fibre spans 270 mm

@@ -77,23 +77,63 @@ class SerialArmApi final : public RobotApiExtension {
            "the limb"},
           {"simulated", true}};
     }
+    if (const auto* runner = robot_.calibrations()) {
+      json required = json::array();
+      for (const auto& k : runner->store().kinds())
+        if (k.required) required.push_back(k.kind);
+      out["calibrations"] = {{"kinds", runner->kinds()},
+                             {"required", std::move(required)},
+                             {"store", runner->store().directory().string()},
+                             {"problems", runner->store().problems()}};
+    }
   }
 
   std::vector<RobotCommandInfo> commands() const override {
     if (!robot_.ultrasound()) return {};
-    return {{"sweep",
-             {{"type", "object"},
-              {"properties",
-               {{"action", {{"enum", {"plan", "preview", "pre_position", "start", "pause", "abort"}}}}}},
-              {"required", {"action"}}},
-             false,
-             "",
-             "the ultrasound sweep: plan (ICP of the CT to the skin, Algorithms 1-2), preview (the via-point "
-             "poses), pre_position (above via-point 1), start, pause (stay in contact), abort (retract and "
-             "hold)"}};
+    std::vector<RobotCommandInfo> out;
+    if (const auto* runner = robot_.calibrations())
+      out.push_back(
+          {"calibrate",
+           {{"type", "object"},
+            {"properties", {{"kind", {{"enum", runner->kinds()}}}}},
+            {"required", {"kind"}}},
+           false,
+           "",
+           "runs a calibration routine of the kind (robot: the arm moves through 12 poses near where "
+           "it is, in cartesian mode; progress and result in operating_state.calibration)"});
+    out.push_back(
+        {"sweep",
+         {{"type", "object"},
+          {"properties",
+           {{"action", {{"enum", {"plan", "preview", "pre_position", "start", "pause", "abort"}}}}}},
+          {"required", {"action"}}},
+         false,
+         "",
+         "the ultrasound sweep: plan (ICP of the CT to the skin, Algorithms 1-2), preview (the via-point "
+         "poses), pre_position (above via-point 1), start, pause (stay in contact), abort (retract and "
+         "hold)"});
+    return out;
+  }
+
+  ApiResult calibrate(const json& body) {
+    auto* runner = robot_.calibrations();
+    const std::string& robot = robot_.config().name;
+    std::string kinds;
+    for (const auto& k : runner->kinds()) kinds += (kinds.empty() ? "" : ", ") + k;
+    if (!body.is_object() || !body.contains("kind") || !body["kind"].is_string())
+      return ApiResult::error(400, "bad_request", "calibrate: expected {\"kind\": one of " + kinds + "}");
+    const std::string kind = body["kind"].get<std::string>();
+    if (!runner->has(kind))
+      return ApiResult::error(400, "bad_request",
+                              "calibrate: unknown kind '" + kind + "'; robot '" + robot + "' has " + kinds);
+    const auto state = service_.operating_state(robot);
+    if (!state) return ApiResult::error(404, "not_found", state.error().message);
+    if (auto refusal = runner->run(kind, *state)) return ApiResult::error(409, "conflict", *refusal);
+    return ApiResult::success({{"kind", kind}, {"started", true}}, 202);
   }
 
   ApiResult command(const std::string& name, const json& body) override {
+    if (name == "calibrate" && robot_.calibrations()) return calibrate(body);
     if (name != "sweep" || !robot_.ultrasound())
       return ApiResult::error(404, "not_found", "no command " + name);
     if (!body.is_object() || !body.contains("action") || !body["action"].is_string())
@@ -115,6 +155,7 @@ class SerialArmApi final : public RobotApiExtension {
     auto conflict = [](std::string message) { return ApiResult::error(409, "conflict", std::move(message)); };
     switch (*action) {
       case SweepAction::plan: {
+        if (auto why = missing_calibrations()) return conflict(*why);
         if (running)
           return conflict("sweep: cannot plan while a sweep is " + std::string(to_string(phase)) +
                           "; abort it first (POST /api/v1/robots/" + robot +
@@ -185,6 +226,8 @@ class SerialArmApi final : public RobotApiExtension {
       default:
         break;
     }
+    if (*action == SweepAction::pre_position || *action == SweepAction::start)
+      if (auto why = missing_calibrations()) return conflict(*why);
     PluginCommand c;
     c.id = static_cast<std::uint16_t>(ArmCommand::sweep_action);
     c.count = 1;
@@ -212,6 +255,7 @@ class SerialArmApi final : public RobotApiExtension {
     const auto truth = robot_.simulated_force_sensor().truth();
     arm["simulation"] = {{"in_contact", truth.in_contact}, {"penetration_mm", truth.penetration}};
     out["arm"] = std::move(arm);
+    if (const auto* runner = robot_.calibrations()) out["calibration"] = runner->state_json();
     if (const auto& u = robot_.ultrasound()) {
       out["sweep"] = sweep_json(robot_.sweep_snapshot());
       out["sweep"]["force_target_n"] = u->force.contact_force;
@@ -235,8 +279,8 @@ class SerialArmApi final : public RobotApiExtension {
       return LiveState{"sweep",
                        "tendril.UltrasoundSweepState",
                        20.0,
-                       {"sweep", "arm.force_n", "arm.contact_force_n", "arm.force_fresh", "arm.simulation",
-                        "arm.twist_limited", "arm.workspace_limited"}};
+                       {"sweep", "calibration", "arm.force_n", "arm.contact_force_n", "arm.force_fresh",
+                        "arm.simulation", "arm.twist_limited", "arm.workspace_limited"}};
     // The force and the simulated contact change with every reading: they go out on /{robot}/arm at
     // 10 Hz, so /{robot}/operating_state changes only with the state.
     return LiveState{"arm",
@@ -247,6 +291,21 @@ class SerialArmApi final : public RobotApiExtension {
   }
 
  private:
+  // REQ-TF-7: no sweep without a valid calibration of every required kind; the sentence names them
+  // and the requests that make them.
+  std::optional<std::string> missing_calibrations() const {
+    const auto* runner = robot_.calibrations();
+    if (!runner) return std::nullopt;
+    const auto missing = runner->store().missing_required();
+    if (missing.empty()) return std::nullopt;
+    std::string what, how;
+    for (const auto& k : missing) {
+      what += (what.empty() ? "" : ", ") + k.kind;
+      how += (how.empty() ? "" : ", then ") + k.command;
+    }
+    return "sweep: no valid " + what + " calibration (REQ-TF-7); run " + how + " first";
+  }
+
   // A plan whose via-points (or the pre-position above the first) leave the arm's workspace box at
   // the limb's rest pose would stall at the box: refused with the first offender, before anything moves.
   std::optional<std::string> outside_workspace(const SweepPlan& plan) const {

@@ -24,7 +24,24 @@ Eigen::Vector3d SerialArmController::force_base(const ControlContext& ctx) noexc
   return probe_.tool.linear() * Eigen::Vector3d(force_.force_n[0], force_.force_n[1], force_.force_n[2]);
 }
 
+Eigen::Isometry3d SerialArmController::limb_in_base(const LimbPoseSample& limb) const noexcept {
+  Eigen::Isometry3d tracked = to_isometry(limb.pose);
+  if (!base_calibrated_ || !robot_.tracker_settings_) return tracked;
+  // The tracker reports the limb in {G}; the calibrated H_B^G brings it into the base frame, so the
+  // calibration's error shows in where the sweep and the reconstruction put the limb.
+  return global_T_base_.inverse() * robot_.tracker_settings_->global_T_base * tracked;
+}
+
 void SerialArmController::sense(ControlContext& ctx) noexcept {
+  if (robot_.tracker_) {
+    const auto b = robot_.base_calibration_.load();
+    base_calibrated_ = b.valid;
+    if (b.valid) global_T_base_ = to_isometry(b.global_T_base);
+    // The SIMULATED optical tracker samples the probe where the measured joints put it.
+    for (std::size_t i = 0; i < teleop::kArmJoints; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q[i];
+    robot_.tracker_->set_silent(robot_.marker_hidden_.load(std::memory_order_relaxed));
+    if (robot_.model().forward_kinematics(q_, probe_)) robot_.tracker_->step(ctx.t, q_, probe_.tool);
+  }
   const hardware::ForceReading reading = robot_.sensor_->read();
   if (reading.valid) force_ = reading;
   force_age_s_ = force_.valid ? static_cast<double>(ctx.now_ns - force_.stamp_ns) * 1e-9 : 0.0;
@@ -95,7 +112,7 @@ void SerialArmController::sweep(ControlContext& ctx) noexcept {
   in.force = Eigen::Vector3d(force_.force_n[0], force_.force_n[1], force_.force_n[2]);
   in.force_valid = force_fresh_;
   const LimbPoseSample limb = robot_.limb_->tracked();
-  in.world_T_limb = to_isometry(limb.pose);
+  in.world_T_limb = limb_in_base(limb);
   in.limb_t = limb.t;
   in.t = ctx.t;
   in.dt = ctx.period;
@@ -108,12 +125,33 @@ void SerialArmController::sweep(ControlContext& ctx) noexcept {
   integrate(ctx, result);
 }
 
+void SerialArmController::calibrate(ControlContext& ctx) noexcept {
+  CalibrationMotion& motion = *robot_.calibration_motion_;
+  for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
+  // The pair's kinematic pose is that of the measured joints (where the arm is, as it reports it).
+  teleop::ArmVector measured;
+  for (std::size_t i = 0; i < teleop::kArmJoints; ++i) measured[static_cast<Eigen::Index>(i)] = ctx.q[i];
+  Eigen::Isometry3d measured_tool = Eigen::Isometry3d::Identity();
+  if (robot_.model().forward_kinematics(measured, probe_)) measured_tool = probe_.tool;
+  teleop::CartesianCommandResult result;
+  if (!motion.step(robot_.model(), data_, q_, measured_tool, robot_.tracker_->latest(), ctx.t, ctx.period,
+                   result)) {
+    for (std::size_t i = 0; i < ctx.n; ++i) ctx.qd_des[i] = 0.0;
+    return;
+  }
+  integrate(ctx, result);
+}
+
 void SerialArmController::control(ControlContext& ctx) noexcept {
   if (ctx.mode == kSweepMode && robot_.sweep_) {
     sweep(ctx);
     return;
   }
   if (ctx.mode != kCartesianMode) return;
+  if (robot_.calibration_motion_ && robot_.calibration_motion_->running()) {
+    calibrate(ctx);
+    return;
+  }
   for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
   const auto& s = robot_.settings_;
   if (motion_ == ArmMotion::none) {
@@ -164,6 +202,7 @@ void SerialArmController::control(ControlContext& ctx) noexcept {
 
 bool SerialArmController::while_held(ControlContext& ctx) noexcept {
   if (robot_.sweep_) robot_.sweep_->interrupt("the robot is held (see its hold); resume it first");
+  if (robot_.calibration_motion_) robot_.calibration_motion_->fail("the robot was held (see its hold)");
   // REQ-SAFE-2: out of a force hold, back away along the contact force (the push the tissue gives the
   // tool) at the retract speed until the force is under the resume bound, for at most retract_max_mm.
   if (!retracting_) return false;
@@ -199,6 +238,25 @@ void SerialArmController::apply(ControlContext& ctx, const PluginCommand& comman
     if (robot_.sweep_) robot_.sweep_->load(robot_.plan_slot_.load());
     return;
   }
+  if (static_cast<ArmCommand>(command.id) == ArmCommand::calibration_abort) {
+    if (robot_.calibration_motion_) robot_.calibration_motion_->fail("aborted by the operator");
+    return;
+  }
+  if (static_cast<ArmCommand>(command.id) == ArmCommand::calibration_start) {
+    if (!robot_.calibration_motion_ || command.count != 1) return;
+    // Re-checked here: the network thread looked a moment ago. A start that cannot be taken is dropped;
+    // the worker sees no run begin and reports it.
+    if (ctx.mode != kCartesianMode || ctx.state != OperatingState::kEnabled || !ctx.drives_ready ||
+        motion_ != ArmMotion::none || (robot_.sweep_ && robot_.sweep_->running()))
+      return;
+    const CalibrationPosesData poses = robot_.calibration_poses_.load();
+    if (static_cast<double>(poses.run) != command.values[0]) return;
+    for (std::size_t i = 0; i < ctx.n; ++i) q_[static_cast<Eigen::Index>(i)] = ctx.q_des[i];
+    if (!robot_.model().forward_kinematics(q_, data_)) return;
+    robot_.calibration_motion_->start(poses, data_.tool, ctx.t);
+    pairs_published_ = false;
+    return;
+  }
   if (static_cast<ArmCommand>(command.id) == ArmCommand::sweep_action) {
     if (!robot_.sweep_ || ctx.mode != kSweepMode || command.count != 1) return;
     const auto action = static_cast<SweepAction>(static_cast<int>(command.values[0]));
@@ -211,6 +269,8 @@ void SerialArmController::apply(ControlContext& ctx, const PluginCommand& comman
   }
   // Re-checked here: the mode or state may have changed since the network thread looked.
   if (ctx.mode != kCartesianMode || ctx.state != OperatingState::kEnabled || !ctx.drives_ready) return;
+  // An operator's Cartesian command takes the arm: a running calibration ends.
+  if (robot_.calibration_motion_) robot_.calibration_motion_->fail("a Cartesian command took the arm");
   const auto& v = command.values;
   switch (static_cast<ArmCommand>(command.id)) {
     case ArmCommand::servo_cv:
@@ -222,6 +282,8 @@ void SerialArmController::apply(ControlContext& ctx, const PluginCommand& comman
       return;
     case ArmCommand::sweep_load:
     case ArmCommand::sweep_action:
+    case ArmCommand::calibration_start:
+    case ArmCommand::calibration_abort:
       return;
     case ArmCommand::servo_cp:
     case ArmCommand::move_cp: {
@@ -249,6 +311,7 @@ void SerialArmController::apply(ControlContext& ctx, const PluginCommand& comman
 void SerialArmController::delay(ControlContext& ctx, double lost) noexcept {
   (void)ctx;
   if (motion_ == ArmMotion::move_cp) trajectory_delay_ += lost;
+  if (robot_.calibration_motion_) robot_.calibration_motion_->delay(lost);
 }
 
 void SerialArmController::reset(ControlContext& ctx) noexcept {
@@ -265,23 +328,33 @@ void SerialArmController::reset(ControlContext& ctx) noexcept {
     else if (ctx.mode != kSweepMode)
       robot_.sweep_->interrupt("the mode changed");
   }
+  if (robot_.calibration_motion_) {
+    if (ctx.state != OperatingState::kEnabled)
+      robot_.calibration_motion_->fail("the robot is not enabled");
+    else if (ctx.mode != kCartesianMode)
+      robot_.calibration_motion_->fail("the mode changed");
+  }
 }
 
 void SerialArmController::state_command(ControlContext& ctx, safety::StateCommand command) noexcept {
   (void)ctx;
   if (robot_.sweep_ && command == safety::StateCommand::kPause)
     robot_.sweep_->interrupt("the robot was paused (state_command pause); resume it first");
+  if (robot_.calibration_motion_ && command == safety::StateCommand::kPause)
+    robot_.calibration_motion_->fail("the robot was paused");
 }
 
 void SerialArmController::operator_lost(ControlContext& ctx) noexcept {
   if (motion_ == ArmMotion::servo_cv || motion_ == ArmMotion::servo_cp) stop(ctx);
   // A sweep is not the operator's stream, but nobody watches it any more: it pauses, in contact.
   if (robot_.sweep_) robot_.sweep_->command(SweepAction::pause, ctx.t);
+  if (robot_.calibration_motion_) robot_.calibration_motion_->fail("the operator's connection was lost");
 }
 
 bool SerialArmController::moving(const ControlContext& ctx) const noexcept {
   (void)ctx;
-  return motion_ != ArmMotion::none || retracting_ || (robot_.sweep_ && robot_.sweep_->running());
+  return motion_ != ArmMotion::none || retracting_ || (robot_.sweep_ && robot_.sweep_->running()) ||
+         (robot_.calibration_motion_ && robot_.calibration_motion_->running());
 }
 
 bool SerialArmController::hold_cleared(const ControlContext& ctx, char* why,
@@ -331,7 +404,7 @@ void SerialArmController::publish(const ControlContext& ctx) noexcept {
   u.world_T_limb = to_array(Eigen::Isometry3d::Identity());
   u.world_T_limb_true = u.world_T_limb;
   if (robot_.limb_) {
-    u.world_T_limb = robot_.limb_->tracked().pose;
+    u.world_T_limb = to_array(limb_in_base(robot_.limb_->tracked()));
     u.world_T_limb_true = robot_.limb_->truth().pose;
   }
   if (robot_.sweep_) {
@@ -344,6 +417,15 @@ void SerialArmController::publish(const ControlContext& ctx) noexcept {
   u.normal_force_n = force_.valid ? -force_.force_n[2] : 0.0;
   u.in_contact = u.normal_force_n > 0.1;
   robot_.probe_published_.store(u);
+  if (robot_.calibration_motion_) {
+    const CalibrationMotion& c = *robot_.calibration_motion_;
+    // The pairs go out once per run, before the snapshot says "collected": the worker reads them then.
+    if (c.snapshot().phase == CalibrationPhase::collected && !pairs_published_) {
+      robot_.calibration_pairs_.store(c.pairs());
+      pairs_published_ = true;
+    }
+    robot_.calibration_published_.store(c.snapshot());
+  }
 }
 
 }  // namespace tendril::server

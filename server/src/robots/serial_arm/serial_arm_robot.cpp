@@ -5,6 +5,7 @@
 #include "serial_arm/serial_arm_robot.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <utility>
@@ -14,6 +15,7 @@
 #include "tendril/server/config_reader.hpp"
 #include "tendril/server/robot_api_extension.hpp"
 #include "tendril/server/robot_types.hpp"
+#include "tendril/ultrasound/hand_eye.hpp"
 
 namespace tendril::server {
 
@@ -271,9 +273,250 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
   ArmSnapshot initial;
   for (std::size_t i = 0; i < teleop::kArmJoints; ++i) initial.setpoint[i] = rc.joints[i].initial_position;
   published_.store(initial);
+  if (ultrasound_) set_up_calibrations();
 }
 
-SerialArm::~SerialArm() = default;
+namespace {
+
+Eigen::Isometry3d pose_rpy(const Eigen::Vector3d& position, const Eigen::Vector3d& rpy) {
+  Eigen::Isometry3d h = Eigen::Isometry3d::Identity();
+  h.linear() = (Eigen::AngleAxisd(rpy.z(), Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(rpy.y(), Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rpy.x(), Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  h.translation() = position;
+  return h;
+}
+
+}  // namespace
+
+void SerialArm::set_up_calibrations() {
+  // The SIMULATED optical tracker defines {G} (ultrasound.simulation.tracker). Defaults: the arm's base
+  // 1.2 m from its origin, turned 35° about the vertical and tilted 1–2° (a camera rig's frame is never
+  // level with a robot's), the marker rigid body 60 mm behind the probe face, turned 10° (our choices:
+  // the seed gives none), and the errors of seed §4.6.
+  OpticalTrackerSettings t;
+  t.global_T_base = pose_rpy({850.0, -620.0, 540.0}, {0.02, -0.03, 0.61});
+  t.marker_T_probe = pose_rpy({5.0, -40.0, 60.0}, {0.1, 0.05, 0.17});
+  const auto u = config_.settings.find("ultrasound");
+  if (u != config_.settings.end() && u->contains("simulation") && (*u)["simulation"].contains("tracker")) {
+    const Reader r = Reader(*u, config_.file.string(), "ultrasound").child("simulation").child("tracker");
+    auto pose = [&](const char* key, const Eigen::Isometry3d& fallback) {
+      if (!r.has(key)) return fallback;
+      const Reader p = r.child(key);
+      return pose_rpy(vector3(p, "position_mm", fallback.translation()),
+                      vector3(p, "rpy_rad", Eigen::Vector3d::Zero()));
+    };
+    auto pair = [&](const char* key, double& mean, double& spread) {
+      if (!r.has(key)) return;
+      const auto& v = r.raw(key);
+      if (!v.is_array() || v.size() != 2 || !v[0].is_number() || !v[1].is_number() ||
+          v[0].get<double>() < 0 || v[1].get<double>() < 0)
+        r.fail(key, "two numbers ≥ 0 (mean, spread)", v);
+      mean = v[0].get<double>();
+      spread = v[1].get<double>();
+    };
+    t.global_T_base = pose("base_in_global", t.global_T_base);
+    t.marker_T_probe = pose("probe_in_marker", t.marker_T_probe);
+    t.rate_hz = r.positive_or("rate_hz", t.rate_hz);
+    pair("triangulation_error_mm", t.triangulation_mean_mm, t.triangulation_sd_mm);
+    pair("robot_error_mm", t.robot_error_mean_mm, t.robot_error_sd_mm);
+    t.rotation_noise_deg = r.non_negative_or("rotation_noise_deg", t.rotation_noise_deg);
+    t.seed = static_cast<std::uint64_t>(r.integer_in_or("seed", 0, 1L << 40, static_cast<long>(t.seed)));
+  }
+  tracker_settings_ = t;
+  tracker_ = std::make_unique<SimulatedOpticalTracker>(t);
+  // Dwell 0.3 s at each pose (the arm's joints settle within it); the tracker may be silent 100 ms.
+  calibration_motion_ = std::make_unique<CalibrationMotion>(settings_.cartesian, settings_.gains, 0.3, 0.1);
+  try {
+    store_ = std::make_unique<CalibrationStore>(default_calibration_directory(config_.name), config_.name);
+    runner_ = std::make_unique<CalibrationRunner>(*store_);
+    runner_->add(
+        {"robot",
+         "robot–world (hand-eye): H_B^G, the arm's base in the tracker's frame, and the marker→probe "
+         "transform, from 12 poses near the current one",
+         "POST /api/v1/robots/" + config_.name + "/calibrate {\"kind\":\"robot\"}", true},
+        [this](const OperatingStateView& state) { return start_robot_calibration(state); });
+    // The image-to-probe ("us", required by the sweep) and catheter mold calibrations (helper uscal).
+    us_calibrations_ = std::make_unique<UltrasoundCalibrations>(
+        config_.name, *runner_, UltrasoundCalibrationSimulation::standard(),
+        [this]() -> std::optional<std::string> {
+          const SweepPhase phase = sweep_snapshot().phase;
+          if (phase == SweepPhase::idle || phase == SweepPhase::planned || phase == SweepPhase::done ||
+              phase == SweepPhase::aborted)
+            return std::nullopt;
+          return std::string("calibrate: the sweep is using the probe (phase ") + to_string(phase) +
+                 "); abort it (POST …/sweep {\"action\":\"abort\"}) before calibrating the image";
+        });
+  } catch (const CalibrationStoreError& e) {
+    throw ConfigError(config_.file.string() + ": ultrasound: " + e.what());
+  }
+  for (const auto& problem : store_->problems()) std::fprintf(stderr, "tendrild: %s\n", problem.c_str());
+  publish_calibration_in_use();
+}
+
+void SerialArm::publish_calibration_in_use() {
+  BaseCalibration b;
+  if (store_) {
+    if (const auto current = store_->current("robot")) {
+      const auto it = current->transforms.find("H_B^G");
+      if (it != current->transforms.end()) {
+        b.valid = true;
+        b.global_T_base = to_array(it->second);
+      }
+    }
+  }
+  std::lock_guard lock(worker_mutex_);
+  base_calibration_.store(b);
+}
+
+SerialArm::~SerialArm() {
+  stopping_.store(true);
+  std::thread worker;
+  {
+    std::lock_guard lock(worker_mutex_);
+    worker = std::move(worker_);
+  }
+  if (worker.joinable()) worker.join();
+}
+
+std::optional<std::string> SerialArm::start_robot_calibration(const OperatingStateView& state) {
+  const std::string& robot = config_.name;
+  const SweepSnapshot sweep = sweep_published_.load();
+  const SweepPhase phase = sweep.phase;
+  if (phase == SweepPhase::pre_positioning || phase == SweepPhase::ready ||
+      phase == SweepPhase::approaching || phase == SweepPhase::acquiring || phase == SweepPhase::moving ||
+      phase == SweepPhase::paused)
+    return "calibrate: the sweep is " + std::string(to_string(phase)) +
+           "; abort it first (POST /api/v1/robots/" + robot + "/sweep {\"action\":\"abort\"})";
+  if (state.state != safety::OperatingState::kEnabled || !state.drives_ready)
+    return "calibrate: robot '" + robot + "' is " + std::string(safety::to_string(state.state)) +
+           "; enable it (or resume it) first";
+  if (state.mode != "cartesian")
+    return "calibrate: robot '" + robot + "' is in " + state.mode +
+           " mode; switch to cartesian mode (POST /api/v1/robots/" + robot +
+           "/mode {\"mode\": \"cartesian\"}) first: the routine moves the probe through 12 poses near where "
+           "it is";
+  const ArmSnapshot arm = published_.load();
+  if (arm.motion != ArmMotion::none)
+    return "calibrate: a Cartesian " + std::string(to_string(arm.motion)) + " is running; wait for it to end";
+  const double f = Eigen::Vector3d(arm.force_n[0], arm.force_n[1], arm.force_n[2]).norm();
+  if (arm.force_valid && f > 0.3)
+    return "calibrate: the probe touches something (" + format("%.2f N", f) +
+           "); lift it off the skin first (the routine tilts it by 0.4 rad)";
+  // The poses, checked before anything moves: inside the workspace box, and reachable from here.
+  const teleop::ArmVector q0 = Eigen::Map<const teleop::ArmVector>(arm.setpoint.data());
+  teleop::SerialArmData d = model_.make_data();
+  if (!model_.forward_kinematics(q0, d)) return "calibrate: the arm's pose is not known";
+  CalibrationPosesData poses;
+  calibration_poses(d.tool, 12, 0.4, 10.0, poses);
+  for (int i = 0; i < poses.count; ++i) {
+    const Eigen::Isometry3d goal = to_isometry(poses.poses[static_cast<std::size_t>(i)]);
+    const Eigen::Vector3d p = goal.translation();
+    if ((p.array() < settings_.workspace_min.array()).any() ||
+        (p.array() > settings_.workspace_max.array()).any())
+      return "calibrate: pose " + std::to_string(i + 1) +
+             " of the routine leaves the workspace box; move the probe "
+             "farther inside it first";
+    double duration = 0.0;
+    if (auto why = dry_run(d.tool, q0, goal, duration))
+      return "calibrate: pose " + std::to_string(i + 1) + " cannot be reached from here (" + why->message +
+             "); move the probe to a more open pose first";
+  }
+  std::lock_guard lock(worker_mutex_);
+  if (worker_.joinable()) worker_.join();  // the previous run's worker has finished (the runner allows one)
+  poses.run = ++run_;
+  calibration_poses_.store(poses);
+  PluginCommand c;
+  c.id = static_cast<std::uint16_t>(ArmCommand::calibration_start);
+  c.count = 1;
+  c.values[0] = static_cast<double>(poses.run);
+  if (!post_ || !post_(c)) return "calibrate: the control thread's mailbox is full; try again";
+  worker_ = std::thread([this, run = poses.run] { robot_calibration_worker(run); });
+  return std::nullopt;
+}
+
+void SerialArm::robot_calibration_worker(std::uint32_t run) {
+  using namespace std::chrono_literals;
+  const auto started = std::chrono::steady_clock::now();
+  CalibrationSnapshot s;
+  for (;;) {
+    if (stopping_.load()) {
+      runner_->finish(false, 0, "robot calibration: the server is stopping");
+      return;
+    }
+    s = calibration_published_.load();
+    if (s.run == run) {
+      if (s.phase == CalibrationPhase::collected || s.phase == CalibrationPhase::failed) break;
+      runner_->progress(s.pose + 1, s.poses, s.message.data());
+    } else if (std::chrono::steady_clock::now() - started > 3s) {
+      runner_->finish(false, 0,
+                      "robot calibration: the control thread did not start it (the robot's state or mode "
+                      "changed before it arrived)");
+      return;
+    }
+    std::this_thread::sleep_for(20ms);
+  }
+  if (s.phase == CalibrationPhase::failed) {
+    runner_->finish(false, 0, std::string(s.message.data()) + "; the previous calibration stays in use");
+    return;
+  }
+  runner_->progress(s.poses, s.poses, "solving A_k X = Y F_k");
+  CalibrationPairsData pairs = calibration_pairs_.load();
+  for (int tries = 0; pairs.run != run && tries < 100 && !stopping_.load(); ++tries) {
+    std::this_thread::sleep_for(10ms);
+    pairs = calibration_pairs_.load();
+  }
+  if (pairs.run != run) {
+    runner_->finish(false, 0, "robot calibration: the recorded poses did not arrive");
+    return;
+  }
+  std::vector<ultrasound::HandEyePair> input;
+  input.reserve(static_cast<std::size_t>(pairs.count));
+  for (int k = 0; k < pairs.count; ++k)
+    input.push_back({to_isometry(pairs.tracked[static_cast<std::size_t>(k)]),
+                     to_isometry(pairs.kinematic[static_cast<std::size_t>(k)])});
+  const auto result = ultrasound::solve_hand_eye(input);
+  if (!result.ok) {
+    runner_->finish(false, 0, result.message + "; the previous calibration stays in use");
+    return;
+  }
+  // Validation: the residual must stay within twice the error budget's quadrature sum (0.64 mm).
+  constexpr double kAcceptRmsMm = 1.3;
+  CalibrationRecord record;
+  record.kind = "robot";
+  record.method =
+      "seed 002 §4.2: A_k X = Y F_k over " + std::to_string(result.pairs) +
+      " poses (rotation: Park–Martin least squares in Procrustes form; translations: linear least squares; " +
+      std::to_string(result.iterations) + " Gauss–Newton iterations); SIMULATED optical tracker";
+  record.transforms["H_B^G"] = result.world_T_base;
+  record.transforms["H_U^M"] = result.marker_T_probe;
+  record.values["pairs"] = result.pairs;
+  record.values["rotation_spread_rad"] = result.rotation_spread_rad;
+  record.residual_mm = result.rms_position_mm;
+  record.residuals = {{"rms_mm", result.rms_position_mm},
+                      {"max_mm", result.max_position_mm},
+                      {"rms_rotation_deg", result.rms_rotation_rad * 180.0 / M_PI},
+                      {"max_rotation_deg", result.max_rotation_rad * 180.0 / M_PI},
+                      {"closed_form_rms_mm", result.closed_form_rms_position_mm},
+                      {"accept_rms_mm", kAcceptRmsMm}};
+  record.valid = result.rms_position_mm <= kAcceptRmsMm;
+  record.summary =
+      record.valid
+          ? "H_B^G from " + std::to_string(result.pairs) + " poses, residual " +
+                format("%.2f mm rms", result.rms_position_mm) + format(" (max %.2f)", result.max_position_mm)
+          : "rejected: residual " + format("%.2f mm rms", result.rms_position_mm) +
+                format(" over %.1f mm", kAcceptRmsMm) + " (did the marker slip, or the arm touch something?)";
+  try {
+    const auto saved = store_->save(std::move(record));
+    if (saved.valid) publish_calibration_in_use();
+    runner_->finish(saved.valid, saved.version,
+                    "robot calibration version " + std::to_string(saved.version) + ": " + saved.summary +
+                        (saved.valid ? "" : "; the previous calibration stays in use"));
+  } catch (const CalibrationStoreError& e) {
+    runner_->finish(false, 0, std::string(e.what()) + "; the previous calibration stays in use");
+  }
+}
 
 // The ultrasound imaging and reconstruction topics (helper usimg; ultrasound_topics.cpp).
 std::vector<std::shared_ptr<TopicSource>> SerialArm::topic_sources() {
@@ -462,6 +705,7 @@ std::optional<ServiceError> SerialArm::resume_refusal(const OperatingStateView& 
 std::unique_ptr<RobotApiExtension> SerialArm::api(RobotService& service,
                                                   std::function<bool(const PluginCommand&)> post) {
   // The CRTK commands reach the arm through cartesian_command(); the sweep command is the API's.
+  post_ = post;  // the calibration routine posts its start too
   return make_serial_arm_api(*this, service, std::move(post));
 }
 

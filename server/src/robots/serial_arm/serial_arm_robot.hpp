@@ -25,16 +25,23 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "serial_arm/calibration_motion.hpp"
+#include "serial_arm/calibration_runner.hpp"
+#include "serial_arm/calibration_store.hpp"
 #include "serial_arm/limb_simulation.hpp"
+#include "serial_arm/ultrasound_calibrations.hpp"
 #include "serial_arm/ultrasound_probe_state.hpp"
 #include "serial_arm/ultrasound_sweep.hpp"
 #include "tendril/drivers/hardware/latest_value.hpp"
@@ -57,8 +64,18 @@ inline constexpr ModeId kCartesianMode = kFirstPluginMode;
 inline constexpr ModeId kSweepMode = kFirstPluginMode + 1;
 
 // PluginCommand::id of the Cartesian commands.
-// sweep_load: the plan is in SerialArm's plan slot; sweep_action: values[0] is a SweepAction.
-enum class ArmCommand : std::uint16_t { move_cp, servo_cp, servo_cv, sweep_load, sweep_action };
+// sweep_load: the plan is in SerialArm's plan slot; sweep_action: values[0] is a SweepAction;
+// calibration_start: the robot calibration's poses are in SerialArm's poses slot, values[0] is the run;
+// calibration_abort: ends a running routine.
+enum class ArmCommand : std::uint16_t {
+  move_cp,
+  servo_cp,
+  servo_cv,
+  sweep_load,
+  sweep_action,
+  calibration_start,
+  calibration_abort
+};
 
 // What the Cartesian controller is doing.
 enum class ArmMotion : std::uint8_t { none, move_cp, servo_cp, servo_cv };
@@ -132,6 +149,10 @@ class SerialArmController final : public RobotController {
   void stop(ControlContext& ctx) noexcept;
   void sweep(ControlContext& ctx) noexcept;                        // mode sweep
   Eigen::Vector3d force_base(const ControlContext& ctx) noexcept;  // the reading in the base frame
+  void calibrate(ControlContext& ctx) noexcept;                    // the robot calibration's motion
+  // The tracked limb in the base frame: the tracker's limb pose in {G} through the calibrated H_B^G
+  // (before any calibration the limb tracker's own base-frame pose).
+  Eigen::Isometry3d limb_in_base(const LimbPoseSample& limb) const noexcept;
 
   SerialArm& robot_;
   teleop::SerialArmData data_;   // workspace of the setpoint's kinematics
@@ -152,6 +173,10 @@ class SerialArmController final : public RobotController {
   bool retracting_ = false;
   double retracted_mm_ = 0.0;
   std::uint64_t ticks_ = 0;  // publish() calls: the probe state's tick
+  // H_B^G of the calibration in use (calibration_load), and whether there is one.
+  Eigen::Isometry3d global_T_base_ = Eigen::Isometry3d::Identity();
+  bool base_calibrated_ = false;
+  bool pairs_published_ = false;  // the calibration run's pairs are in SerialArm's slot
 };
 
 // The tool's kinematics for the API: pose, twist, and a polyline through the joint frames (mm).
@@ -203,6 +228,27 @@ class SerialArm final : public RobotPlugin {
   // Stores a new plan and hands its via-points to the control thread's slot (network thread).
   void set_sweep_plan(std::shared_ptr<const SweepPlan> plan);
 
+  // The calibrations (null without the "ultrasound" section): the store, the routines and their state.
+  // The "us" and "catheter" calibrations (ultrasound_calibrations.hpp); null without "ultrasound".
+  const UltrasoundCalibrations* ultrasound_calibrations() const noexcept { return us_calibrations_.get(); }
+  CalibrationRunner* calibrations() noexcept { return runner_.get(); }
+  const CalibrationRunner* calibrations() const noexcept { return runner_.get(); }
+  CalibrationSnapshot calibration_snapshot() const noexcept { return calibration_published_.load(); }
+  // The SIMULATED optical tracker's settings (the true H_B^G and X); null without "ultrasound".
+  const OpticalTrackerSettings* tracker_settings() const noexcept {
+    return tracker_settings_ ? &*tracker_settings_ : nullptr;
+  }
+  // SIMULATED: hides the probe's marker from the tracker (its samples stop), for tests.
+  void set_marker_hidden(bool hidden) noexcept { marker_hidden_.store(hidden); }
+  // The robot calibration in use's H_B^G (any thread; nullopt before one).
+  std::optional<Eigen::Isometry3d> calibrated_global_T_base() const noexcept {
+    const auto b = base_calibration_.load();
+    if (!b.valid) return std::nullopt;
+    return to_isometry(b.global_T_base);
+  }
+  // Hands the robot calibration in use (its H_B^G) to the control thread's slot (network threads).
+  void publish_calibration_in_use();
+
   const RobotConfig& config() const noexcept { return config_; }
   const ArmSettings& settings() const noexcept { return settings_; }
   const teleop::SerialArmKinematics& model() const noexcept { return model_; }
@@ -222,6 +268,12 @@ class SerialArm final : public RobotPlugin {
   std::optional<ServiceError> dry_run(const Eigen::Isometry3d& start, const teleop::ArmVector& q0,
                                       const Eigen::Isometry3d& goal, double& duration) const;
 
+  // The "robot" kind's routine (network thread): checks, chooses the poses, starts the motion and the
+  // worker that solves and saves.
+  void set_up_calibrations();  // constructor, with "ultrasound"
+  std::optional<std::string> start_robot_calibration(const OperatingStateView& state);
+  void robot_calibration_worker(std::uint32_t run);
+
   RobotConfig config_;
   ArmSettings settings_;
   std::optional<UltrasoundSettings> ultrasound_;
@@ -239,6 +291,27 @@ class SerialArm final : public RobotPlugin {
   hardware::LatestValue<SweepSnapshot> sweep_published_;
   mutable std::mutex plan_mutex_;  // network threads only
   std::shared_ptr<const SweepPlan> plan_;
+  // Calibrations (with "ultrasound" only).
+  std::optional<OpticalTrackerSettings> tracker_settings_;
+  std::unique_ptr<SimulatedOpticalTracker> tracker_;          // control thread only
+  std::unique_ptr<CalibrationMotion> calibration_motion_;     // control thread only
+  AlternatingValue<CalibrationPosesData> calibration_poses_;  // network → control thread
+  hardware::LatestValue<CalibrationSnapshot> calibration_published_;
+  hardware::LatestValue<CalibrationPairsData> calibration_pairs_;  // control → worker, once per run
+  struct BaseCalibration {                                         // trivially copyable
+    bool valid = false;
+    std::array<double, 16> global_T_base{};  // column-major
+  };
+  AlternatingValue<BaseCalibration> base_calibration_;  // network → control thread (writers: worker_mutex_)
+  std::atomic<bool> marker_hidden_{false};
+  std::unique_ptr<CalibrationStore> store_;
+  std::unique_ptr<CalibrationRunner> runner_;
+  std::unique_ptr<UltrasoundCalibrations> us_calibrations_;  // after runner_: its worker ends first
+  std::function<bool(const PluginCommand&)> post_;           // the control thread's mailbox (set by api())
+  std::mutex worker_mutex_;                                  // guards worker_ and run_
+  std::thread worker_;
+  std::uint32_t run_ = 0;
+  std::atomic<bool> stopping_{false};
 };
 
 // The type's part of the network API (serial_arm_api.cpp).

@@ -171,6 +171,28 @@ void UltrasoundTopics::set_plan(ultrasound::SweepPlan plan) {
   pending_plan_ = std::move(plan);
 }
 
+void UltrasoundTopics::apply_calibrations() {
+  if (settings_.image_calibration_reader) {
+    const auto image = settings_.image_calibration_reader();
+    if (image && image->first != image_version_.load(std::memory_order_relaxed)) {
+      session_.set_image_calibration(image->second);  // a stored calibration is valid: it was checked
+      image_version_.store(image->first, std::memory_order_relaxed);
+    }
+  }
+  if (settings_.fiber_calibration_reader) {
+    const auto fiber = settings_.fiber_calibration_reader();
+    if (fiber && fiber->first != fiber_version_.load(std::memory_order_relaxed)) {
+      session_.set_fiber_in_base(fiber->second);
+      fiber_version_.store(fiber->first, std::memory_order_relaxed);
+    }
+  }
+}
+
+std::optional<Eigen::Vector3d> UltrasoundTopics::last_slice_centroid() const {
+  std::lock_guard lock(topics_mutex_);
+  return last_centroid_;
+}
+
 void UltrasoundTopics::reset() {
   std::lock_guard lock(pending_mutex_);
   pending_reset_ = true;
@@ -262,6 +284,7 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     if (reset) session_.reset();
     if (plan) session_.set_plan(std::move(*plan));
     slices_.store(session_.slices().size(), std::memory_order_relaxed);
+    apply_calibrations();
   }
   const std::optional<UltrasoundProbeState> state = probe_state_();
   if (state) latch(*state);
@@ -293,6 +316,11 @@ void UltrasoundTopics::step(std::uint64_t now_ns) {
     if (outcome.status == ultrasound::SessionStatus::ok ||
         outcome.status == ultrasound::SessionStatus::no_vessel)
       framed = true;
+    if (outcome.stored_slice) {
+      std::lock_guard lock(topics_mutex_);
+      for (const auto& stored : session_.slices())
+        if (stored.via_point == s.via_point) last_centroid_ = stored.slice.centroid;
+    }
   };
   // The latched acquisitions first (a slice is stored whether or not anyone looks), then, while the image
   // or annotations topic is watched, the newest state.
@@ -500,9 +528,10 @@ std::string UltrasoundTopics::tf_message(const UltrasoundProbeState& state, std:
   const std::string base = settings_.robot + "_base", probe = settings_.robot + "_probe",
                     image = settings_.robot + "_image";
   json transforms = json::array();
-  transforms.push_back(transform("world", base, settings_.world_T_base, now_ns));
-  transforms.push_back(
-      transform(base, probe, settings_.world_T_base.inverse() * state.world_T_probe, now_ns));
+  const Eigen::Isometry3d world_T_base =
+      settings_.world_T_base_reader ? settings_.world_T_base_reader() : settings_.world_T_base;
+  transforms.push_back(transform("world", base, world_T_base, now_ns));
+  transforms.push_back(transform(base, probe, world_T_base.inverse() * state.world_T_probe, now_ns));
   transforms.push_back(transform("world", "tissue", state.world_T_limb, now_ns));
   transforms.push_back(transform(probe, image, session_.config().image_in_probe, now_ns));
   const ultrasound::CatheterState& c = session_.catheter();
@@ -624,6 +653,10 @@ std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm) {
   }
   UltrasoundTopicsSettings settings;
   settings.robot = arm.config().name;
+  // The SIMULATED scanner and fibre at their true calibrations, the reconstruction mapping with the
+  // versions in use (helper uscal's "us" and "catheter").
+  if (const UltrasoundCalibrations* calibrations = arm.ultrasound_calibrations())
+    use_ultrasound_calibrations(*calibrations, session, settings);
   // The plan as the arm holds it, converted once per new plan (this lambda runs on the worker only).
   settings.plan_reader = [&arm, seen = std::shared_ptr<const SweepPlan>(),
                           converted = std::shared_ptr<const ultrasound::SweepPlan>()]() mutable {
@@ -643,10 +676,21 @@ std::shared_ptr<UltrasoundTopics> make_us_arm_topics(const SerialArm& arm) {
     }
     return converted;
   };
+  // "world" is the optical tracker's global frame {G} once the arm has a robot calibration: the arm's
+  // base at the calibrated H_B^G, and the probe state (in the base frame) brought into {G} with it, so
+  // every world pose the session and /tf use agrees (before a calibration world = the base frame).
+  settings.world_T_base_reader = [&arm] {
+    return arm.calibrated_global_T_base().value_or(Eigen::Isometry3d::Identity());
+  };
   return std::make_shared<UltrasoundTopics>(std::move(session), std::move(settings),
                                             [&arm]() -> std::optional<UltrasoundProbeState> {
                                               UltrasoundProbeState s = arm.probe_state();
                                               if (s.tick == 0) return std::nullopt;  // nothing published yet
+                                              if (const auto g = arm.calibrated_global_T_base()) {
+                                                s.world_T_probe = *g * s.world_T_probe;
+                                                s.world_T_limb = *g * s.world_T_limb;
+                                                s.world_T_limb_true = *g * s.world_T_limb_true;
+                                              }
                                               return s;
                                             });
 }

@@ -36,6 +36,7 @@
 #include <optional>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "serial_arm/ultrasound_probe_state.hpp"
@@ -50,11 +51,19 @@ struct UltrasoundTopicsSettings {
   double catheter_hz = 5.0;      // FBG frames
   double scene_hz = 2.0;         // /reconstruction while watched (at once, too, on a new slice or plan)
   Eigen::Isometry3d world_T_base = Eigen::Isometry3d::Identity();  // the arm's base in the world
+  // Polled at each /tf (optional): the arm's base in the world now (the us_arm: the calibrated H_B^G of
+  // the robot calibration in use); when set it replaces world_T_base.
+  std::function<Eigen::Isometry3d()> world_T_base_reader;
   std::size_t max_surface_points = 600;  // the scene's skin cloud, evenly thinned to this many
   bool own_thread = true;                // false: the caller drives step() (tests)
   // Polled by the worker at each step (optional): a plan pointer it has not seen is set (and the
   // slices of the previous plan are forgotten: a new plan is a new sweep). The alternative to set_plan().
   std::function<std::shared_ptr<const ultrasound::SweepPlan>()> plan_reader;
+  // Polled by the worker at each step (optional): the image-to-probe calibration (H_I^U, s_u, s_v) and
+  // the catheter's H_F^C in use, each with its version; a version it has not applied is handed to the
+  // session (slices from then on are mapped with it; the stored ones stay as they were mapped).
+  std::function<std::optional<std::pair<int, ultrasound::ImageCalibration>>()> image_calibration_reader;
+  std::function<std::optional<std::pair<int, Eigen::Isometry3d>>()> fiber_calibration_reader;
 };
 
 class UltrasoundTopics final : public TopicSource {
@@ -90,6 +99,12 @@ class UltrasoundTopics final : public TopicSource {
 
   // For tests and the sweep's state: slices stored so far and the last refusal's sentence.
   std::size_t slices() const noexcept { return slices_.load(std::memory_order_relaxed); }
+  // The calibration versions the session maps with (0: the configured ones), for tests and the state.
+  int image_calibration_version() const noexcept { return image_version_.load(std::memory_order_relaxed); }
+  int fiber_calibration_version() const noexcept { return fiber_version_.load(std::memory_order_relaxed); }
+  // The session's newest stored slice centroid in the tissue frame (tests: the calibration in use shows
+  // there); nullopt before the first.
+  std::optional<Eigen::Vector3d> last_slice_centroid() const;
   std::string last_message() const;
 
   // Topic names.
@@ -102,6 +117,7 @@ class UltrasoundTopics final : public TopicSource {
   void run();
   void poll();
   void latch(const UltrasoundProbeState& state);
+  void apply_calibrations();  // worker: the readers' new versions into the session
   void publish(const std::string& topic, std::string message, std::uint64_t now_ns);
   bool wanted(const std::string& topic) const;
   std::string image_message(const ultrasound::SessionFrame& frame, std::uint64_t now_ns) const;
@@ -134,6 +150,8 @@ class UltrasoundTopics final : public TopicSource {
   std::uint64_t next_catheter_ns_ = 0, next_scene_ns_ = 0, scene_revision_ = ~0ULL;
   std::uint64_t last_frame_stamp_ = 0;
   std::atomic<std::size_t> slices_{0};
+  std::atomic<int> image_version_{0}, fiber_version_{0};
+  std::optional<Eigen::Vector3d> last_centroid_;  // guarded by topics_mutex_
   std::mutex stop_mutex_;
   std::condition_variable stop_cv_;
   bool stopping_ = false;

@@ -39,6 +39,7 @@
 #include "tendril/ultrasound/ellipse_ekf.hpp"
 #include "tendril/ultrasound/fbg_shape.hpp"
 #include "tendril/ultrasound/preoperative_plan.hpp"
+#include "tendril/ultrasound/probe_calibration.hpp"
 #include "tendril/ultrasound/simulated_bmode.hpp"
 
 namespace tendril::ultrasound {
@@ -77,11 +78,19 @@ struct ReconstructionSessionConfig {
   EllipseEkfParameters ekf{};
   // H_I^U: the calibrated image-to-probe transform (the image plane 0.5 mm below the probe face).
   Eigen::Isometry3d image_in_probe = Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, 0.5));
+  // The calibrated pixel scales s_u, s_v (mm per pixel) the slices are mapped with; 0: the geometry's
+  // pixel size. The segmentation runs in the geometry's pixels either way.
+  double image_scale_u = 0.0, image_scale_v = 0.0;
+  // SIMULATED: where the scanner truly images (H_I^U and scales), so that a calibration error shows in
+  // the reconstruction; none: exactly where the calibration above says.
+  std::optional<ImageCalibration> simulated_true_image;
   // The catheter's centreline in {P}, a dense polyline (≤ 1 mm segments) from the fibre's first
   // grating on, at least the fibre's length; empty: no catheter.
   std::vector<Eigen::Vector3d> catheter_path;
   MulticoreFiber fiber{};
   Eigen::Isometry3d fiber_in_base = Eigen::Isometry3d::Identity();  // H_F^C (calibrated)
+  // SIMULATED: where the fibre truly sits in the catheter base; none: exactly at fiber_in_base.
+  std::optional<Eigen::Isometry3d> simulated_true_fiber_in_base;
   double fbg_noise_pm = 1.2;
   CatheterContactParameters contact{};
   SimulatedMeasurementErrors errors{};
@@ -162,6 +171,14 @@ class UltrasoundReconstructionSession {
   // Forgets the slices, the mesh and the catheter (a new sweep).
   void reset();
 
+  // A new image-to-probe calibration (H_I^U, s_u, s_v): images from now on are mapped with it; the
+  // stored slices stay as they were mapped. Throws UltrasoundSetupError for an invalid one.
+  void set_image_calibration(const ImageCalibration& calibration);
+  // The calibration the slices are mapped with.
+  ImageCalibration image_calibration() const noexcept;
+  // A new H_F^C for Eq. 2 (the next catheter update uses it). Throws UltrasoundSetupError unless rigid.
+  void set_fiber_in_base(const Eigen::Isometry3d& fiber_in_base);
+
   const std::optional<SessionFrame>& last_frame() const noexcept { return frame_; }
   const std::vector<StoredSlice>& slices() const noexcept { return slices_; }  // in via-point order
   const teleop::TriangleMesh& mesh() const noexcept { return mesh_; }          // {P}; empty below 2 slices
@@ -173,6 +190,9 @@ class UltrasoundReconstructionSession {
 
  private:
   Eigen::Isometry3d perturbed(const Eigen::Isometry3d& pose, double mean, double sd);
+  double scale_u() const noexcept;  // calibrated s_u over the geometry's pixel size
+  double scale_v() const noexcept;
+  SliceSegmentation calibrated(const SliceSegmentation& segmentation) const;
   Eigen::Vector2d seed_for(const ProbeSample& sample, const Eigen::Isometry3d& tissue_T_image) const;
   SessionOutcome segment_and_store(const ProbeSample& sample, const BModeImage& image,
                                    const Eigen::Isometry3d& tissue_T_image,

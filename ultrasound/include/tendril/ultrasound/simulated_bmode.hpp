@@ -34,6 +34,9 @@ struct SimulatedBModeParameters {
   double wall_specular = 0.6;   // fraction of the wall echo that falls with the incidence angle
   double attenuation = 0.015;   // 1/mm of amplitude after time-gain compensation
   double noise_sigma = 0.04;    // additive Gaussian noise (of the [0, 1] scale)
+  // SIMULATED calibration error: the scanner's true mm per pixel over the geometry's pixel size, along
+  // a row and down a column (1: the nominal pixel size is exact).
+  double lateral_scale = 1.0, axial_scale = 1.0;
 };
 
 // Where the vessel crosses one image plane: the truth a segmentation is scored against.
