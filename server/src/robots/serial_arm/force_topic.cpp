@@ -128,7 +128,9 @@ std::vector<TopicInfo> ArmForceTopic::topics() const {
         {"in_contact", {{"type", "boolean"}}},
         {"phase", {{"type", {"string", "null"}}}},
         {"fresh", {{"type", "boolean"}}}}}};
-  return {{topic(), "tendril.ArmForce", schema.dump()}};
+  TopicInfo info{topic(), "tendril.ArmForce", schema.dump()};
+  info.recorded_always = true;  // ~250 bytes per tick: a recorded sweep keeps its force curve
+  return {info};
 }
 
 std::optional<TopicPayload> ArmForceTopic::latest(const std::string& topic_name,

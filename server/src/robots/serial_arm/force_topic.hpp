@@ -15,9 +15,9 @@
 // (/us_arm/force.normal_n) and the console's force plot reads it. The control thread does nothing new:
 // the reads are seqlock loads (the control thread never waits for them).
 //
-// The thread produces messages only while someone watches or a recording keeps the topic (the front
-// end's set_demand: a session recording keeps a source's topics while they are watched, or always with
-// its images_always); a stalled control loop publishes no new tick, so the topic's rate shows the loop's.
+// The thread produces messages only while someone watches or a session recording keeps the topic (the
+// front end's set_demand; the topic is TopicInfo::recorded_always, so a recording keeps it even while
+// nobody watches); a stalled control loop publishes no new tick, so the topic's rate shows the loop's.
 #pragma once
 
 #include <array>
