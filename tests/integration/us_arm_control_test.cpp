@@ -133,6 +133,55 @@ TEST(UsArmForceTopic, RefusesBadSettings) {
   EXPECT_FALSE(m["fresh"].get<bool>());
 }
 
+// The SIMULATED tracker's noise is what the file asks (σ = 0.3 mm per axis), and the sweep's filter
+// takes it down while it follows the limb's motion: 120 Hz reports of the limb's PLM through the
+// shipped 0.5 Hz alpha-beta filter, compared with the truth at the report's time.
+TEST(UsArmTrackerFilter, TheFilterRemovesMostOfTheTrackersNoiseAndFollowsTheLimb) {
+  const RobotConfig rc = load_robot_config(kConfig / "us_arm.json");
+  const auto us = parse_ultrasound_settings(rc);
+  ASSERT_TRUE(us.has_value());
+  EXPECT_DOUBLE_EQ(us->limb.tracker_noise, 0.3);
+  EXPECT_DOUBLE_EQ(us->tracker_filter_hz, 0.5);
+  LimbSimulation limb(us->limb);
+  LimbPoseFilter filter;
+  filter.configure(us->tracker_filter_hz, 1.0 / us->limb.tracker_rate);
+  const Eigen::Vector3d via(40.0, 0.0, 0.0);  // a point on the skin 40 mm along the limb
+  double raw2 = 0.0, filtered2 = 0.0, velocity2 = 0.0, speed2 = 0.0;
+  int n = 0;
+  double last_t = -1.0;
+  for (int i = 0; i <= 60'000; ++i) {  // 60 s at 1 kHz: two PLM periods
+    const double t = i * 1e-3;
+    limb.advance(t);
+    const LimbPoseSample k = limb.tracked();
+    if (k.t == last_t) continue;
+    last_t = k.t;
+    filter.update(to_isometry(k.pose), k.t);
+    if (t < 5.0) continue;  // the filter's start (its time constant is 1/ω_n ≈ 0.3 s)
+    const Eigen::Isometry3d truth = limb.pose_at(k.t);
+    raw2 += (to_isometry(k.pose).translation() - truth.translation()).squaredNorm();
+    filtered2 += (filter.pose().translation() - truth.translation()).squaredNorm();
+    const Eigen::Vector3d v_true = (limb.pose_at(k.t + 1e-4) * via - limb.pose_at(k.t - 1e-4) * via) / 2e-4;
+    velocity2 += (filter.point_velocity(via) - v_true).squaredNorm();
+    speed2 += v_true.squaredNorm();
+    ++n;
+  }
+  ASSERT_GT(n, 6000);
+  const double raw = std::sqrt(raw2 / n), filtered = std::sqrt(filtered2 / n);
+  const double velocity = std::sqrt(velocity2 / n), speed = std::sqrt(speed2 / n);
+  std::printf(
+      "tracker: raw %.3f mm rms (3 axes), filtered %.3f mm; velocity error %.3f mm/s rms (limb %.3f mm/s)\n",
+      raw, filtered, velocity, speed);
+  EXPECT_NEAR(raw, 0.3 * std::sqrt(3.0), 0.05);  // σ = 0.3 mm on each axis
+  EXPECT_LT(filtered, 0.3 * raw);
+  // A raw difference over one 8.3 ms report would be σ·√2·120 ≈ 50 mm/s per axis.
+  EXPECT_LT(velocity, 0.5);
+  EXPECT_GT(speed, 0.3);  // the limb did move
+  // A stall of the reports (> 0.1 s) restarts the filter from the next report.
+  const Eigen::Isometry3d far = Eigen::Translation3d(100.0, 0.0, 0.0) * limb.pose_at(last_t);
+  filter.update(far, last_t + 1.0);
+  EXPECT_LT((filter.pose().translation() - far.translation()).norm(), 1e-9);
+}
+
 // A closed loop of the seed's digital twin (§16 steps 4–5) around UltrasoundSweep alone: the arm as a
 // kinematic integrator of q̇ at 1 kHz, the SIMULATED limb (PLM, the 120 Hz tracker) and its skin as the
 // contact surface (0.5 N/mm), force noise 0.02 N. Only the sweep's step is counted.
