@@ -211,7 +211,10 @@ class UltrasoundPanel {
     u.gate.dataset.open = String(!!g.open);
     u.message.textContent = s.message || '';
     if (Number.isFinite(Number(s.force_target_n))) this.forceTarget = Number(s.force_target_n);
-    if (!this.forceFromTopic && Number.isFinite(Number(s.force_n))) this.plotForce(Number(s.force_n), stampMs);
+    // Until /{robot}/force arrives (a server without it), the 20 Hz F_n of /sweep is plotted instead.
+    if (!this.forceFromTopic && Number.isFinite(Number(s.force_n))) {
+      this.plotForce(Number(s.force_n), stampMs, s.in_contact ? 'contact' : 'free space');
+    }
     this.updateButtons();
     this.updateAge();
   }
@@ -221,16 +224,19 @@ class UltrasoundPanel {
     if (!Number.isFinite(normal)) return;
     this.forceFromTopic = true;
     if (Number.isFinite(Number(msg.target_n))) this.forceTarget = Number(msg.target_n);
-    this.plotForce(normal, stampMs);
+    this.plotForce(normal, stampMs, msg.in_contact ? 'contact' : 'free space');
   }
 
-  plotForce(normal, stampMs) {
+  // `mode`: the controller's mode (REQ-VIS-4): the hybrid controller's force phase is "contact".
+  plotForce(normal, stampMs, mode) {
     if (!Number.isFinite(this.t0)) this.t0 = stampMs;
     const t = (stampMs - this.t0) / 1000;
     this.forcePlot.push(0, t, normal);
     this.forcePlot.push(1, t, this.forceTarget);
-    this.ui.forceValue.textContent = `force: ${normal.toFixed(3)} N (target ${this.forceTarget.toFixed(2)} N)`;
+    this.ui.forceValue.textContent = `force: ${normal.toFixed(3)} N (target ${this.forceTarget.toFixed(2)} N) · ${mode}`;
     this.ui.forceValue.dataset.value = String(normal);
+    this.ui.forceValue.dataset.source = this.forceFromTopic ? 'force' : 'sweep';
+    this.ui.forceValue.dataset.samples = String(Number(this.ui.forceValue.dataset.samples || 0) + 1);
   }
 
   keepAnnotations(msg) {

@@ -263,6 +263,12 @@ test('a sweep runs from the console while the catheter is driven in the same ser
     // The force plot has samples and the force is near the target while acquiring.
     await page.waitForFunction(() => document.querySelector('[data-testid="us-force-plot"]').dataset.available === 'true',
       null, WAIT);
+    // ... from /us_arm/force (100 Hz), not the 20 Hz fallback of /us_arm/sweep.
+    const force = await page.evaluate(() => ({...document.querySelector('[data-testid="us-force"]').dataset}));
+    console.log(`# force plot: ${force.samples} samples, source ${force.source}, last ${force.value} N`);
+    assert.equal(force.source, 'force', JSON.stringify(force));
+    assert.ok(Number(force.samples) > 100, JSON.stringify(force));
+    assert.ok(Number.isFinite(Number(force.value)), JSON.stringify(force));
     // The 3D view is fixed to the tissue frame, which /tf gives.
     const tf = await page.evaluate(() => ({...document.querySelector('[data-testid="us-tf-info"]').dataset}));
     assert.equal(tf.fixedFrame, 'tissue');

@@ -265,8 +265,9 @@ TEST_F(UsArmSweepTest, FullSweepOnTheMovingLimbReachesDone) {
       n, step * 1e-3, first_peak, peak, max_gate_position, max_gate_angle, max_gate_force_error, error_mean,
       error_max);
   // Motion compensation: the probe stays on the moving via-point, well within the gate's 0.5 mm, while
-  // the slices are taken (measured 0.03 mm mean, 0.33 mm max; without the velocity feed-forward
-  // 0.23 mm and 0.51 mm).
+  // the slices are taken. With the shipped file's tracker noise (0.3 mm) through the 0.5 Hz alpha-beta
+  // filter: 0.089 mm mean, 0.34 mm max (noise-free reports through the filter 0.075 / 0.40 mm; before
+  // the noise and the filter 0.033 / 0.33 mm; without the velocity feed-forward 0.23 / 0.51 mm).
   EXPECT_LT(error_mean, 0.1);
   EXPECT_LT(error_max, 0.5);
   EXPECT_LT(peak, 3.0);  // never near F_max

@@ -213,9 +213,14 @@ void HttpServer::Impl::publish_once(bool only_sources) {
   if (opts.tap) {
     // What the recording wants is fetched (and, from a source, produced) even with no subscriber.
     std::lock_guard lock(channels_mutex);
-    for (const auto& [id, state] : channels)
-      if (!wanted.count(id) && opts.tap->wants(state.channel.topic, state.source != nullptr))
-        wanted.insert(id);
+    for (const auto& [id, state] : channels) {
+      if (wanted.count(id)) continue;
+      // A source's topic the recording may keep only while watched, unless the source marks it cheap.
+      const auto info = source_topics.find(state.channel.topic);
+      const bool costly =
+          state.source != nullptr && (info == source_topics.end() || !info->second.second.recorded_always);
+      if (opts.tap->wants(state.channel.topic, costly)) wanted.insert(id);
+    }
   }
   tell_sources_demand(wanted);
   for (const std::uint32_t channel_id : wanted) {

@@ -1,7 +1,8 @@
 // The ultrasound arm (robot us_arm: config/robots/us_arm.json) beside the catheter in one tendrild, in
 // real time: GET /robots, the sweep command's refusals with reasons (no sweep without a robot
 // calibration), the robot and image calibration routines, plan, pre_position, start while the catheter
-// moves, the /us_arm/sweep topic, abort. Run by tests/api/us_arm/run.sh (with a calibration store of its own).
+// moves, the /us_arm/sweep and /us_arm/force topics, abort. Run by tests/api/us_arm/run.sh (with a
+// calibration store of its own).
 import {test, after} from 'node:test';
 import assert from 'node:assert/strict';
 import wsProtocol from '@foxglove/ws-protocol';
@@ -157,10 +158,19 @@ test('a sweep begun while the catheter moves: pre_position, start, acquiring on 
   open.push(client);
   const channels = new Map();
   const phases = new Set();
+  const subscriptions = new Map();  // subscription id -> topic
+  const forceMessages = [], sweepMessages = [];  // {at: arrival (ms), m}
   client.on('advertise', (list) => list.forEach((c) => channels.set(c.topic, c)));
-  client.on('message', ({data}) => {
+  client.on('message', ({subscriptionId, data}) => {
     const m = JSON.parse(new TextDecoder().decode(data));
-    if (m.sweep) phases.add(m.sweep.phase);
+    if (subscriptions.get(subscriptionId) === '/us_arm/force') {
+      forceMessages.push({at: performance.now(), m});
+      return;
+    }
+    if (m.sweep) {
+      phases.add(m.sweep.phase);
+      sweepMessages.push({at: performance.now(), m: m.sweep});
+    }
   });
   await new Promise((resolve, reject) => {
     client.on('serverInfo', resolve);
@@ -169,7 +179,10 @@ test('a sweep begun while the catheter moves: pre_position, start, acquiring on 
   assert.ok(await pollUntil(() => channels.has('/us_arm/sweep'), {polls: 100, intervalMs: 50}),
       `topics: ${[...channels.keys()].join(', ')}`);
   assert.equal(channels.get('/us_arm/sweep').schemaName, 'tendril.UltrasoundSweepState');
-  client.subscribe(channels.get('/us_arm/sweep').id);
+  subscriptions.set(client.subscribe(channels.get('/us_arm/sweep').id), '/us_arm/sweep');
+  assert.ok(channels.has('/us_arm/force'), `topics: ${[...channels.keys()].join(', ')}`);
+  assert.equal(channels.get('/us_arm/force').schemaName, 'tendril.ArmForce');
+  subscriptions.set(client.subscribe(channels.get('/us_arm/force').id), '/us_arm/force');
 
   assert.equal((await sweep('pre_position')).status, 202);
   const moveCatheter = await post(`${CATHETER}/move_jp`, {goal: [15, 0, 0, 0]});
@@ -186,6 +199,30 @@ test('a sweep begun while the catheter moves: pre_position, start, acquiring on 
   assert.ok(Math.abs(s.force_n - 0.8) <= 0.15, JSON.stringify(s));
   assert.equal(s.force_target_n, 0.8);
   assert.ok(phases.has('ready') && phases.has('approaching'), [...phases].join(', '));
+  // /us_arm/force over 2 s in contact: ≥ 80 Hz (the control loop's ticks, polled at 100 Hz), every
+  // message well formed, and its F_n what /us_arm/sweep says over the same 2 s.
+  const from = performance.now();
+  await new Promise((resolve) => setTimeout(resolve, 2000));
+  const inWindow = (list) => list.filter(({at}) => at >= from && at < from + 2000).map(({m}) => m);
+  const forces = inWindow(forceMessages), sweeps = inWindow(sweepMessages);
+  const mean = (values) => values.reduce((a, b) => a + b, 0) / values.length;
+  const forceMean = mean(forces.map((m) => m.normal_n)), sweepMean = mean(sweeps.map((m) => m.force_n));
+  console.log(`# /us_arm/force: ${forces.length / 2} Hz over 2 s, mean F_n ${forceMean.toFixed(3)} N; ` +
+      `/us_arm/sweep: ${sweeps.length / 2} Hz, mean F_n ${sweepMean.toFixed(3)} N; ` +
+      `phases ${[...new Set(forces.map((m) => m.phase))].join(', ')}`);
+  assert.ok(forces.length >= 160, `${forces.length} force messages in 2 s`);
+  assert.ok(sweeps.length >= 10, `${sweeps.length} sweep messages in 2 s`);
+  for (const m of forces) {
+    assert.equal(m.frame_id, 'us_arm_probe');
+    assert.equal(m.target_n, 0.8);
+    assert.equal(m.force_n.length, 3);
+    assert.ok(Math.abs(m.normal_n + m.force_n[2]) < 1e-9, JSON.stringify(m));
+    assert.ok(['approaching', 'acquiring', 'moving'].includes(m.phase), JSON.stringify(m));
+  }
+  assert.ok(Math.abs(forceMean - sweepMean) < 0.05, `force topic ${forceMean} N, sweep ${sweepMean} N`);
+  assert.ok(Math.abs(forceMean - 0.8) < 0.15, `mean F_n ${forceMean} N in contact`);
+  // Strictly later control times, one message per tick at most.
+  for (let i = 1; i < forces.length; ++i) assert.ok(forces[i].t > forces[i - 1].t, `t ${forces[i - 1].t} then ${forces[i].t}`);
   const catheter = (await get(`${CATHETER}/measured_js`)).json.position[0];
   assert.ok(Math.abs(catheter - 15) < 0.1, `the catheter reached ${catheter} mm`);
   assert.equal((await sweep('abort')).status, 202);

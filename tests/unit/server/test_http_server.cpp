@@ -2,6 +2,8 @@
 // Publishing is stepped by calling publish_once() (publish_rate_hz = 0).
 #include <algorithm>
 #include <cstdio>
+#include <map>
+#include <mutex>
 #include <thread>
 
 #include "http_test_support.hpp"
@@ -367,6 +369,56 @@ TEST_F(HttpServerTest, TopicSourcesHearWhenTheirTopicsGainAndLoseSubscribers) {
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   server_->publish_once();
   EXPECT_EQ(source->seen(), (std::vector<std::string>{"/fake/image wanted", "/fake/image unwatched"}));
+}
+
+// A source topic marked recorded_always (an arm's force) is produced and recorded with nobody watching;
+// another source's topic (an image) is not — the recording's rule, with from_source as "costly".
+TEST_F(HttpServerTest, ARecordingKeepsASourceTopicMarkedRecordedAlwaysWithoutSubscribers) {
+  class AlwaysSource : public DemandRecordingSource {
+   public:
+    std::vector<tendril::server::TopicInfo> topics() const override {
+      tendril::server::TopicInfo info{"/fake/force", "tendril.ArmForce", "{}"};
+      info.recorded_always = true;
+      return {info};
+    }
+  };
+  class Tap : public tendril::server::http::PublishTap {
+   public:
+    bool wants(const std::string& /*topic*/, bool from_source) const override { return !from_source; }
+    void channel(std::uint32_t id, const std::string& topic, const std::string& /*schema_name*/,
+                 const std::string& /*schema*/, const std::string& /*encoding*/,
+                 const std::string& /*schema_encoding*/) override {
+      std::lock_guard lock(mutex);
+      names[id] = topic;
+    }
+    void message(std::uint32_t id, std::uint64_t /*log_time_ns*/,
+                 std::shared_ptr<const std::string> /*payload*/) override {
+      std::lock_guard lock(mutex);
+      recorded.push_back(names.count(id) ? names[id] : std::to_string(id));
+    }
+    void command(std::uint64_t /*time_ns*/, const std::string& /*robot*/, const std::string& /*command*/,
+                 const std::string& /*who*/, const json& /*body*/, int /*status*/,
+                 const std::string& /*error*/) override {}
+    bool has(const std::string& topic) {
+      std::lock_guard lock(mutex);
+      return std::find(recorded.begin(), recorded.end(), topic) != recorded.end();
+    }
+    std::mutex mutex;
+    std::map<std::uint32_t, std::string> names;
+    std::vector<std::string> recorded;
+  };
+  auto image = std::make_shared<DemandRecordingSource>();
+  auto force = std::make_shared<AlwaysSource>();
+  auto tap = std::make_shared<Tap>();
+  options_.topic_sources = {image, force};
+  options_.tap = tap;
+  start();
+  server_->publish_once();
+  server_->publish_once();
+  EXPECT_EQ(force->seen(), std::vector<std::string>{"/fake/force wanted"});
+  EXPECT_TRUE(image->seen().empty());
+  EXPECT_TRUE(tap->has("/fake/force"));
+  EXPECT_FALSE(tap->has("/fake/image"));
 }
 
 TEST_F(HttpServerTest, ServiceCallsRoundTripAndRespectTheLease) {

@@ -22,6 +22,10 @@ struct TopicInfo {
   std::string schema;
   std::string encoding = "json";
   std::string schema_encoding = "jsonschema";
+  // A session recording keeps this topic even while nobody watches it (a small stream that costs little
+  // to make, such as an arm's force); other source topics are produced and recorded only while watched,
+  // unless the recording keeps images always (each costs a render).
+  bool recorded_always = false;
 };
 
 struct TopicPayload {

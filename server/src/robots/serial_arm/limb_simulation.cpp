@@ -61,12 +61,15 @@ void validate(const LimbParameters& p) {
   require(finite(p.y) && finite(p.z) && finite(p.rx), "motion: expected finite Fourier terms");
   require(std::isfinite(p.tracker_rate) && p.tracker_rate > 0, "tracker.rate_hz: expected > 0");
   require(std::isfinite(p.tracker_latency) && p.tracker_latency >= 0, "tracker.latency_ms: expected >= 0");
+  require(std::isfinite(p.tracker_noise) && p.tracker_noise >= 0 && p.tracker_noise <= 5,
+          "tracker.noise_mm: expected 0 to 5 mm");
   require(p.ct_T_limb.matrix().allFinite(), "ct: expected a finite misregistration");
   require(std::isfinite(p.ct_noise) && p.ct_noise >= 0 && std::isfinite(p.scan_noise) && p.scan_noise >= 0,
           "noise: expected >= 0");
 }
 
-LimbSimulation::LimbSimulation(LimbParameters parameters) : parameters_(std::move(parameters)) {
+LimbSimulation::LimbSimulation(LimbParameters parameters)
+    : parameters_(std::move(parameters)), tracker_rng_(parameters_.seed ^ 0x7472616b65ULL) {
   validate(parameters_);
   // Every millimetre along the artery (integer steps: a float counter would drift).
   const int artery_steps =
@@ -132,7 +135,20 @@ void LimbSimulation::advance(double t) noexcept {
     const double period = 1.0 / parameters_.tracker_rate;
     LimbPoseSample k;
     k.t = t - parameters_.tracker_latency;
-    k.pose = to_array16(pose_at(k.t));
+    Eigen::Isometry3d reported = pose_at(k.t);
+    if (parameters_.tracker_noise > 0.0) {
+      const double sigma = parameters_.tracker_noise;
+      const double sigma_rad = sigma / parameters_.cylinder_radius;
+      const Eigen::Vector3d dp(sigma * tracker_noise_(tracker_rng_), sigma * tracker_noise_(tracker_rng_),
+                               sigma * tracker_noise_(tracker_rng_));
+      const Eigen::Vector3d dr(sigma_rad * tracker_noise_(tracker_rng_),
+                               sigma_rad * tracker_noise_(tracker_rng_),
+                               sigma_rad * tracker_noise_(tracker_rng_));
+      reported.translation() += dp;
+      if (dr.norm() > 0.0)
+        reported.linear() = reported.linear() * Eigen::AngleAxisd(dr.norm(), dr.normalized());
+    }
+    k.pose = to_array16(reported);
     k.valid = true;
     tracked_.store(k);
     while (next_track_ <= t + 1e-12) next_track_ += period;

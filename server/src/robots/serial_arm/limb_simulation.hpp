@@ -24,6 +24,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <random>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -66,6 +67,10 @@ struct LimbParameters {
   // Tracker.
   double tracker_rate = 120.0;   // Hz
   double tracker_latency = 0.0;  // s, on top of the sample-and-hold
+  // Measurement noise of each report (§16 step 5: "0.3 mm-equivalent"): Gaussian, σ = tracker_noise (mm)
+  // on each axis of the position and σ = tracker_noise / cylinder_radius (rad) about each axis of the
+  // orientation — a rotation that moves a point on the skin's far side by the same amount. 0: exact.
+  double tracker_noise = 0.0;
   // Pre-operative data (SIMULATED).
   Eigen::Isometry3d ct_T_limb = Eigen::Isometry3d::Identity();  // the CT frame's misregistration
   double ct_noise = 0.2;                                        // mm (§16 step 2)
@@ -142,7 +147,9 @@ class LimbSimulation final : public sim::SurfaceHeightMap {
   teleop::CenterlinePolyline artery_;
   AlternatingValue<LimbPoseSample> truth_;
   AlternatingValue<LimbPoseSample> tracked_;
-  double next_track_ = 0.0;  // simulation side only
+  double next_track_ = 0.0;      // simulation side only
+  std::mt19937_64 tracker_rng_;  // the tracker's noise (simulation side only)
+  std::normal_distribution<double> tracker_noise_{0.0, 1.0};
 };
 
 // The HardwareComponent that moves the limb: it advances the LimbSimulation and moves the contact

@@ -66,6 +66,8 @@ class SerialArmApi final : public RobotApiExtension {
           {"retract", {{"speed_mm_s", u->retract_speed}, {"distance_mm", u->retract_distance}}},
           {"compensation_hz", l.tracker_rate},
           {"tracker_latency_ms", l.tracker_latency * 1e3},
+          {"tracker_noise_mm", l.tracker_noise},
+          {"tracker_filter_hz", u->tracker_filter_hz},
           {"limb",
            {{"rest_position_mm", vec3(l.rest_pose.translation())},
             {"period_s", l.period},

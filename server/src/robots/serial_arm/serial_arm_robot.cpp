@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <utility>
 
+#include "serial_arm/force_topic.hpp"
 #include "serial_arm/serial_arm_schema.hpp"
 #include "serial_arm/ultrasound_topics.hpp"
 #include "tendril/server/config_reader.hpp"
@@ -518,10 +519,12 @@ void SerialArm::robot_calibration_worker(std::uint32_t run) {
   }
 }
 
-// The ultrasound imaging and reconstruction topics (helper usimg; ultrasound_topics.cpp).
+// The force topic (force_topic.cpp) and the ultrasound imaging and reconstruction topics (helper usimg;
+// ultrasound_topics.cpp).
 std::vector<std::shared_ptr<TopicSource>> SerialArm::topic_sources() {
-  if (auto topics = make_us_arm_topics(*this)) return {std::move(topics)};
-  return {};
+  std::vector<std::shared_ptr<TopicSource>> sources{make_arm_force_topic(*this)};
+  if (auto topics = make_us_arm_topics(*this)) sources.push_back(std::move(topics));
+  return sources;
 }
 
 std::vector<ModeInfo> SerialArm::modes() const {

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 
 #include "tendril/server/config_reader.hpp"
 #include "tendril/ultrasound/preoperative_plan.hpp"
@@ -120,6 +121,9 @@ std::optional<UltrasoundSettings> parse_ultrasound_settings(const RobotConfig& r
     u.fail("retract_speed_mm_s", "at most 10 (seed 002 REQ-SAFE-2)", u.raw("retract_speed_mm_s"));
   s.retract_distance = u.positive_or("retract_distance_mm", s.retract_distance);
   s.velocity_feed_forward = u.boolean_or("velocity_feed_forward", s.velocity_feed_forward);
+  s.tracker_filter_hz = u.non_negative_or("tracker_filter_hz", s.tracker_filter_hz);
+  if (s.tracker_filter_hz > 10.0)
+    u.fail("tracker_filter_hz", "at most 10 Hz (0: off)", u.raw("tracker_filter_hz"));
 
   if (!u.has("limb"))
     throw ConfigError(file +
@@ -163,6 +167,7 @@ std::optional<UltrasoundSettings> parse_ultrasound_settings(const RobotConfig& r
     const Reader t = l.child("tracker");
     p.tracker_rate = t.positive_or("rate_hz", p.tracker_rate);
     p.tracker_latency = t.non_negative_or("latency_ms", p.tracker_latency * 1e3) / 1e3;
+    p.tracker_noise = t.non_negative_or("noise_mm", p.tracker_noise);
   }
   if (l.has("ct")) {
     const Reader c = l.child("ct");
@@ -230,6 +235,57 @@ SweepPlan make_sweep_plan(const LimbSimulation& limb, const UltrasoundSettings& 
   return plan;
 }
 
+// ---- the tracked limb's filter (control thread) -----------------------------------------------------
+
+void LimbPoseFilter::configure(double natural_hz, double nominal_period) noexcept {
+  period_ = nominal_period;
+  const double rho = std::exp(-2.0 * std::numbers::pi * natural_hz * nominal_period);
+  alpha_ = 1.0 - rho * rho;
+  beta_ = (1.0 - rho) * (1.0 - rho);
+  initialised_ = false;
+}
+
+void LimbPoseFilter::update(const Eigen::Isometry3d& pose, double t) noexcept {
+  const double dt = t - t_;
+  if (!initialised_ || !(dt > 1e-6) || dt > 0.1) {
+    if (initialised_ && dt > -1e-9 && dt <= 1e-6) return;  // the same report again
+    initialised_ = true;
+    t_ = t;
+    r0_ = pose.linear();
+    x_ = pose.translation();
+    v_.setZero();
+    r_.setZero();
+    w_.setZero();
+    return;
+  }
+  // Predict to the report's time, then correct by the residual.
+  const Eigen::Vector3d x_pred = x_ + v_ * dt, r_pred = r_ + w_ * dt;
+  const Eigen::AngleAxisd measured(r0_.transpose() * pose.linear());
+  const Eigen::Vector3d r_meas = measured.angle() * measured.axis();
+  const Eigen::Vector3d ex = pose.translation() - x_pred, er = r_meas - r_pred;
+  x_ = x_pred + alpha_ * ex;
+  v_ += (beta_ / dt) * ex;
+  r_ = r_pred + alpha_ * er;
+  w_ += (beta_ / dt) * er;
+  t_ = t;
+}
+
+Eigen::Isometry3d LimbPoseFilter::pose_after(double h) const noexcept {
+  Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
+  out.translation() = x_ + v_ * h;
+  const Eigen::Vector3d r = r_ + w_ * h;
+  const double angle = r.norm();
+  out.linear() =
+      angle > 1e-12 ? Eigen::Matrix3d(r0_ * Eigen::AngleAxisd(angle, r / angle).toRotationMatrix()) : r0_;
+  return out;
+}
+
+Eigen::Vector3d LimbPoseFilter::point_velocity(const Eigen::Vector3d& p_limb) const noexcept {
+  // A difference of the filtered motion itself over one tracker period (exact for the chart's linear
+  // motion), not of two noisy reports.
+  return (pose_after(period_) * p_limb - pose_after(0.0) * p_limb) / period_;
+}
+
 // ---- the sweep (control thread) ---------------------------------------------------------------------
 
 UltrasoundSweep::UltrasoundSweep(const UltrasoundSettings& settings, const teleop::TaskSpaceGains& gains,
@@ -237,7 +293,9 @@ UltrasoundSweep::UltrasoundSweep(const UltrasoundSettings& settings, const teleo
     : settings_(settings),
       limits_(limits),
       controller_(teleop::HybridControlParameters{gains, settings.force, settings.gate}),
-      rest_(settings.limb.rest_pose.translation()) {}
+      rest_(settings.limb.rest_pose.translation()) {
+  limb_filter_.configure(settings.tracker_filter_hz, 1.0 / settings.limb.tracker_rate);
+}
 
 bool UltrasoundSweep::running() const noexcept {
   return active_phase(snapshot_.phase) || snapshot_.retracting;
@@ -347,18 +405,23 @@ bool UltrasoundSweep::step(const teleop::SerialArmKinematics& model, teleop::Ser
                            const Inputs& in, teleop::CartesianCommandResult& out) noexcept {
   auto& s = snapshot_;
   out = teleop::CartesianCommandResult{};
-  s.world_T_limb = matrix16(in.world_T_limb);
-  const Eigen::Vector3d offset = in.world_T_limb.translation() - rest_;
-  s.limb_offset_mm = {offset.x(), offset.y(), offset.z()};
-  if (interrupted_) {
-    state_.reset();
-    interrupted_ = false;
-  }
+  const bool filtered = settings_.tracker_filter_hz > 0.0;
   if (in.limb_t != latest_limb_t_) {  // a new tracker sample
     previous_limb_ = latest_limb_;
     previous_limb_t_ = latest_limb_t_;
     latest_limb_ = in.world_T_limb;
     latest_limb_t_ = in.limb_t;
+    if (filtered) limb_filter_.update(in.world_T_limb, in.limb_t);
+  }
+  // The limb as the targets see it: the filtered tracker reports (or the latest raw one).
+  const Eigen::Isometry3d world_T_limb =
+      filtered && limb_filter_.valid() ? limb_filter_.pose() : in.world_T_limb;
+  s.world_T_limb = matrix16(world_T_limb);
+  const Eigen::Vector3d offset = world_T_limb.translation() - rest_;
+  s.limb_offset_mm = {offset.x(), offset.y(), offset.z()};
+  if (interrupted_) {
+    state_.reset();
+    interrupted_ = false;
   }
   if (s.phase == SweepPhase::idle || s.phase == SweepPhase::planned || plan_.count == 0) return false;
 
@@ -380,7 +443,7 @@ bool UltrasoundSweep::step(const teleop::SerialArmKinematics& model, teleop::Ser
   const bool in_air = s.phase == SweepPhase::pre_positioning || s.phase == SweepPhase::ready ||
                       (s.phase == SweepPhase::paused &&
                        (s.paused_from == SweepPhase::pre_positioning || s.paused_from == SweepPhase::ready));
-  Eigen::Isometry3d goal = target(s.via_point, in.world_T_limb);
+  Eigen::Isometry3d goal = target(s.via_point, world_T_limb);
   if (in_air) goal.translation() -= settings_.approach_height * goal.linear().col(2);
   s.target = matrix16(goal);
 
@@ -404,14 +467,17 @@ bool UltrasoundSweep::step(const teleop::SerialArmKinematics& model, teleop::Ser
   out.twist = r.twist;
   out.twist_limited = r.twist_limited;
   const double dt_limb = latest_limb_t_ - previous_limb_t_;
-  if (settings_.velocity_feed_forward && out.joints.valid && previous_limb_t_ >= 0.0 && dt_limb > 1e-6 &&
-      dt_limb < 0.1) {
-    // The via-point's velocity between the last two tracker samples (its point on the limb, so the
-    // limb's rotation counts too), added to the law's twist and resolved again (caps, damped inverse,
-    // joint limits): the probe moves with the limb instead of behind it.
+  const bool raw_velocity = !filtered && previous_limb_t_ >= 0.0 && dt_limb > 1e-6 && dt_limb < 0.1;
+  if (settings_.velocity_feed_forward && out.joints.valid && (raw_velocity || limb_filter_.valid())) {
+    // The via-point's velocity (its point on the limb, so the limb's rotation counts too) — from the
+    // filter, or between the last two tracker samples without one —, added to the law's twist and
+    // resolved again (caps, damped inverse, joint limits): the probe moves with the limb instead of
+    // behind it.
     const Eigen::Matrix4d via = plan_via(s.via_point);
     const Eigen::Vector3d p = via.block<3, 1>(0, 3);
-    const Eigen::Vector3d v = (latest_limb_ * p - previous_limb_ * p) / dt_limb;
+    const Eigen::Vector3d v = raw_velocity
+                                  ? Eigen::Vector3d((latest_limb_ * p - previous_limb_ * p) / dt_limb)
+                                  : limb_filter_.point_velocity(p);
     if (v.allFinite()) {
       teleop::Twist twist = r.twist;
       twist.head<3>() += v;

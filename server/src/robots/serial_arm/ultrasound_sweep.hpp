@@ -66,6 +66,40 @@ struct UltrasoundSettings {
   // samples, added to the hybrid controller's twist (without it only the force law follows the limb
   // along the normal, and lags it by v / 1.67 (mm/s)/N).
   bool velocity_feed_forward = true;
+  // The tracked limb pose is noisy (§16 step 5: 0.3 mm); the feed-forward's velocity would amplify it
+  // (a difference over one 8.3 ms tracker period: σ·√2·120 ≈ 50 mm/s from 0.3 mm, the speed cap). The
+  // tracker's reports go through a critically damped alpha-beta filter (LimbPoseFilter) of this natural
+  // frequency: both the targets and the feed-forward use its pose and velocity. 0: off (raw reports,
+  // the velocity from the last two). README ("The ultrasound arm") has the measurements behind 0.5 Hz.
+  double tracker_filter_hz = 0.5;
+};
+
+// A critically damped alpha-beta filter on the tracked limb pose, run at each new tracker report
+// (control thread: no allocation). Position: x̂ and v̂ per axis; orientation: the rotation vector r of
+// R0ᵀ·R (R0 the first report's orientation — the limb turns by a few degrees, far from the chart's
+// singularity at π) and its rate. With the tracker period T and the natural frequency ω_n both poles
+// sit at ρ = e^(−ω_n·T): α = 1 − ρ², β = (1 − ρ)². It follows a constant velocity without lag, lags an
+// acceleration a by a/ω_n², and passes the reports' noise σ as about σ·√(α/2) in position and
+// σ·ω_n^1.5·√T in velocity (for small ω_n·T).
+class LimbPoseFilter {
+ public:
+  void configure(double natural_hz, double nominal_period) noexcept;
+  void reset() noexcept { initialised_ = false; }
+  // A new report at time t (s); a gap of more than 0.1 s (a stall) restarts the filter from it.
+  void update(const Eigen::Isometry3d& pose, double t) noexcept;
+  bool valid() const noexcept { return initialised_; }
+  Eigen::Isometry3d pose() const noexcept { return pose_after(0.0); }
+  // The velocity of a point fixed to the limb (its coordinates in the limb frame), mm/s.
+  Eigen::Vector3d point_velocity(const Eigen::Vector3d& p_limb) const noexcept;
+
+ private:
+  Eigen::Isometry3d pose_after(double h) const noexcept;  // the filtered pose extrapolated by h s
+  double alpha_ = 1.0, beta_ = 0.0, period_ = 1.0 / 120.0;
+  bool initialised_ = false;
+  double t_ = 0.0;
+  Eigen::Matrix3d r0_ = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d x_ = Eigen::Vector3d::Zero(), v_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d r_ = Eigen::Vector3d::Zero(), w_ = Eigen::Vector3d::Zero();
 };
 
 // Parses the file's "ultrasound" section (nullopt without one). Throws ConfigError naming file and key.
@@ -188,6 +222,7 @@ class UltrasoundSweep {
   Eigen::Isometry3d previous_limb_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d latest_limb_ = Eigen::Isometry3d::Identity();
   double previous_limb_t_ = -1.0, latest_limb_t_ = -1.0;
+  LimbPoseFilter limb_filter_;  // used when settings_.tracker_filter_hz > 0
 };
 
 }  // namespace tendril::server
