@@ -234,13 +234,17 @@ TEST_F(UsArmCalibrationTest, TheRoutineRecoversTheBaseInTheTrackersFrameAndTheSw
 
   // /tf: "world" is now the tracker's frame {G}; world→us_arm_base is the calibrated H_B^G.
   {
-    auto sources = arm().topic_sources();
-    ASSERT_EQ(sources.size(), 1u);
+    // The arm's sources: /{robot}/force and the ultrasound topics; /tf is among the latter.
+    std::shared_ptr<TopicSource> frames_source;
+    for (const auto& source : arm().topic_sources())
+      for (const auto& info : source->topics())
+        if (info.topic == "/tf") frames_source = source;
+    ASSERT_TRUE(frames_source);
     std::optional<TopicPayload> tf;
     for (int i = 0; i < 400 && !tf; ++i) {
       steps(5);
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
-      tf = sources[0]->latest("/tf", 0);
+      tf = frames_source->latest("/tf", 0);
     }
     ASSERT_TRUE(tf);
     bool found = false;

@@ -23,6 +23,7 @@
 #include "tendril/drivers/sim/contact_surface.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
+#include "us_arm_calibrated.hpp"
 
 namespace tendril::server {
 namespace {
@@ -32,6 +33,7 @@ using nlohmann::json;
 const std::filesystem::path kConfig = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots";
 
 TEST(UsArmForceTopic, PublishesEachNewTickConsistentWithTheSweep) {
+  const testing::ScopedStateDir state_dir("tendril_us_arm_control");
   RuntimeOptions o;
   o.stepped = true;
   o.control_rate_hz = 1000;
@@ -40,6 +42,7 @@ TEST(UsArmForceTopic, PublishesEachNewTickConsistentWithTheSweep) {
   auto api = json_api(*runtime);
   runtime->start();
   auto& arm = dynamic_cast<SerialArm&>(*runtime->plugin("us_arm"));
+  testing::store_true_calibrations(arm);  // the sweep refuses without them (REQ-TF-7)
   auto topic = make_arm_force_topic(arm, /*own_thread=*/false);
   ASSERT_EQ(topic->topics().size(), 1u);
   EXPECT_EQ(topic->topics()[0].topic, "/us_arm/force");

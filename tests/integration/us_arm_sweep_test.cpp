@@ -20,6 +20,7 @@
 #include "serial_arm/serial_arm_robot.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
+#include "us_arm_calibrated.hpp"
 
 namespace tendril::server {
 namespace {
@@ -33,14 +34,6 @@ constexpr double kGateAngle = 0.01;    // d_θ (rad)
 
 class UsArmSweepTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    // A calibration store of this test's own (REQ-TF-7: the sweep refuses without a robot calibration).
-    state_dir_ = std::filesystem::temp_directory_path() /
-                 ("tendril_us_arm_sweep_" + std::to_string(::getpid()) + "_" +
-                  ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::remove_all(state_dir_);
-    ::setenv("TENDRIL_STATE_DIR", state_dir_.c_str(), 1);
-  }
   void start(std::vector<RobotConfig> robots) {
     RuntimeOptions o;
     o.stepped = true;
@@ -51,37 +44,12 @@ class UsArmSweepTest : public ::testing::Test {
     steps(20);
     if (runtime->plugin("us_arm")) calibrated();
   }
-  // The robot calibration these tests sweep with: the SIMULATED tracker's true H_B^G, stored as a
-  // calibration would be, so that what they measure is the control, not the calibration's error (the
-  // routine itself and a sweep after it: us_arm_calibration_tests).
-  void calibrated() {
-    CalibrationRecord truth;
-    truth.kind = "robot";
-    truth.method = "test fixture: the SIMULATED tracker's true H_B^G";
-    truth.transforms["H_B^G"] = arm().tracker_settings()->global_T_base;
-    truth.transforms["H_U^M"] = arm().tracker_settings()->marker_T_probe;
-    truth.valid = true;
-    truth.summary = "the truth";
-    arm().calibrations()->store().save(truth);
-    // And the image-to-probe calibration the sweep also requires: the SIMULATED scanner's truth.
-    const auto& image = arm().ultrasound_calibrations()->simulation().true_image;
-    CalibrationRecord us;
-    us.kind = "us";
-    us.method = "test fixture: the SIMULATED scanner's true H_I^U and pixel scales";
-    us.transforms["H_I^U"] = image.image_in_probe;
-    us.values["s_u_mm_per_px"] = image.s_u;
-    us.values["s_v_mm_per_px"] = image.s_v;
-    us.valid = true;
-    us.summary = "the truth";
-    arm().calibrations()->store().save(us);
-    arm().publish_calibration_in_use();
-  }
+  // REQ-TF-7: the sweep refuses without calibrations; these tests store the SIMULATED truths.
+  void calibrated() { testing::store_true_calibrations(arm()); }
   static RobotConfig arm_config() { return load_robot_config(kConfig / "us_arm.json"); }
   void TearDown() override {
     if (runtime) runtime->stop();
     runtime.reset();
-    ::unsetenv("TENDRIL_STATE_DIR");
-    std::filesystem::remove_all(state_dir_);
   }
   void steps(int n) {
     for (int i = 0; i < n; ++i) runtime->step();
@@ -138,7 +106,7 @@ class UsArmSweepTest : public ::testing::Test {
     return (e - n * n.dot(e)).norm();
   }
 
-  std::filesystem::path state_dir_;
+  testing::ScopedStateDir state_dir_{"tendril_us_arm_sweep"};
   std::unique_ptr<RobotRuntime> runtime;
   std::unique_ptr<JsonControlApi> api;
 };
