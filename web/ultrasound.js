@@ -123,7 +123,7 @@ class UltrasoundPanel {
               u.viaPoint, u.gate, u.message,
               el('div', {className: 'form-row rp-modes'}, Object.values(u.buttons))),
         group('Calibration', '(robot–world and the others the sweep needs)', this.calibration.element),
-        group('Ultrasound image', '(SIMULATED B-mode, fitted ellipse in green)', u.image, u.imageInfo),
+        group('Ultrasound image', '(SIMULATED B-mode; fitted ellipse in orange, its centre in red)', u.image, u.imageInfo),
         group('Contact force', '(normal force vs target)',
               el('div', {className: 'plot-box rp-plot'}, u.forceCanvas), u.forceValue),
         group('3D reconstruction', '(seed 002 Fig. 7)',
