@@ -58,12 +58,11 @@ run_file "$here/continuum.e2e.mjs"
 stop_tendrild
 
 # The ultrasound arm's panel (ultrasound.e2e.mjs): a sweep from the console while the catheter moves.
-# A calibration store of its own: the test calibrates the arm from the console before the sweep.
-us_state="$(mktemp -d /tmp/tendril-us-arm-e2e.XXXXXX)"
-TENDRIL_STATE_DIR="$us_state" TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
+# The server's calibration store starts empty (server.sh): the test calibrates the arm from the
+# console before the sweep.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
 run_file "$here/ultrasound.e2e.mjs"
 stop_tendrild
-rm -rf "$us_state"
 
 # The Tracking tab (tracking.e2e.mjs): tip tracking, segmentation editor and roadmaps, on a fresh server.
 start_tendrild "$binary" || exit 1

@@ -20,6 +20,8 @@
 #include <string_view>
 #include <vector>
 
+#include <unistd.h>
+
 #include "tendril/server/config.hpp"
 #include "tendril/server/http/control_json.hpp"
 #include "tendril/server/http/request_codec.hpp"
@@ -40,8 +42,23 @@ struct World {
 
 bool within_limits(World& w, bool fail);
 
+// The arm's calibrate command writes calibration files (README, "Calibrations (us_arm)"): into a folder
+// of this run's own, removed at exit, unless the caller chose TENDRIL_STATE_DIR; never ~/.local/state.
+void use_own_state_dir() {
+  const char* chosen = std::getenv("TENDRIL_STATE_DIR");
+  if (chosen != nullptr && *chosen != '\0') return;
+  static std::string dir = (std::filesystem::temp_directory_path() / "tendril-fuzz-state.XXXXXX").string();
+  if (::mkdtemp(dir.data()) == nullptr) std::abort();
+  ::setenv("TENDRIL_STATE_DIR", dir.c_str(), 1);
+  std::atexit([] {
+    std::error_code ignored;
+    std::filesystem::remove_all(dir, ignored);
+  });
+}
+
 World& world() {
   static World w = [] {
+    use_own_state_dir();
     const std::filesystem::path dir = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots";
     std::vector<RobotConfig> robots;
     for (const char* file : {"srmc.json", "sdu_continuum.json", "mbcr_vd.json", "us_arm.json"})

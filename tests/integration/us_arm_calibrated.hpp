@@ -9,6 +9,7 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include "serial_arm/calibration_store.hpp"
@@ -17,20 +18,25 @@
 
 namespace tendril::server::testing {
 
-// TENDRIL_STATE_DIR pointed at a fresh directory named after the running test, removed again on exit.
+// TENDRIL_STATE_DIR pointed at a fresh directory named after the running test; on exit the directory
+// is removed and the caller's TENDRIL_STATE_DIR (scripts/test.sh sets one) is back.
 class ScopedStateDir {
  public:
   explicit ScopedStateDir(const std::string& prefix)
       : path_(std::filesystem::temp_directory_path() /
               (prefix + "_" + std::to_string(::getpid()) + "_" +
                ::testing::UnitTest::GetInstance()->current_test_info()->name())) {
+    if (const char* before = std::getenv("TENDRIL_STATE_DIR")) before_ = before;
     std::filesystem::remove_all(path_);
     ::setenv("TENDRIL_STATE_DIR", path_.c_str(), 1);
   }
   ScopedStateDir(const ScopedStateDir&) = delete;
   ScopedStateDir& operator=(const ScopedStateDir&) = delete;
   ~ScopedStateDir() {
-    ::unsetenv("TENDRIL_STATE_DIR");
+    if (before_)
+      ::setenv("TENDRIL_STATE_DIR", before_->c_str(), 1);
+    else
+      ::unsetenv("TENDRIL_STATE_DIR");
     std::error_code ignored;
     std::filesystem::remove_all(path_, ignored);
   }
@@ -38,6 +44,7 @@ class ScopedStateDir {
 
  private:
   std::filesystem::path path_;
+  std::optional<std::string> before_;
 };
 
 // Stores the SIMULATED tracker's true H_B^G and H_U^M ("robot") and the SIMULATED scanner's true H_I^U

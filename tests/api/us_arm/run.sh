@@ -7,11 +7,6 @@ set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 # shellcheck source=tests/api/server.sh
 source "$here/../server.sh"
-# The sweep needs a robot calibration (REQ-TF-7): a store of this run's own, so the suite starts
-# without one and leaves none behind.
-TENDRIL_STATE_DIR="$(mktemp -d /tmp/tendril-us-arm-api.XXXXXX)"
-export TENDRIL_STATE_DIR
+# The sweep needs calibrations (REQ-TF-7): the server starts with an empty store of its own
+# (server.sh), so the suite calibrates first and leaves nothing behind.
 run_extra_robot_suite us_arm.json "$here" "${1:-}"
-status=$?
-rm -rf "$TENDRIL_STATE_DIR"
-exit "$status"
