@@ -53,6 +53,7 @@ export class CalibrationPanel {
   async calibrate(kind) {
     const r = this.rows[kind];
     r.message.textContent = 'sending…';
+    r.message.dataset.refused = 'false';
     try {
       await robotCommand(this.ctx.api, this.robot.name, 'calibrate', {kind});
       r.message.textContent = 'started';

@@ -152,8 +152,22 @@ test('a sweep runs from the console while the catheter is driven in the same ser
         await page.click(tid(resume));
         await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').textContent.includes('ENABLED'), null, WAIT);
       }
-      await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-robot-calibrate"]').disabled, null, WAIT);
-      await page.click(tid('us-cal-robot-calibrate'));
+      // Calibrate; a refusal (the arm still settling after Enable) is shown under the button and the
+      // click tried again, printed, as the mode switches are.
+      let started = false;
+      for (let click = 1; click <= 10 && !started; click++) {
+        await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-robot-calibrate"]').disabled, null, WAIT);
+        await page.click(tid('us-cal-robot-calibrate'));
+        await page.waitForFunction(() => document.querySelector('[data-testid="us-cal-robot-message"]').dataset.refused !== undefined &&
+            document.querySelector('[data-testid="us-cal-robot-message"]').textContent !== 'sending…', null, WAIT);
+        const refused = await page.locator(tid('us-cal-robot-message')).getAttribute('data-refused') === 'true';
+        if (refused) {
+          console.log(`# calibrate refused: ${await page.locator(tid('us-cal-robot-message')).textContent()}`);
+          await page.waitForTimeout(1000);
+        }
+        started = !refused;
+      }
+      assert.ok(started, `calibrate: ${await page.locator(tid('us-cal-robot-message')).textContent()}`);
       await page.waitForTimeout(1000);  // the routine's state arrives on /us_arm/sweep (20 Hz)
       await page.waitForFunction(() => document.querySelector('[data-testid="us-cal-running"]').dataset.kind === 'robot' ||
           document.querySelector('[data-testid="us-cal-last"]').dataset.ok !== '', null, WAIT);

@@ -214,6 +214,12 @@ TEST_F(CalibrationStoreTest, OneRoutineRunsAtATimeAndItsOutcomeStays) {
   EXPECT_TRUE(json["running"].is_null());
   EXPECT_EQ(json["last"]["ok"], false);
   EXPECT_EQ(json["last"]["message"], "the tracker lost the marker");
+  // A refused start runs nothing: the last outcome stays what the operator sees.
+  state.mode = "joint";
+  EXPECT_TRUE(runner.run("robot", state));
+  json = runner.state_json();
+  EXPECT_TRUE(json["running"].is_null());
+  EXPECT_EQ(json["last"]["message"], "the tracker lost the marker");
   EXPECT_THROW(runner.add({"running", "", "", false}, nullptr), CalibrationStoreError);
 }
 

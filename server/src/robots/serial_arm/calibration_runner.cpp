@@ -31,6 +31,7 @@ bool CalibrationRunner::has(std::string_view kind) const {
 
 std::optional<std::string> CalibrationRunner::run(std::string_view kind, const OperatingStateView& state) {
   Start start;
+  std::optional<Outcome> previous;
   {
     std::lock_guard lock(mutex_);
     const auto it =
@@ -42,14 +43,17 @@ std::optional<std::string> CalibrationRunner::run(std::string_view kind, const O
              std::to_string(running_->step) + " of " + std::to_string(running_->steps) +
              "); wait for it to end";
     running_ = Progress{std::string(kind), 0, 0, "starting"};
+    previous = std::move(last_);
     last_.reset();
     start = it->second;
   }
   // Called without the lock: the routine reports progress (or even finishes) from inside.
   auto refusal = start(state);
   if (refusal) {
+    // A refused start ran nothing: the last routine's outcome stays what the operator sees.
     std::lock_guard lock(mutex_);
     running_.reset();
+    last_ = std::move(previous);
   }
   return refusal;
 }

@@ -192,9 +192,12 @@ class SerialArmApi final : public RobotApiExtension {
       return conflict("sweep: robot '" + robot + "' is in " + state->mode +
                       " mode; switch to sweep mode (POST /api/v1/robots/" + robot +
                       "/mode {\"mode\": \"sweep\"}) first");
-    if (moving_action && (state->state != safety::OperatingState::kEnabled || !state->drives_ready))
+    if (moving_action && state->state != safety::OperatingState::kEnabled)
       return conflict("sweep: robot '" + robot + "' is " + std::string(safety::to_string(state->state)) +
                       "; enable it (or resume it) first");
+    if (moving_action && !state->drives_ready)
+      return conflict("sweep: robot '" + robot +
+                      "' is ENABLED but its drives are not ready yet; try again in a moment");
     switch (*action) {
       case SweepAction::pre_position:
         if (phase == SweepPhase::idle)

@@ -390,9 +390,12 @@ std::optional<std::string> SerialArm::start_robot_calibration(const OperatingSta
       phase == SweepPhase::paused)
     return "calibrate: the sweep is " + std::string(to_string(phase)) +
            "; abort it first (POST /api/v1/robots/" + robot + "/sweep {\"action\":\"abort\"})";
-  if (state.state != safety::OperatingState::kEnabled || !state.drives_ready)
+  if (state.state != safety::OperatingState::kEnabled)
     return "calibrate: robot '" + robot + "' is " + std::string(safety::to_string(state.state)) +
            "; enable it (or resume it) first";
+  if (!state.drives_ready)
+    return "calibrate: robot '" + robot +
+           "' is ENABLED but its drives are not ready yet; try again in a moment";
   if (state.mode != "cartesian")
     return "calibrate: robot '" + robot + "' is in " + state.mode +
            " mode; switch to cartesian mode (POST /api/v1/robots/" + robot +
