@@ -5,7 +5,6 @@
 // the previous calibration in use; the sweep refuses without a calibration and plans after it.
 #include <gtest/gtest.h>
 
-#include <unistd.h>
 #include <chrono>
 #include <thread>
 
@@ -23,6 +22,7 @@
 #include "serial_arm/serial_arm_robot.hpp"
 #include "tendril/server/config.hpp"
 #include "tendril/server/robot_runtime.hpp"
+#include "us_arm_calibrated.hpp"
 
 namespace tendril::server {
 namespace {
@@ -33,18 +33,9 @@ const std::filesystem::path kConfig = std::filesystem::path(TENDRIL_SOURCE_DIR) 
 
 class UsArmCalibrationTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    state_dir_ = std::filesystem::temp_directory_path() /
-                 ("tendril_us_arm_calibration_" + std::to_string(::getpid()) + "_" +
-                  ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::remove_all(state_dir_);
-    ::setenv("TENDRIL_STATE_DIR", state_dir_.c_str(), 1);
-  }
   void TearDown() override {
     if (runtime) runtime->stop();
     runtime.reset();
-    ::unsetenv("TENDRIL_STATE_DIR");
-    std::filesystem::remove_all(state_dir_);
   }
   void start() {
     RuntimeOptions o;
@@ -125,7 +116,7 @@ class UsArmCalibrationTest : public ::testing::Test {
     return worst;
   }
 
-  std::filesystem::path state_dir_;
+  testing::ScopedStateDir state_dir_{"tendril_us_arm_calibration"};
   std::unique_ptr<RobotRuntime> runtime;
   std::unique_ptr<JsonControlApi> api;
 };
@@ -136,7 +127,7 @@ TEST_F(UsArmCalibrationTest, DescribesItsCalibrationsAndTheSweepRefusesWithoutOn
   ASSERT_EQ(robots.size(), 1u);
   EXPECT_EQ(robots[0]["calibrations"]["kinds"], json({"robot", "us", "catheter"}));
   EXPECT_EQ(robots[0]["calibrations"]["required"], json({"robot", "us"}));
-  EXPECT_EQ(robots[0]["calibrations"]["store"], (state_dir_ / "calibrations" / "us_arm").string());
+  EXPECT_EQ(robots[0]["calibrations"]["store"], (state_dir_.path() / "calibrations" / "us_arm").string());
   // The SIMULATED tracker's truth comes from the file's ultrasound.simulation.tracker.
   EXPECT_TRUE(
       arm().tracker_settings()->global_T_base.translation().isApprox(Eigen::Vector3d(850, -620, 540)));
@@ -213,7 +204,7 @@ TEST_F(UsArmCalibrationTest, TheRoutineRecoversTheBaseInTheTrackersFrameAndTheSw
   // The seed's budget: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm per measurement.
   EXPECT_LT(record->residual_mm, 1.0);
   EXPECT_LT(at_limb, 2.0);
-  EXPECT_TRUE(std::filesystem::exists(state_dir_ / "calibrations" / "us_arm" / "robot-v000001.json"));
+  EXPECT_TRUE(std::filesystem::exists(state_dir_.path() / "calibrations" / "us_arm" / "robot-v000001.json"));
   // The arm is back where it started, still, and enabled.
   EXPECT_EQ(op()["state"], "ENABLED");
 
@@ -300,25 +291,7 @@ TEST_F(UsArmCalibrationTest, ASilentTrackerEndsTheRoutineAndTheArmStaysStill) {
 
 TEST_F(UsArmCalibrationTest, TheRoutineIsRefusedWhileTheSweepRuns) {
   start();
-  CalibrationRecord truth;
-  truth.kind = "robot";
-  truth.method = "test";
-  truth.transforms["H_B^G"] = arm().tracker_settings()->global_T_base;
-  truth.valid = true;
-  truth.summary = "the truth";
-  arm().calibrations()->store().save(truth);
-  // The image-to-probe calibration the sweep requires too: the SIMULATED scanner's truth.
-  const auto& image = arm().ultrasound_calibrations()->simulation().true_image;
-  CalibrationRecord us;
-  us.kind = "us";
-  us.method = "test";
-  us.transforms["H_I^U"] = image.image_in_probe;
-  us.values["s_u_mm_per_px"] = image.s_u;
-  us.values["s_v_mm_per_px"] = image.s_v;
-  us.valid = true;
-  us.summary = "the truth";
-  arm().calibrations()->store().save(us);
-  arm().publish_calibration_in_use();
+  testing::store_true_calibrations(arm());
   enable();
   mode("sweep");
   ASSERT_EQ(api->robot_command("us_arm", "sweep", {{"action", "plan"}}).status, 200);

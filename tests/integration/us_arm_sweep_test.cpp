@@ -5,7 +5,6 @@
 // abort (retract and hold), a lost force sensor, the refusals, and the catheter moving in the same
 // runtime while the sweep runs.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <Eigen/Geometry>
 #include <algorithm>
