@@ -644,7 +644,9 @@ test('a stream that falls behind is marked STALE everywhere and nothing but the 
     for (const [k, a] of Object.entries(seen.ages)) {
       assert.equal(a.stale, 'true', `${k} panel marked STALE: ${JSON.stringify(a)}`);
       assert.match(a.text, /STALE/, `${k} age badge says STALE`);
-      assert.ok(a.ms > 250, `${k} age is over the bound: ${a.ms} ms`);
+      // The page marks STALE past 250 ms and shows the age rounded to a millisecond: 250.3 ms is STALE
+      // and reads "250" (CI red once on exactly that).
+      assert.ok(a.ms >= 250, `${k} age is at or over the bound: ${a.ms} ms`);
     }
     assert.match(seen.banner, /stale data/i, seen.banner);
     for (const id of ['enable-button', 'move-button', 'mode-joint', 'estop-reset-button']) {
