@@ -358,9 +358,13 @@ function setLease(held, otherMessage = '') {
   ui.lease.classList.toggle('held', held);
   ui.lease.classList.toggle('other', !held && !!otherMessage);
   // With several robots each has its own lease: the badge names the selected robot's.
+  // On a laptop screen the name gives way (CSS): the selector beside the badge shows it.
   const of = state.robots.length > 1 && state.robot ? ` (${state.robot.name})` : '';
-  ui.lease.textContent = (held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'lease: free') + of;
-  ui.lease.title = otherMessage;
+  const ofSpan = document.createElement('span');
+  ofSpan.className = 'lease-of';
+  ofSpan.textContent = of;
+  ui.lease.replaceChildren(held ? 'lease: yours' : otherMessage ? 'lease: other operator' : 'lease: free', ofSpan);
+  ui.lease.title = [of ? `The lease of ${state.robot.name}` : '', otherMessage].filter(Boolean).join(': ');
   ui.leaseButton.textContent = held ? 'Release lease' : 'Take lease';
   ui.leaseButton.setAttribute('aria-label', held ? 'Release operator lease' : 'Take operator lease');
   updateControls();
@@ -532,10 +536,19 @@ function applyTipFromScene(update) {
   showTip([p.x, p.y, p.z], zAxis);
 }
 
+// `detail` may start with a word that a laptop screen drops (CSS .latency-word): [word, rest].
 function setConnection(kind, text, detail = '') {
   ui.connection.className = `connection ${kind}`;
   ui.connectionText.textContent = text;
-  ui.connectionRtt.textContent = detail;
+  if (Array.isArray(detail)) {
+    const word = document.createElement('span');
+    word.className = 'latency-word';
+    word.textContent = detail[0];
+    ui.connectionRtt.replaceChildren(word, detail[1]);
+    detail = detail.join('');
+  } else {
+    ui.connectionRtt.textContent = detail;
+  }
   ui.connection.setAttribute('aria-label', `Connection: ${text}${detail ? `, ${detail}` : ''}`);
   ui.connection.dataset.kind = kind;
 }
@@ -574,12 +587,13 @@ function refreshConnectionIndicator() {
     setConnection('stale', `STALE ${formatAge(age)}`, streaming ? 'stream behind' : 'polling behind');
   } else if (streaming) {
     const latency = streamLatencyMs();
-    setConnection('live', 'live stream', Number.isFinite(latency) ? `latency ${formatAge(latency)}` : '');
+    setConnection('live', 'live stream', Number.isFinite(latency) ? ['latency ', formatAge(latency)] : '');
     ui.connection.dataset.latencyMs = Number.isFinite(latency) ? latency.toFixed(1) : '';
   } else {
     setConnection('polling', 'polling (REST)', `data ${formatAge(age)} old`);
   }
-  ui.connection.title = `${clockNote}. Data older than ${STALE_MS} ms is marked STALE and commands other than ` +
+  ui.connection.title = `${streaming && !state.stale ? 'The number is the stream latency: arrival minus the server\'s stamp, ' +
+      'the worst of the last second. ' : ''}${clockNote}. Data older than ${STALE_MS} ms is marked STALE and commands other than ` +
       `the stops are disabled.${net.reachable ? '' : ` Server not answering: retrying in ${(net.delayMs / 1000).toFixed(1)} s.`}`;
   if (offline !== state.offline) {
     state.offline = offline;

@@ -451,6 +451,27 @@ test('the header shows the procedure time since the first Enable and the inserte
   const c = await procedureShown();
   assert.ok(Math.abs(c.inserted - start) < 0.05 && Math.abs(c.deepest - (start + 1)) < 0.05, `after in and out: ${JSON.stringify(c)}`);
   await page.locator(tid('procedure')).screenshot({path: path.join(ARTIFACTS, 'c05-procedure.png')});
+  // The block is whole in one header row at laptop and desktop widths, with the longest values it shows
+  // (a procedure past an hour, a three-digit insertion): it was clipped at 1280-1600 px, its Start/Stop
+  // button first, and 0 px wide at 1440.
+  for (const width of [1280, 1366, 1440, 1600, 1920]) {
+    await page.setViewportSize({width, height: 800});
+    const fit = await page.evaluate(() => {
+      const q = (id) => document.querySelector(`[data-testid="${id}"]`);
+      q('procedure-timer').textContent = '1:23:45';
+      q('inserted-length').textContent = '120.0 mm';
+      q('inserted-max').textContent = '120.0 mm';
+      const block = q('procedure');
+      const r = (e) => e.getBoundingClientRect();
+      const commands = document.querySelector('.commands');
+      return {width: innerWidth, clipped: block.scrollWidth - block.clientWidth, blockRight: r(block).right,
+              buttonRight: r(q('procedure-timer-button')).right, commandsLeft: r(commands).left,
+              rowTop: r(commands).top < r(block).bottom && r(block).top < r(commands).bottom};
+    });
+    assert.ok(fit.clipped <= 0 && fit.buttonRight <= fit.blockRight + 0.5 && fit.blockRight <= fit.commandsLeft && fit.rowTop,
+              `the procedure time, its button and the inserted lengths are whole beside the commands: ${JSON.stringify(fit)}`);
+  }
+  await page.setViewportSize({width: 1280, height: 800});
   // Stop freezes the time.
   await page.click(tid('procedure-timer-button'));
   const d = await procedureShown();
