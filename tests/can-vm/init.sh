@@ -3,7 +3,7 @@
 #
 # The initramfs holds only busybox, this script, the kernel modules needed to
 # reach the host over 9p and to create vcan interfaces, and (appended per run)
-# /job/job.sh + /job/vcan.conf. Everything else (test binary, its shared
+# /job/job.sh + /job/vcan.conf + /job/keep.conf. Everything else (test binary, its shared
 # libraries, iproute2, can-utils) comes from the host's root, shared read-only.
 #
 # Protocol with run.sh on the serial console (lines, CR stripped by the host):
@@ -64,12 +64,29 @@ mkdir -p /dev/pts /dev/shm
 mount -t devpts devpts /dev/pts
 mount -t tmpfs -o mode=1777 tmpfs /dev/shm
 mount -o rbind /dev /host/dev || setup_failed "cannot bind /dev into the host tree"
-# Writable scratch space on top of the read-only share.
+# Writable scratch space on top of the read-only share. keep.conf: entries of /tmp or /var/tmp (one per
+# line: the clone or file that holds the command or the working directory) that stay visible, bound
+# back over the tmpfs from where the share shows them.
+mkdir -p /keep
+n=0
+while read -r entry; do
+  [ -n "$entry" ] || continue
+  n=$((n + 1))
+  if [ -d "/host$entry" ]; then mkdir -p "/keep/$n"; else : >"/keep/$n"; fi
+  mount -o bind "/host$entry" "/keep/$n" || setup_failed "cannot hold $entry for the VM"
+done </job/keep.conf
 for dir in /tmp /var/tmp /run; do
   if [ -d "/host$dir" ]; then
     mount -t tmpfs -o mode=1777 tmpfs "/host$dir" || setup_failed "cannot mount tmpfs on $dir"
   fi
 done
+n=0
+while read -r entry; do
+  [ -n "$entry" ] || continue
+  n=$((n + 1))
+  if [ -d "/keep/$n" ]; then mkdir -p "/host$entry"; else : >"/host$entry"; fi
+  mount -o bind "/keep/$n" "/host$entry" || setup_failed "cannot show $entry in the VM"
+done </job/keep.conf
 
 stage "host root mounted"
 

@@ -117,9 +117,24 @@ COMMAND_PATH="$1"
 [[ -f $COMMAND_PATH && -x $COMMAND_PATH ]] ||
   die 2 "not an executable file: $COMMAND_PATH"
 case "$COMMAND_PATH" in
-  /tmp/* | /var/tmp/* | /run/* | /proc/* | /sys/* | /dev/*)
+  /run/* | /proc/* | /sys/* | /dev/*)
     die 2 "$COMMAND_PATH is under a directory the VM replaces with an empty one; build it elsewhere" ;;
 esac
+# /tmp and /var/tmp are fresh tmpfs in the VM (the share is read-only), but a clone under /tmp (a CI
+# checkout, /tmp/fresh) must still run: the entry of /tmp or /var/tmp that holds the command or the
+# working directory stays visible there (read-only, like the rest of the host), bound over the tmpfs.
+KEEP_CONF=""
+for path in "$COMMAND_PATH" "$PWD"; do
+  case "$path" in
+    /tmp/?*) base=/tmp ;;
+    /var/tmp/?*) base=/var/tmp ;;
+    *) continue ;;
+  esac
+  rest="${path#"$base"/}"
+  entry="$base/${rest%%/*}"
+  [[ $entry != *$'\n'* ]] || die 2 "a path with a newline cannot be kept in the VM: $entry"
+  [[ $'\n'"$KEEP_CONF" == *$'\n'"$entry"$'\n'* ]] || KEEP_CONF+="$entry"$'\n'
+done
 [[ $TIMEOUT_S =~ ^[1-9][0-9]*$ ]] || die 2 "TENDRIL_CAN_VM_TIMEOUT must be a positive number of seconds, not '$TIMEOUT_S'"
 [[ -f $INIT_SCRIPT ]] || die 2 "missing $INIT_SCRIPT"
 
@@ -366,6 +381,7 @@ mkdir -p "$RUN_DIR/job/job"
   printf '\n'
 } >"$RUN_DIR/job/job/job.sh"
 printf '%s' "$VCAN_CONF" >"$RUN_DIR/job/job/vcan.conf"
+printf '%s' "$KEEP_CONF" >"$RUN_DIR/job/job/keep.conf"
 # The kernel unpacks concatenated archives in turn: base image + this job.
 (cd "$RUN_DIR/job" && find job | LC_ALL=C sort | cpio --quiet -o -H newc -R 0:0) >"$RUN_DIR/job.cpio"
 cat "$BASE_INITRAMFS" "$RUN_DIR/job.cpio" >"$RUN_DIR/initramfs.cpio"
