@@ -7,9 +7,12 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "json_api.hpp"
@@ -309,6 +312,55 @@ TEST_F(SerialArmTest, ASilentForceSensorHoldsTheArmAndResumeIsRefused) {
   arm().simulated_force_sensor().set_silent(false);
   steps(20);
   EXPECT_EQ(api->state_command("ur5", {{"command", "resume"}}).status, 200);
+}
+
+TEST_F(SerialArmTest, AStallUnderTheBoundWhileMovingLeavesTheForceSensorFresh) {
+  // On a shared machine the whole process stalls for tens of ms; afterwards the control thread runs
+  // first. The SIMULATED sensor samples in that thread, so its reading is as fresh as the cycle and a
+  // 30 ms stall (under the 50 ms lost-control bound, over the sensor's 20 ms staleness bound) holds
+  // nothing. (With the sensor in a thread of its own the first cycle read a 31 ms old value and held.)
+  using Stall = RobotRuntime::Stall;
+  start({arm_config()});
+  enable();
+  cartesian_mode();
+  for (const auto what : {Stall::whole_process, Stall::control_thread}) {
+    SCOPED_TRACE(what == Stall::whole_process ? "whole process" : "control thread");
+    stream_twist({10.0, 0.0, 0.0}, 0.1);
+    ASSERT_EQ(op()["arm"]["motion"], "servo_cv");
+    const std::int64_t before = arm().simulated_force_sensor().read().stamp_ns;
+    runtime->stall(std::chrono::milliseconds(30), what);
+    runtime->step();
+    const auto s = op();
+    EXPECT_EQ(s["state"], "ENABLED") << s.dump();
+    EXPECT_TRUE(s["arm"]["force_fresh"].get<bool>()) << s.dump();
+    // The sensor sampled through the stall: its newest reading is from after it.
+    EXPECT_GE(arm().simulated_force_sensor().read().stamp_ns - before, 29'000'000);
+  }
+}
+
+TEST(SerialArmLive, TheControlThreadSamplesTheSimulatedForceSensor) {
+  // A live runtime (real time, its own threads): the SIMULATED sensor has no thread of its own, yet
+  // its readings come and keep coming, each newer than the last, fresh when the control cycle reads.
+  RuntimeOptions o;
+  o.control_rate_hz = 1000;
+  o.realtime_priority = false;
+  RobotRuntime runtime({load_robot_config(kConfig / "ur5_arm.json")}, o, builtin_robot_types());
+  runtime.start();
+  auto& sensor = dynamic_cast<SerialArm&>(*runtime.plugin("ur5")).simulated_force_sensor();
+  std::int64_t first = 0;
+  for (int k = 0; k < 2000 && !sensor.read().valid; ++k)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  ASSERT_TRUE(sensor.read().valid);
+  first = sensor.read().stamp_ns;
+  EXPECT_FALSE(sensor.running());
+  std::int64_t later = first;
+  for (int k = 0; k < 2000 && later - first < 50'000'000; ++k) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    later = sensor.read().stamp_ns;
+  }
+  EXPECT_GE(later - first, 50'000'000);
+  runtime.stop();
+  EXPECT_FALSE(sensor.read().valid);  // stopped like any component
 }
 
 TEST_F(SerialArmTest, EstopStopsTheArm) {

@@ -120,6 +120,10 @@ class Assembly final : public RobotAssembly {
   void add_component(std::unique_ptr<hardware::HardwareComponent> component) override {
     im_.extra_components.push_back(std::move(component));
   }
+  void add_component_in_control_thread(std::unique_ptr<hardware::HardwareComponent> component) override {
+    im_.control_thread_components.push_back(component.get());
+    im_.extra_components.push_back(std::move(component));
+  }
   bool stepped() const override { return im_.options.stepped; }
   double control_period() const override { return im_.period; }
   const std::vector<teleop::CenterlinePolyline>& scene_vessel() const override {
@@ -420,13 +424,21 @@ void RobotRuntime::start() {
   if (im.options.stepped) {
     im.stepped_now = std::chrono::steady_clock::now();
   } else {
-    for (auto* c : im.components) c->activate(im.options.realtime_priority);
+    for (auto* c : im.components)
+      if (!im.in_control_thread(c)) c->activate(im.options.realtime_priority);
   }
   im.running.store(true);
   if (!im.options.stepped) {
     im.control_thread.start(
         "control", dt,
-        [&im](const CycleTiming& c) {
+        [&im, previous = std::chrono::steady_clock::time_point{}](const CycleTiming& c) mutable {
+          // The devices without a thread of their own advance by the time since the previous cycle
+          // (a stall included), so their newest reading is as fresh as this cycle.
+          const double since = previous == std::chrono::steady_clock::time_point{}
+                                   ? im.period
+                                   : std::chrono::duration<double>(c.deadline - previous).count();
+          previous = c.deadline;
+          for (auto* component : im.control_thread_components) component->step(c.deadline, since, false);
           im.control_cycle(c.deadline, std::chrono::duration<double>(c.lost).count());
         },
         im.options.realtime_priority);
@@ -440,17 +452,24 @@ void RobotRuntime::step() {
   im.stepped_now +=
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
   const auto now = im.stepped_now;
+  // The control thread's own devices advance with it: by every period since its previous cycle.
+  const double control_devices_period = im.period + im.stepped_sim_lost + im.stepped_control_devices_lost;
   if (im.stepped_sim_lost > 0.0) {
-    // After a stall of the whole machine the highest priority runs first: the control cycle, on the
-    // feedback and readings from before the stall; then the bus and the simulated hardware catch up.
+    // After a stall of the whole machine the highest priority runs first: the control thread (its own
+    // devices, then the cycle), on the feedback and readings from before the stall; then the bus and
+    // the simulated hardware with threads of their own catch up.
+    for (auto* c : im.control_thread_components) c->step(now, control_devices_period, false);
     im.control_cycle(now, im.stepped_lost);
-    for (auto* c : im.components) c->step(now, im.period + im.stepped_sim_lost, false);
+    for (auto* c : im.components)
+      if (!im.in_control_thread(c)) c->step(now, im.period + im.stepped_sim_lost, false);
   } else {
-    for (auto* c : im.components) c->step(now, im.period, false);
+    for (auto* c : im.components)
+      c->step(now, im.in_control_thread(c) ? control_devices_period : im.period, false);
     im.control_cycle(now, im.stepped_lost);
   }
   im.stepped_lost = 0.0;
   im.stepped_sim_lost = 0.0;
+  im.stepped_control_devices_lost = 0.0;
   for (auto* c : im.components) c->step(now, im.period, true);
 }
 
@@ -463,8 +482,11 @@ void RobotRuntime::stall(std::chrono::nanoseconds duration, Stall what) {
   for (auto skipped = period; skipped <= duration; skipped += period) {
     im.stepped_now += period;
     if (what == Stall::control_thread) {
-      // Buses and simulated hardware run on; the control cycles that should have run do not.
-      for (auto* c : im.components) c->step(im.stepped_now, im.period, false);
+      // Buses and simulated hardware run on; the control cycles that should have run do not, nor do
+      // the devices the control thread steps.
+      for (auto* c : im.components)
+        if (!im.in_control_thread(c)) c->step(im.stepped_now, im.period, false);
+      im.stepped_control_devices_lost += im.period;
     } else {
       im.stepped_sim_lost += im.period;
     }

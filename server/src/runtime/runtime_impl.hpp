@@ -6,6 +6,7 @@
 // No robot type is named here: robot-specific behaviour reaches the cycle through RobotController.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <deque>
@@ -216,6 +217,8 @@ struct RobotRuntime::Impl {
   // Every component in start order: buses first, then the robot types' own components.
   std::vector<std::unique_ptr<hardware::HardwareComponent>> extra_components;
   std::vector<hardware::HardwareComponent*> components;
+  // Those of them the live control thread steps before each cycle (they are never activated).
+  std::vector<hardware::HardwareComponent*> control_thread_components;
   std::map<std::string, RobotUnit*> by_name;
   PeriodicThread control_thread;
   std::atomic<bool> running{false};
@@ -234,6 +237,12 @@ struct RobotRuntime::Impl {
   // Stepped mode: control time the next step() reports lost, and simulated time it catches up.
   double stepped_lost = 0.0;
   double stepped_sim_lost = 0.0;
+  double stepped_control_devices_lost = 0.0;  // a control-thread stall: what its own devices missed
+
+  bool in_control_thread(const hardware::HardwareComponent* c) const noexcept {
+    return std::find(control_thread_components.begin(), control_thread_components.end(), c) !=
+           control_thread_components.end();
+  }
 
   // Control thread. `lost`: time since the previous cycle ran beyond one period (s), see
   // PeriodicThread's CycleTiming.

@@ -203,6 +203,11 @@ class RobotAssembly {
   virtual std::string joint_bus(std::size_t joint) const = 0;
   // A link or device the core starts before the control loop and stops after it.
   virtual void add_component(std::unique_ptr<hardware::HardwareComponent> component) = 0;
+  // A SIMULATED device with no thread of its own: a live server's control thread steps it
+  // (step(now, period, false)) right before each cycle; stepped mode steps it with the others. For a
+  // simulated sensor whose own thread, starved on a shared host, would go silent where the real sensor
+  // (its own electronics) does not. Its step() must be real-time safe: no allocation, lock or block.
+  virtual void add_component_in_control_thread(std::unique_ptr<hardware::HardwareComponent> component) = 0;
   virtual bool stepped() const = 0;
   virtual double control_period() const = 0;
   // The server's scene vessel (the server file's "scene"), in the vessel file's own frame; empty when

@@ -267,7 +267,11 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
           std::make_unique<LimbMotion>(*limb_, *surface_, "SIMULATED limb of '" + rc.name + "'"));
     // The arm before the sensor: in stepped simulation the sensor then samples the arm's new state.
     assembly.add_component(std::move(arm));
-    assembly.add_component(std::move(sensor));
+    // The SIMULATED sensor samples in the control thread, right before each cycle: in a thread of its
+    // own, starved for 20 ms on a loaded shared host, it went silent and held a moving arm (a cold CI
+    // run's sweep, two sanitized servers' calibrations) — a silence the real sensor, on its own
+    // electronics, does not have. Its watchdog still holds on set_silent() (failure injection).
+    assembly.add_component_in_control_thread(std::move(sensor));
   } catch (const sim::SimulationSetupError& e) {
     throw ConfigError(file + ": arm.simulation: " + e.what());
   }

@@ -17,9 +17,10 @@
 // 2 ms steps and 1 kHz sampling 1 ms ahead, 0.7 mN at the controller's 1.33 mm/s into 0.5 N/mm tissue.
 //
 // Threads: read() is called by the control thread and only loads a LatestValue slot. Sampling runs in
-// the sensor's own periodic thread (activate(), one period per sample) or, in stepped simulation, in
-// step(now, period, after_control = false), which takes every sample due in that period — step it after
-// the arm so it sees the arm's new state.
+// the sensor's own periodic thread (activate(), one period per sample) or in step(now, period,
+// after_control = false), which takes every sample due in that period (stepped simulation, or a live
+// control thread that steps the sensor before each cycle) — step it after the arm so it sees the arm's
+// new state. step() allocates nothing and takes no lock.
 #pragma once
 
 #include <array>
