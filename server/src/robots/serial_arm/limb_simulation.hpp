@@ -82,24 +82,6 @@ struct LimbParameters {
 // the limb, a tracker rate ≤ 0, a period ≤ 0).
 void validate(const LimbParameters& parameters);
 
-// Two seqlock slots written in turn, readers pointed at the last complete one: a reader (the control
-// thread) never spins on a writer that was preempted mid-write (the LimbMotion thread has no real-time
-// priority), as it could on one LatestValue. One writer.
-template <typename T>
-class AlternatingValue {
- public:
-  void store(const T& value) noexcept {
-    const int next = 1 - latest_.load(std::memory_order_relaxed);
-    slots_[next].store(value);
-    latest_.store(next, std::memory_order_release);
-  }
-  T load() const noexcept { return slots_[latest_.load(std::memory_order_acquire)].load(); }
-
- private:
-  hardware::LatestValue<T> slots_[2];
-  std::atomic<int> latest_{0};
-};
-
 struct LimbPoseSample {           // trivially copyable, for LatestValue
   double t = 0.0;                 // simulated time the pose belongs to (s)
   std::array<double, 16> pose{};  // world_T_limb, 4×4 column-major
@@ -145,8 +127,8 @@ class LimbSimulation final : public sim::SurfaceHeightMap {
 
   LimbParameters parameters_;
   teleop::CenterlinePolyline artery_;
-  AlternatingValue<LimbPoseSample> truth_;
-  AlternatingValue<LimbPoseSample> tracked_;
+  hardware::LatestValue<LimbPoseSample> truth_;
+  hardware::LatestValue<LimbPoseSample> tracked_;
   double next_track_ = 0.0;      // simulation side only
   std::mt19937_64 tracker_rng_;  // the tracker's noise (simulation side only)
   std::normal_distribution<double> tracker_noise_{0.0, 1.0};

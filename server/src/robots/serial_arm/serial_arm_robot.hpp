@@ -282,27 +282,28 @@ class SerialArm final : public RobotPlugin {
   std::unique_ptr<LimbSimulation> limb_;          // before surface_: its height map outlives the surface
   std::unique_ptr<sim::ContactSurface> surface_;  // owned here: outlives the sensor (runtime-owned)
   sim::SimulatedVelocityArm* arm_ = nullptr;      // owned by the runtime (add_component)
-  sim::SimulatedForceSensor* sensor_ = nullptr;   // owned by the runtime (add_component)
+  sim::SimulatedForceSensor* sensor_ = nullptr;   // owned by the runtime (add_component_in_control_thread)
   SerialArmController controller_{*this};
   hardware::LatestValue<ArmSnapshot> published_;
   hardware::LatestValue<UltrasoundProbeSample> probe_published_;
-  std::unique_ptr<UltrasoundSweep> sweep_;     // control thread only
-  AlternatingValue<SweepPlanData> plan_slot_;  // the control thread never spins on a writer
+  std::unique_ptr<UltrasoundSweep> sweep_;  // control thread only
+  hardware::LatestValue<SweepPlanData> plan_slot_;
   hardware::LatestValue<SweepSnapshot> sweep_published_;
   mutable std::mutex plan_mutex_;  // network threads only
   std::shared_ptr<const SweepPlan> plan_;
   // Calibrations (with "ultrasound" only).
   std::optional<OpticalTrackerSettings> tracker_settings_;
-  std::unique_ptr<SimulatedOpticalTracker> tracker_;          // control thread only
-  std::unique_ptr<CalibrationMotion> calibration_motion_;     // control thread only
-  AlternatingValue<CalibrationPosesData> calibration_poses_;  // network → control thread
+  std::unique_ptr<SimulatedOpticalTracker> tracker_;               // control thread only
+  std::unique_ptr<CalibrationMotion> calibration_motion_;          // control thread only
+  hardware::LatestValue<CalibrationPosesData> calibration_poses_;  // network → control thread
   hardware::LatestValue<CalibrationSnapshot> calibration_published_;
   hardware::LatestValue<CalibrationPairsData> calibration_pairs_;  // control → worker, once per run
   struct BaseCalibration {                                         // trivially copyable
     bool valid = false;
     std::array<double, 16> global_T_base{};  // column-major
   };
-  AlternatingValue<BaseCalibration> base_calibration_;  // network → control thread (writers: worker_mutex_)
+  // network → control thread (writers: worker_mutex_)
+  hardware::LatestValue<BaseCalibration> base_calibration_;
   std::atomic<bool> marker_hidden_{false};
   std::unique_ptr<CalibrationStore> store_;
   std::unique_ptr<CalibrationRunner> runner_;
