@@ -147,8 +147,9 @@ test('a sweep runs from the console while the catheter is driven in the same ser
           return false;
         }, null, {timeout: 30000, polling: 1000});
       }
-      // Resume is refused while the hold's cause persists (the SIMULATED force sensor may still be silent
-      // on a loaded machine): clicked again, each refusal printed, for up to 10 tries a second apart.
+      // Resume is refused while the hold's cause persists (a CI run saw the SIMULATED force sensor still
+      // silent, before it sampled in the control thread): clicked again, each refusal printed, for up to
+      // 10 tries a second apart.
       for (let click = 1; click <= 10 && /PAUSED/.test(await page.locator(tid('state-badge')).textContent()); click++) {
         const resume = await page.locator(tid('resume-button')).isVisible().catch(() => false) ? 'resume-button' : 'banner-resume-button';
         await page.click(tid(resume));

@@ -108,8 +108,8 @@ test('the sweep is refused out of order, each time with the reason', async () =>
     await holdLease();
     const before = await state(ARM);
     if (before.state === 'PAUSED') {
-      // Resume is refused (409 hold_not_cleared) while the cause persists: on a loaded machine the
-      // SIMULATED force sensor can still be silent right after the routine ended (a CI run saw it).
+      // Resume is refused (409 hold_not_cleared) while the cause persists (a CI run saw the SIMULATED
+      // force sensor still silent right after the routine, before it sampled in the control thread).
       // Tried again as an operator would, each refusal printed, for up to 10 s; any other answer fails.
       let resumed = null;
       for (let i = 0; i < 100 && !resumed; i++) {
