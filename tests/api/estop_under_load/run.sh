@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The e-stop under load (issue 30), a server of its own: the loads that once delayed the e-stop
+# (quadratic JSON bodies, slow work on the network threads, idle connections) each run a few seconds
+# while REST and WebSocket e-stops are timed (estop_under_load.test.mjs; ~40 s). Then SIGTERM must
+# disable the drives and end the process cleanly.
+# The server gets a soft RLIMIT_NOFILE of 1024 (the systemd default; TENDRIL_ESTOP_NOFILE to change
+# it), so the 2,000 idle connections are more than its descriptors; the test client gets the hard
+# limit (it holds those 2,000).
+# Usage: tests/api/estop_under_load/run.sh [tendrild]
+set -uo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+# shellcheck source=tests/api/server.sh
+source "$here/../server.sh"
+trap stop_tendrild EXIT INT TERM
+binary="${1:-${TENDRILD:-$repo_root/build/server/tendrild}}"
+[ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
+
+server_nofile="${TENDRIL_ESTOP_NOFILE:-1024}"
+ulimit -S -n "$server_nofile" || { echo "cannot set the soft descriptor limit to $server_nofile" >&2; exit 2; }
+start_tendrild "$binary" || exit 1
+echo "tendrild descriptor limit: $(awk '/Max open files/ {print $4 " soft, " $5 " hard"}' /proc/"$tendrild_pid"/limits)"
+# The client's own limit: as high as allowed (the server keeps the limit it started with).
+ulimit -S -n "$(ulimit -H -n)"
+echo "test client descriptor limit: $(ulimit -S -n)"
+
+node --test --test-concurrency=1 "$here"/*.test.mjs
+status=$?
+check_clean_shutdown || status=1
+if [ $status -ne 0 ]; then
+  echo "--- last lines of the tendrild log ---" >&2
+  tail -n 40 "$TENDRIL_LOG" >&2
+fi
+exit $status
