@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <cctype>
-#include <unordered_set>
+#include <utility>
 #include <vector>
+
+#include "tendril/teleop/strict_json.hpp"
 
 namespace tendril::server::http {
 
@@ -34,39 +36,13 @@ bool json_nesting_exceeds(std::string_view text, int max_depth) noexcept {
 }
 
 nlohmann::json parse_json_unique_keys(std::string_view text, std::string& duplicate_key) {
-  using Event = nlohmann::json::parse_event_t;
-  duplicate_key.clear();
-  // The keys seen so far in each object being parsed, innermost last.
-  std::vector<std::unordered_set<std::string>> open_objects;
-  bool duplicate = false;
-  const nlohmann::json::parser_callback_t track_keys = [&](int /*depth*/, Event event,
-                                                           nlohmann::json& parsed) {
-    if (event == Event::object_start) {
-      open_objects.emplace_back();
-    } else if (event == Event::object_end) {
-      if (!open_objects.empty()) open_objects.pop_back();
-    } else if (event == Event::key && !open_objects.empty() && parsed.is_string()) {
-      const auto& key = parsed.get_ref<const std::string&>();
-      if (!open_objects.back().insert(key).second && !duplicate) {
-        duplicate = true;
-        duplicate_key = key;
-      }
-    }
-    return true;
-  };
-  nlohmann::json value =
-      nlohmann::json::parse(text.begin(), text.end(), track_keys, /*allow_exceptions=*/false);
-  // The callback keeps everything, so a discarded value is a syntax error: that is the error to report,
-  // even when a duplicate key came before it.
-  if (value.is_discarded()) {
-    duplicate_key.clear();
-  } else if (duplicate) {
-    value = nlohmann::json(nlohmann::json::value_t::discarded);
-  }
-  return value;
+  auto parsed = teleop::parse_strict_json(text, kMaxJsonDepth);
+  duplicate_key = std::move(parsed.duplicate_key);
+  return std::move(parsed.value);
 }
 
 ApiResult parse_json_body(std::string_view body, std::size_t max_bytes) {
+  using teleop::StrictJsonError;
   if (body.size() > max_bytes) {
     return ApiResult::error(413, "body_too_large",
                             "request body is " + std::to_string(body.size()) + " bytes; the limit is " +
@@ -75,36 +51,31 @@ ApiResult parse_json_body(std::string_view body, std::size_t max_bytes) {
   const bool blank = std::all_of(body.begin(), body.end(),
                                  [](char c) { return std::isspace(static_cast<unsigned char>(c)); });
   if (blank) return ApiResult::success(nlohmann::json::object());
-  if (json_nesting_exceeds(body, kMaxJsonDepth)) {
-    return ApiResult::error(400, "malformed_json",
-                            "request body nests deeper than " + std::to_string(kMaxJsonDepth) + " levels");
+  auto parsed = teleop::parse_strict_json(body, kMaxJsonDepth);
+  switch (parsed.error) {
+    case StrictJsonError::kNone:
+      break;
+    case StrictJsonError::kDuplicateKey:
+      return ApiResult::error(400, "duplicate_key",
+                              "request body has the key \"" + parsed.duplicate_key +
+                                  "\" twice in one object; send each key once");
+    case StrictJsonError::kTooDeep:
+      return ApiResult::error(400, "malformed_json",
+                              "request body nests deeper than " + std::to_string(kMaxJsonDepth) + " levels");
+    case StrictJsonError::kSyntax:
+      return ApiResult::error(400, "malformed_json",
+                              "request body is not valid JSON at byte " + std::to_string(parsed.byte));
+    case StrictJsonError::kNumberOutOfRange:
+      // e.g. 1e999, too large for a double (found by fuzz_rest_body).
+      return ApiResult::error(400, "malformed_json",
+                              "request body is not valid JSON: " + parsed.parser_message);
   }
-  std::string duplicate_key;
-  nlohmann::json value = parse_json_unique_keys(body, duplicate_key);
-  if (value.is_discarded() && !duplicate_key.empty()) {
+  if (!parsed.value.is_object()) {
     return ApiResult::error(
-        400, "duplicate_key",
-        "request body has the key \"" + duplicate_key + "\" twice in one object; send each key once");
+        400, "malformed_json",
+        std::string("request body must be a JSON object, got ") + parsed.value.type_name());
   }
-  if (value.is_discarded()) {
-    // Re-parse with exceptions only to get a position for the message; the input is already bounded.
-    std::string detail = "not valid JSON";
-    try {
-      const auto unused = nlohmann::json::parse(body.begin(), body.end());
-      (void)unused;
-    } catch (const nlohmann::json::parse_error& e) {
-      detail = "not valid JSON at byte " + std::to_string(e.byte);
-    } catch (const nlohmann::json::exception& e) {
-      // e.g. out_of_range for a number too large for a double (found by fuzz_rest_body).
-      detail = std::string("not valid JSON: ") + e.what();
-    }
-    return ApiResult::error(400, "malformed_json", "request body is " + detail);
-  }
-  if (!value.is_object()) {
-    return ApiResult::error(400, "malformed_json",
-                            std::string("request body must be a JSON object, got ") + value.type_name());
-  }
-  return ApiResult::success(std::move(value));
+  return ApiResult::success(std::move(parsed.value));
 }
 
 static int hex_value(char c) noexcept {

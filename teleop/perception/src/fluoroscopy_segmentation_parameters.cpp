@@ -6,7 +6,8 @@
 #include <cstdint>
 #include <cstdio>
 #include <utility>
-#include <vector>
+
+#include "tendril/teleop/strict_json.hpp"
 
 namespace tendril::teleop::perception {
 
@@ -231,66 +232,32 @@ BiplaneSegmentationParameters biplane_segmentation_parameters_from_json(
 
 BiplaneSegmentationParameters parse_biplane_segmentation_parameters(
     std::string_view json_text, const BiplaneSegmentationParameters& base) {
-  // The parameters are two small objects; anything far larger or deeper is not them (and is refused
-  // before parsing, so hostile text cannot make the parser allocate or recurse much).
+  // The parameters are two small objects; anything far larger or deeper is not them (refused before
+  // parsing and as soon as the parser gets that deep, so hostile text cannot make it allocate much).
   constexpr std::size_t kMaxBytes = std::size_t{64} * 1024;
   constexpr int kMaxDepth = 8;
   if (json_text.size() > kMaxBytes)
     throw SegmentationParameterError("", "segmentation parameters: " + std::to_string(json_text.size()) +
                                              " bytes of JSON; at most " + std::to_string(kMaxBytes) +
                                              " are accepted");
-  int depth = 0;
-  bool in_string = false, escaped = false;
-  for (const char c : json_text) {
-    if (in_string) {
-      if (escaped)
-        escaped = false;
-      else if (c == '\\')
-        escaped = true;
-      else if (c == '"')
-        in_string = false;
-    } else if (c == '"') {
-      in_string = true;
-    } else if (c == '{' || c == '[') {
-      if (++depth > kMaxDepth)
-        throw SegmentationParameterError(
-            "", "segmentation parameters: JSON nests deeper than " + std::to_string(kMaxDepth) + " levels");
-    } else if (c == '}' || c == ']') {
-      --depth;
-    }
-  }
   // A key given twice is refused (as the REST bodies are): which of the two was meant is unknowable.
-  using Event = nlohmann::json::parse_event_t;
-  std::vector<std::vector<std::string>> open_objects;
-  std::string duplicate;
-  const nlohmann::json::parser_callback_t track_keys = [&](int /*depth*/, Event event,
-                                                           nlohmann::json& parsed) {
-    if (event == Event::object_start) {
-      open_objects.emplace_back();
-    } else if (event == Event::object_end) {
-      if (!open_objects.empty()) open_objects.pop_back();
-    } else if (event == Event::key && !open_objects.empty() && parsed.is_string()) {
-      auto& keys = open_objects.back();
-      const auto& key = parsed.get_ref<const std::string&>();
-      if (std::find(keys.begin(), keys.end(), key) != keys.end()) {
-        if (duplicate.empty()) duplicate = key;
-      } else {
-        keys.push_back(key);
-      }
-    }
-    return true;
-  };
-  nlohmann::json json;
-  try {
-    json = nlohmann::json::parse(json_text.begin(), json_text.end(), track_keys);
-  } catch (const nlohmann::json::exception& e) {
-    throw SegmentationParameterError(
-        "", std::string("segmentation parameters: not valid JSON (") + e.what() + ")");
+  auto parsed = parse_strict_json(json_text, kMaxDepth);
+  switch (parsed.error) {
+    case StrictJsonError::kNone:
+      break;
+    case StrictJsonError::kTooDeep:
+      throw SegmentationParameterError(
+          "", "segmentation parameters: JSON nests deeper than " + std::to_string(kMaxDepth) + " levels");
+    case StrictJsonError::kSyntax:
+    case StrictJsonError::kNumberOutOfRange:
+      throw SegmentationParameterError(
+          "", "segmentation parameters: not valid JSON (" + parsed.parser_message + ")");
+    case StrictJsonError::kDuplicateKey:
+      throw SegmentationParameterError(parsed.duplicate_key,
+                                       "segmentation parameters: the key \"" + parsed.duplicate_key +
+                                           "\" appears twice in one object; give each key once");
   }
-  if (!duplicate.empty())
-    throw SegmentationParameterError(duplicate, "segmentation parameters: the key \"" + duplicate +
-                                                    "\" appears twice in one object; give each key once");
-  return biplane_segmentation_parameters_from_json(json, base);
+  return biplane_segmentation_parameters_from_json(parsed.value, base);
 }
 
 }  // namespace tendril::teleop::perception

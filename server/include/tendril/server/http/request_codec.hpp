@@ -17,23 +17,24 @@
 
 namespace tendril::server::http {
 
-// Deeper JSON nesting than this is refused before parsing (keeps parser and printer stacks small).
+// Deeper JSON nesting than this is refused (keeps parser and printer stacks small).
 inline constexpr int kMaxJsonDepth = 32;
 
 // Parses a REST request body. An empty body counts as `{}`. Answers in the API.md error shape:
 // 413 `body_too_large` when over `max_bytes`, 400 `malformed_json` for bad JSON, too deep nesting or a
 // body that is not a JSON object, 400 `duplicate_key` for an object with the same key twice. On
-// success `body` holds the object. Never throws.
+// success `body` holds the object. Linear in the body's size (teleop::parse_strict_json). Never throws
+// (but std::bad_alloc).
 ApiResult parse_json_body(std::string_view body, std::size_t max_bytes);
 
 // Parses JSON text like nlohmann::json::parse without exceptions, but refuses an object that has the
-// same key twice: RFC 8259 leaves its meaning open and nlohmann keeps the last value, so a check that
-// read one copy and an action that read another could disagree ({"mode":[],"mode":"x"}). Returns a
-// discarded value for invalid JSON and for a duplicate key; `duplicate_key` then names the key
-// (empty for other errors). Does not bound nesting: callers check json_nesting_exceeds() first.
+// same key twice (teleop/strict_json.hpp says why) and nesting deeper than kMaxJsonDepth. Returns a
+// discarded value for invalid JSON, too deep nesting and a duplicate key; `duplicate_key` then names
+// the key (empty for other errors).
 nlohmann::json parse_json_unique_keys(std::string_view text, std::string& duplicate_key);
 
-// True when `text` nests arrays/objects deeper than `max_depth` (strings are skipped correctly).
+// True when `text` nests arrays/objects deeper than `max_depth` (strings are skipped correctly). A
+// cheap scan for callers that want to say "too deep" before parsing (the Foxglove client messages).
 bool json_nesting_exceeds(std::string_view text, int max_depth) noexcept;
 
 struct RequestTarget {
