@@ -8,7 +8,8 @@
 // unanswered or was refused (or a load could not run), so a missed target shows in the table only.
 // Run it through tests/bench/estop_latency.sh, which starts the server.
 //   node tests/bench/estop_latency.mjs [--rounds 100] [--spread-seconds 20] [--class-seconds 60] [--vessel-mib 16]
-//                                      [--connections 2000] [--only name,name]
+//                                      [--connections 2000] [--reopen] [--only name,name]
+// --reopen: the idle connections the server closes are opened again (a reconnect flood), not in CI.
 import {target, loadClasses, runClass, summary, fmt} from '../api/estop_under_load/load.mjs';
 
 const args = Object.fromEntries(
@@ -19,7 +20,8 @@ const classMs = 1000 * Number(args['class-seconds'] ?? 60);
 const TARGET_P99_MS = 50;
 
 const server = target(process.env.TENDRIL_URL ?? '', process.env.TENDRIL_TOKEN);
-let classes = loadClasses({vesselBytes: Number(args['vessel-mib'] ?? 16) << 20, idleConnections: Number(args.connections ?? 2000)});
+let classes = loadClasses({vesselBytes: Number(args['vessel-mib'] ?? 16) << 20, idleConnections: Number(args.connections ?? 2000),
+  reopen: 'reopen' in args});
 if (args.only) {
   const wanted = args.only.split(',');
   classes = classes.filter((c) => c.name === 'idle' || wanted.includes(c.name));  // idle always: the ratio's base

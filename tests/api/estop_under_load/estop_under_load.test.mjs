@@ -30,7 +30,10 @@ const url = process.env.TENDRIL_URL;
 if (!url || !process.env.TENDRIL_TOKEN) throw new Error('run tests/api/estop_under_load/run.sh <tendrild>');
 const server = target(url, process.env.TENDRIL_TOKEN);
 // 16 MiB CSVs: the old server parsed and stored each for seconds on a network thread. 2,000 idle connections.
-const classes = loadClasses({vesselBytes: 16 << 20, idleConnections: 2000});
+// TENDRIL_ESTOP_CLASSES=side_view,idle_connections runs only those (idle always: the base line).
+const only = (process.env.TENDRIL_ESTOP_CLASSES || '').split(',').filter(Boolean);
+const classes = loadClasses({vesselBytes: 16 << 20, idleConnections: 2000})
+  .filter((c) => only.length === 0 || c.name === 'idle' || only.includes(c.name));
 const results = [];
 
 after(() => {
