@@ -2,6 +2,9 @@
 // the requested role, the lease token and the script's client name, resolved into an Identity.
 #include <algorithm>
 #include <cctype>
+#include <unordered_set>
+#include <utility>
+#include <vector>
 
 #include "front_end.hpp"
 
@@ -19,7 +22,38 @@ bool valid_client_name(std::string_view name) {
   });
 }
 
+// The cookie sessions that have an open WebSocket now.
+std::unordered_set<std::string> sessions_with_websockets(
+    const std::vector<std::shared_ptr<WsConnectionBase>>& sockets) {
+  std::unordered_set<std::string> out;
+  for (const auto& socket : sockets) {
+    if (!socket->identity().cookie_session.empty()) out.insert(socket->identity().cookie_session);
+  }
+  return out;
+}
+
 }  // namespace
+
+// Makes room for a new cookie session: forgets the least recently used one that nobody can be relying
+// on. A session that holds a lease, has an open WebSocket (`with_websockets`) or was used within the
+// lease timeout is kept, so that opening pages with ?token= never logs the console out. False when
+// every session is kept.
+bool HttpServer::Impl::forget_a_session_locked(const std::unordered_set<std::string>& with_websockets) {
+  const auto now = SteadyClock::now();
+  std::vector<std::pair<SteadyClock::time_point, const std::string*>> idle;
+  for (const auto& [id, session] : cookie_sessions) {
+    if (now - session.last_used >= opts.lease_timeout && !with_websockets.count(id))
+      idle.emplace_back(session.last_used, &id);
+  }
+  std::sort(idle.begin(), idle.end());
+  for (const auto& [last_used, id] : idle) {
+    if (leases.token_held_by("session:" + *id, now)) continue;
+    const std::string forgotten = *id;  // a copy: the key must outlive its own erase
+    cookie_sessions.erase(forgotten);
+    return true;
+  }
+  return false;
+}
 
 HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req, const RequestTarget& target,
                                                              std::uint64_t connection_id,
@@ -89,17 +123,22 @@ HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req,
       return out;
     }
     token_identity();
+    connections.authenticated(connection_id);
     return out;
   }
   if (const auto it = req.find(bhttp::field::cookie); it != req.end()) {
     if (const auto session_id = cookie_value(it->value(), kCookieName)) {
-      std::lock_guard lock(sessions_mutex);
+      std::unique_lock lock(sessions_mutex);
       const auto session = cookie_sessions.find(*session_id);
       // Session ids are random and looked up by hash; an unknown one is simply not a credential.
       if (session != cookie_sessions.end()) {
+        session->second.last_used = SteadyClock::now();
         set_identity(session->second.role == Role::kViewer ? Role::kViewer : asked, "session:" + *session_id,
                      session->second.label, false);
         out.identity.label = session->second.label;
+        out.identity.cookie_session = *session_id;
+        lock.unlock();
+        connections.authenticated(connection_id);
         if (!create_cookie_session || !target.query.count("token")) return out;
       }
     }
@@ -110,21 +149,29 @@ HttpServer::Impl::AuthOutcome HttpServer::Impl::authenticate(const Request& req,
         out.error = ApiResult::error(401, "bad_token", "the token in the URL is not this server's token");
         return out;
       }
+      connections.authenticated(connection_id);
       if (!create_cookie_session) {
         token_identity();
         return out;
       }
       const std::string session_id = random_hex(16);
+      const auto with_websockets = sessions_with_websockets(live_sessions());
       std::lock_guard lock(sessions_mutex);
-      const std::string label = "session:" + std::to_string(next_session_label++);
-      cookie_sessions[session_id] = {asked, label};
-      cookie_order.push_back(session_id);
-      while (cookie_order.size() > opts.max_sessions) {
-        cookie_sessions.erase(cookie_order.front());
-        cookie_order.pop_front();
+      if (cookie_sessions.size() >= opts.max_sessions && !forget_a_session_locked(with_websockets)) {
+        out.error = ApiResult::error(
+            503, "too_many_sessions",
+            "all " + std::to_string(opts.max_sessions) +
+                " console sessions are in use (each holds a lease, has an open WebSocket or was used in "
+                "the last " +
+                std::to_string(opts.lease_timeout.count() / 1000) +
+                " s); close a console tab, or open the console again in a moment");
+        return out;
       }
+      const std::string label = "session:" + std::to_string(next_session_label++);
+      cookie_sessions[session_id] = {asked, label, SteadyClock::now()};
       set_identity(asked, "session:" + session_id, label, false);
       out.identity.label = label;
+      out.identity.cookie_session = session_id;
       out.set_cookie = std::string(kCookieName) + "=" + session_id + "; Path=/; HttpOnly; SameSite=Strict";
       return out;
     }

@@ -28,15 +28,18 @@
 #include <string>
 #include <thread>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/ssl/context.hpp>
+#include <boost/asio/steady_timer.hpp>
 #include <boost/beast/http/message.hpp>
 #include <boost/beast/http/string_body.hpp>
 #include <nlohmann/json.hpp>
 
+#include "connection_limits.hpp"
 #include "tendril/server/http/foxglove_protocol.hpp"
 #include "tendril/server/http/http_server.hpp"
 #include "tendril/server/http/lease.hpp"
@@ -65,6 +68,9 @@ struct Identity {
   std::string label;  // public name shown as lease holder (X-Tendril-Client is only ever a label)
   // lease_key is this WebSocket connection: a lease bound to it ends when the connection closes.
   bool connection_bound = false;
+  // Private: the cookie session the caller came with (empty without one), so that a session with an
+  // open WebSocket is never forgotten to make room for a new one.
+  std::string cookie_session;
 };
 
 // Robot commands as the front end dispatches them. kAuthorizeOnly: the role and lease checks of a
@@ -143,14 +149,17 @@ class HttpServer::Impl {
   std::string openapi_document;                    // served at GET /api/v1/openapi.json; read at start()
   std::unique_ptr<net::ssl::context> tls_context;  // set when a certificate and key are configured
 
-  // Cookie sessions: random id -> role and public label. Bounded; the oldest is forgotten first.
+  // Cookie sessions: random id -> role and public label. Bounded (opts.max_sessions): a new one
+  // replaces the least recently used session that holds no lease, has no open WebSocket and was not
+  // used within the lease timeout; with none, the new one is refused (auth.cpp).
   struct CookieSession {
     Role role;
     std::string label;
+    SteadyClock::time_point last_used{};
   };
   mutable std::mutex sessions_mutex;
   std::unordered_map<std::string, CookieSession> cookie_sessions;
-  std::deque<std::string> cookie_order;
+  bool forget_a_session_locked(const std::unordered_set<std::string>& with_websockets);
   std::uint64_t next_session_label = 1;
 
   // Channels advertised to WebSocket clients; ids are never reused.
@@ -192,6 +201,16 @@ class HttpServer::Impl {
   // Runtime.
   std::unique_ptr<net::io_context> ioc;
   std::unique_ptr<tcp::acceptor> acceptor;
+  // Connection limits (connection_limits.hpp), fixed in start().
+  ConnectionRegistry connections;
+  // The slot of the connection do_accept is starting: its HttpSession::run() takes it, on the same
+  // thread, before start_*_http_session returns (the session's constructor has no room for it).
+  std::shared_ptr<ConnectionSlot> accepted_slot;
+  // Descriptor exhaustion: the back-off before the next accept, and a descriptor held in reserve so
+  // that the listener can still take a waiting client and close it (rather than leave it hanging).
+  std::unique_ptr<net::steady_timer> accept_timer;
+  int spare_descriptor = -1;
+  std::atomic<std::uint64_t> accept_backoffs{0}, accepted_and_closed{0};
   std::vector<std::thread> io_threads;
   std::thread publisher;
   std::mutex lifecycle_mutex;
@@ -294,6 +313,8 @@ class HttpServer::Impl {
   // Tells each topic source which of its topics have subscribers now (TopicSource::set_demand).
   void tell_sources_demand(const std::set<std::uint32_t>& wanted);
   void do_accept();
+  void accept_connection(tcp::socket socket);
+  void on_descriptors_exhausted();
   void run_io() noexcept;  // an I/O thread: io_context::run(), re-entered after a stray exception
   std::string metrics() const;
   // The largest body any route takes (vessel files may exceed max_body_bytes).

@@ -2,6 +2,12 @@
 // (Boost.Beast advanced-server pattern: one port, upgrade on /ws, one strand per connection). The
 // connections, routes and protocol live in the files listed in front_end.hpp. No code here runs in
 // the real-time path.
+#include <fcntl.h>
+#include <sys/resource.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <fstream>
 #include <iostream>
 #include <random>
@@ -111,22 +117,68 @@ void HttpServer::Impl::run_io() noexcept {
   }
 }
 
+namespace {
+
+// accept() failed for want of descriptors or memory: accepting again at once would fail the same way
+// and spin (the probe saw 70 % CPU).
+bool out_of_descriptors(const beast::error_code& ec) {
+  return ec == net::error::no_descriptors || ec == net::error::no_buffer_space ||
+         ec == net::error::no_memory || ec == boost::system::errc::too_many_files_open_in_system;
+}
+
+int open_spare_descriptor() { return ::open("/dev/null", O_RDONLY | O_CLOEXEC); }
+
+}  // namespace
+
+// The listener (on the acceptor's strand): each accepted connection is admitted against the limits
+// (connection_limits.hpp) before a session serves it.
 void HttpServer::Impl::do_accept() {
   acceptor->async_accept(net::make_strand(*ioc), [this](beast::error_code ec, tcp::socket socket) {
     if (ec == net::error::operation_aborted || !acceptor->is_open()) return;
-    if (!ec) {
-      beast::error_code ignored;
-      socket.set_option(tcp::no_delay(true), ignored);  // small state messages should not wait for Nagle
-      try {
-        if (tls_context) {
-          start_tls_http_session(std::move(socket), *this);
-        } else {
-          start_plain_http_session(std::move(socket), *this);
-        }
-      } catch (const std::exception& e) {
-        connection_failed(0, "accept", e.what());
-      }
+    if (out_of_descriptors(ec)) return on_descriptors_exhausted();
+    if (!ec) accept_connection(std::move(socket));
+    do_accept();
+  });
+}
+
+void HttpServer::Impl::accept_connection(tcp::socket socket) {
+  beast::error_code ec;
+  const auto remote = socket.remote_endpoint(ec);
+  if (ec) return;  // the client left before it was served; the socket closes here
+  accepted_slot = connections.admit(remote.address().to_string());
+  if (!accepted_slot) return;  // over its limit with nobody to make room (counted): closed at once
+  socket.set_option(tcp::no_delay(true), ec);  // small state messages should not wait for Nagle
+  try {
+    if (tls_context) {
+      start_tls_http_session(std::move(socket), *this);
+    } else {
+      start_plain_http_session(std::move(socket), *this);
     }
+  } catch (const std::exception& e) {
+    connection_failed(0, "accept", e.what());
+  }
+  accepted_slot.reset();  // normally taken by the session already
+}
+
+// Out of descriptors: make room, then wait accept_backoff before accepting again. Room comes from the
+// oldest idle unauthenticated connection (its descriptor is free by the time the back-off ends); with
+// none, the spare descriptor is given up for a moment to take the waiting client and close it, so that
+// it hears "closed" at once rather than waiting for a timeout.
+void HttpServer::Impl::on_descriptors_exhausted() {
+  ++accept_backoffs;
+  if (!connections.evict_oldest() && spare_descriptor >= 0) {
+    ::close(spare_descriptor);
+    const int waiting = ::accept4(acceptor->native_handle(), nullptr, nullptr, SOCK_CLOEXEC | SOCK_NONBLOCK);
+    if (waiting >= 0) {
+      ::close(waiting);
+      ++accepted_and_closed;
+    }
+    spare_descriptor = open_spare_descriptor();  // may fail while descriptors are short: retried below
+  }
+  accept_timer->expires_after(opts.accept_backoff);
+  accept_timer->async_wait([this](beast::error_code ec) {
+    if (ec || !acceptor->is_open()) return;
+    if (spare_descriptor < 0) spare_descriptor = open_spare_descriptor();
     do_accept();
   });
 }
@@ -145,10 +197,60 @@ HttpServer::HttpServer(ControlApi& api, HttpOptions options)
 
 HttpServer::~HttpServer() { stop(); }
 
+namespace {
+
+// The connection limits (README "Limits"): what HttpOptions leaves at 0 is derived from the descriptor
+// limit, whose soft value is raised toward the hard one first (to at most kWantedDescriptors: a larger
+// table helps no one). Inconsistent settings are set-up errors.
+ConnectionRegistry::Limits connection_limits(const HttpOptions& opts) {
+  constexpr rlim_t kWantedDescriptors = 65536;
+  constexpr std::size_t kDefaultMaxConnections = 4096;
+  constexpr std::size_t kFewestConnections = 8;
+  std::size_t descriptors = 1024;
+  rlimit limit{};
+  if (::getrlimit(RLIMIT_NOFILE, &limit) == 0) {
+    const rlim_t wanted = std::min(limit.rlim_max, kWantedDescriptors);  // RLIM_INFINITY is the largest
+    if (limit.rlim_cur < wanted) {
+      rlimit raised = limit;
+      raised.rlim_cur = wanted;
+      if (::setrlimit(RLIMIT_NOFILE, &raised) == 0) limit = raised;
+    }
+    descriptors = static_cast<std::size_t>(std::min(limit.rlim_cur, kWantedDescriptors));
+  }
+  const std::string limit_text = "the process may open " + std::to_string(descriptors) +
+                                 " file descriptors (ulimit -n; systemd LimitNOFILE=) and keeps " +
+                                 std::to_string(opts.descriptor_reserve) + " of them (descriptor_reserve)";
+  if (descriptors < opts.descriptor_reserve + kFewestConnections)
+    throw HttpServerError("too few file descriptors for the HTTP server: " + limit_text);
+  const std::size_t available = descriptors - opts.descriptor_reserve;
+  ConnectionRegistry::Limits out;
+  out.total = opts.max_connections != 0 ? opts.max_connections : std::min(kDefaultMaxConnections, available);
+  if (out.total > available) {
+    throw HttpServerError("max_connections " + std::to_string(out.total) + " is more than " + limit_text +
+                          " allow; lower it or raise the descriptor limit");
+  }
+  out.unauthenticated =
+      opts.max_unauthenticated_connections != 0 ? opts.max_unauthenticated_connections : out.total * 3 / 4;
+  if (out.unauthenticated >= out.total) {
+    throw HttpServerError("max_unauthenticated_connections (" + std::to_string(out.unauthenticated) +
+                          ") must be below max_connections (" + std::to_string(out.total) +
+                          "), so that room stays for operators");
+  }
+  out.per_address = opts.max_unauthenticated_per_address;
+  if (out.per_address == 0) throw HttpServerError("max_unauthenticated_per_address must be at least 1");
+  if (opts.handshake_timeout.count() < 1 || opts.idle_timeout.count() < 1)
+    throw HttpServerError("handshake_timeout and idle_timeout must be at least 1 s");
+  if (opts.accept_backoff.count() < 1) throw HttpServerError("accept_backoff must be at least 1 ms");
+  return out;
+}
+
+}  // namespace
+
 void HttpServer::start() {
   Impl& s = *impl_;
   std::lock_guard lifecycle(s.lifecycle_mutex);
   if (s.running) return;
+  s.connections.set_limits(connection_limits(s.opts));
   beast::error_code ec;
   const std::string host = s.opts.host == "localhost" ? "127.0.0.1" : s.opts.host;
   const auto address = net::ip::make_address(host, ec);
@@ -236,6 +338,10 @@ void HttpServer::start() {
     // Keep the default window; robots() failing here shows up again on GET /robots.
   }
   s.refresh_channels();
+  // Non-blocking at the OS level too: on_descriptors_exhausted() calls accept() on it directly.
+  s.acceptor->native_non_blocking(true, ec);
+  s.accept_timer = std::make_unique<net::steady_timer>(s.acceptor->get_executor());
+  s.spare_descriptor = open_spare_descriptor();
   s.do_accept();
   s.stopping = false;
   // Registered under lifecycle_mutex; no source holds a callback yet (stop() clears them), so the
@@ -303,8 +409,13 @@ void HttpServer::stop() {
     std::lock_guard lock(s.ws_mutex);
     s.ws_sessions.clear();
   }
+  s.accept_timer.reset();
   s.acceptor.reset();
   s.ioc.reset();  // destroys pending handlers and with them the sessions
+  if (s.spare_descriptor >= 0) ::close(s.spare_descriptor);
+  s.spare_descriptor = -1;
+  s.request_lane.reset();
+  s.upload_lane.reset();
 }
 
 unsigned short HttpServer::port() const { return impl_->bound_port; }

@@ -47,11 +47,12 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
 
   void run() {
     auto self = this->shared_from_this();
+    take_connection_slot();
     net::dispatch(stream_.get_executor(), [self] {
       self->contain("start", [&] {
-        // TLS first (a plain stream's handshake completes at once); a client that does not complete
-        // the handshake in time is dropped.
-        StreamSocket<Stream>::expires_after(self->stream_, std::chrono::seconds(30));
+        // TLS first (a plain stream's handshake completes at once); the handshake and the first
+        // request's header must arrive within handshake_timeout, or the client is dropped.
+        StreamSocket<Stream>::expires_after(self->stream_, self->server_.opts.handshake_timeout);
         self->stream_.async_handshake([self](beast::error_code ec) {
           self->contain("tls handshake", [&] {
             if (!ec) self->do_read();
@@ -84,10 +85,13 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
     // route is known: admit the largest body any route takes here, and narrow it in on_header.
     body_limit_ = server_.largest_body_limit();
     parser_.emplace(body_limit_);
-    StreamSocket<Stream>::expires_after(stream_, std::chrono::seconds(30));
+    wait_for_request();
     bhttp::async_read_header(stream_, buffer_, *parser_,
                              [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
-                               self->contain("read header", [&] { self->on_header(ec); });
+                               self->contain("read header", [&] {
+                                 self->header_arrived(ec);
+                                 self->on_header(ec);
+                               });
                              });
   }
 
@@ -160,6 +164,41 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
     stream_.async_shutdown([self = this->shared_from_this()](beast::error_code) {});
   }
 
+  // Connection limits and timeouts (connection_limits.hpp, README "Limits").
+  // The slot the listener admitted this connection into (none for a session the fuzzer starts), and
+  // how the registry closes the connection to make room (from any thread; posted to its strand).
+  void take_connection_slot() {
+    slot_ = std::move(server_.accepted_slot);
+    if (!slot_) return;
+    slot_->attach(connection_id_, [weak = this->weak_from_this(), executor = stream_.get_executor()] {
+      net::post(executor, [weak] {
+        const auto self = weak.lock();
+        if (!self || self->slot_->handed_over) return;  // gone, or now a WebSocket's stream
+        StreamSocket<Stream>::close(self->stream_);
+      });
+    });
+  }
+  // Idle, waiting for a request: until authenticated, each request header must arrive within
+  // handshake_timeout (the first one's time runs from the accept, set in run()); once authenticated,
+  // the connection may idle idle_timeout between requests.
+  void wait_for_request() {
+    if (slot_) slot_->set_idle(true);
+    if (!awaited_request_) {
+      awaited_request_ = true;
+      return;
+    }
+    const bool authenticated = !slot_ || slot_->authenticated();
+    StreamSocket<Stream>::expires_after(
+        stream_, authenticated ? server_.opts.idle_timeout : server_.opts.handshake_timeout);
+  }
+  // A header arrived: busy (never closed to make room) until the next wait; the body and the answer
+  // have the usual 30 s.
+  void header_arrived(beast::error_code ec) {
+    if (ec) return;
+    if (slot_) slot_->set_idle(false);
+    StreamSocket<Stream>::expires_after(stream_, std::chrono::seconds(30));
+  }
+
   Stream stream_;
   beast::flat_buffer buffer_;
   std::optional<http::BoundedRequestParser> parser_;
@@ -167,6 +206,8 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   HttpServer::Impl& server_;
   const std::uint64_t connection_id_;
   bool failed_ = false;
+  std::shared_ptr<ConnectionSlot> slot_;
+  bool awaited_request_ = false;  // the first request's wait is timed from the accept
 };
 
 }  // namespace tendril::server

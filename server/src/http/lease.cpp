@@ -1,5 +1,7 @@
 #include "tendril/server/http/lease.hpp"
 
+#include <algorithm>
+
 #include "tendril/server/http/request_codec.hpp"
 
 namespace tendril::server::http {
@@ -93,9 +95,14 @@ void LeaseManager::issue_takeover_token(const std::string& key, const std::strin
       ++it;
     }
   }
-  // Bounded: many refused clients cannot grow memory.
-  if (takeover_tokens_.size() >= 64) takeover_tokens_.erase(takeover_tokens_.begin());
-  takeover_tokens_[random] = {key, now + kTakeoverTokenLifetime};
+  // Bounded: many refused clients cannot grow memory. The oldest offer goes (not the first token in
+  // the map's order, which is random: that would withdraw a fresh offer as readily as a stale one).
+  if (takeover_tokens_.size() >= kMaxTakeoverOffers) {
+    takeover_tokens_.erase(
+        std::min_element(takeover_tokens_.begin(), takeover_tokens_.end(),
+                         [](const auto& a, const auto& b) { return a.second.issued < b.second.issued; }));
+  }
+  takeover_tokens_[random] = {key, now + kTakeoverTokenLifetime, ++takeovers_issued_};
 }
 
 LeaseManager::Takeover LeaseManager::take_over(const std::string& key, const std::string& label,

@@ -318,6 +318,33 @@ std::string HttpServer::Impl::metrics() const {
     std::lock_guard lock(sessions_mutex);
     metric("tendril_http_sessions", "gauge", "Console cookie sessions remembered.", cookie_sessions.size());
   }
+  // Connection limits (connection_limits.hpp, README "Limits").
+  const auto connection_counts = connections.counts();
+  const auto connection_limits = connections.limits();
+  out << "# HELP tendril_http_connections Open connections (HTTP and WebSocket), by whether they have "
+         "presented a valid token or cookie.\n# TYPE tendril_http_connections gauge\n"
+      << "tendril_http_connections{state=\"authenticated\"} " << connection_counts.authenticated << '\n'
+      << "tendril_http_connections{state=\"unauthenticated\"} " << connection_counts.unauthenticated << '\n';
+  out << "# HELP tendril_http_connection_limit The connection limits in force.\n"
+         "# TYPE tendril_http_connection_limit gauge\n"
+      << "tendril_http_connection_limit{kind=\"total\"} " << connection_limits.total << '\n'
+      << "tendril_http_connection_limit{kind=\"unauthenticated\"} " << connection_limits.unauthenticated
+      << '\n'
+      << "tendril_http_connection_limit{kind=\"unauthenticated_per_address\"} "
+      << connection_limits.per_address << '\n';
+  metric("tendril_http_connections_evicted_total", "counter",
+         "Idle unauthenticated connections closed to make room for a new connection.",
+         connection_counts.evicted);
+  out << "# HELP tendril_http_connections_refused_total Connections closed at once at a limit, with no idle "
+         "unauthenticated connection to make room.\n# TYPE tendril_http_connections_refused_total counter\n"
+      << "tendril_http_connections_refused_total{limit=\"total\"} " << connection_counts.refused_full << '\n'
+      << "tendril_http_connections_refused_total{limit=\"per_address\"} "
+      << connection_counts.refused_per_address << '\n'
+      << "tendril_http_connections_refused_total{limit=\"descriptors\"} " << accepted_and_closed.load()
+      << '\n';
+  metric("tendril_http_accept_backoffs_total", "counter",
+         "Times the listener ran out of file descriptors (or memory) and waited before accepting again.",
+         accept_backoffs.load());
   out << "# HELP tendril_http_requests_total HTTP responses sent, by status code.\n"
          "# TYPE tendril_http_requests_total counter\n";
   {

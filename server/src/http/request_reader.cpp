@@ -5,7 +5,9 @@
 
 #include <boost/asio/error.hpp>
 #include <boost/beast/core/error.hpp>
+#include <boost/beast/core/string.hpp>
 #include <boost/beast/http/error.hpp>
+#include <boost/beast/http/rfc7230.hpp>
 
 namespace tendril::server::http {
 
@@ -24,6 +26,10 @@ class RequestErrorCategory final : public boost::system::error_category {
         return "a header field is too large";
       case RequestError::chunk_extension_too_large:
         return "a chunk extension is too large";
+      case RequestError::transfer_encoding_not_chunked:
+        return "the final transfer coding is not chunked";
+      case RequestError::transfer_encoding_with_content_length:
+        return "both Transfer-Encoding and Content-Length";
     }
     return "request error";
   }
@@ -82,7 +88,31 @@ void BoundedRequestParser::on_field_impl(bhttp::field name, string_view name_str
   }
 }
 
-void BoundedRequestParser::on_header_impl(error_code&) { header_done_ = true; }
+void BoundedRequestParser::on_header_impl(error_code& ec) {
+  header_done_ = true;
+  // Transfer-Encoding may be sent as several fields; together they are one list of codings.
+  // The field values are bounded by the header limit.
+  try {
+    std::string codings;
+    bool has_transfer_encoding = false;
+    const auto [first, end] = message_.equal_range(bhttp::field::transfer_encoding);
+    for (auto field = first; field != end; ++field) {
+      if (has_transfer_encoding) codings.push_back(',');
+      codings.append(field->value());
+      has_transfer_encoding = true;
+    }
+    if (!has_transfer_encoding) return;
+    if (message_.count(bhttp::field::content_length) != 0) {
+      ec = RequestError::transfer_encoding_with_content_length;
+      return;
+    }
+    string_view last;
+    for (const auto coding : bhttp::token_list{codings}) last = coding;
+    if (!boost::beast::iequals(last, "chunked")) ec = RequestError::transfer_encoding_not_chunked;
+  } catch (const std::bad_alloc&) {
+    ec = bhttp::error::bad_alloc;
+  }
+}
 
 void BoundedRequestParser::on_body_init_impl(const boost::optional<std::uint64_t>& content_length,
                                              error_code& ec) {
@@ -142,6 +172,16 @@ std::optional<Refusal> refusal_for(const boost::beast::error_code& ec, std::size
     return Refusal{400, "bad_chunk",
                    "a chunk extension exceeds " + std::to_string(kChunkExtensionLimitBytes) + " bytes",
                    "chunk_extension"};
+  if (ec == RequestError::transfer_encoding_not_chunked)
+    return Refusal{400, "bad_transfer_encoding",
+                   "Transfer-Encoding must end in \"chunked\" (RFC 9112 section 6.3); this server decodes no "
+                   "other coding, so the body's length would be unknown",
+                   "transfer_encoding"};
+  if (ec == RequestError::transfer_encoding_with_content_length || ec == bhttp::error::bad_transfer_encoding)
+    return Refusal{400, "bad_transfer_encoding",
+                   "send either Transfer-Encoding: chunked or Content-Length, once each, never both "
+                   "(RFC 9112 section 6.1)",
+                   "transfer_encoding"};
   if (ec == bhttp::error::bad_chunk || ec == bhttp::error::bad_chunk_extension)
     return Refusal{400, "bad_chunk", "malformed chunked body (chunk size not hex, too large, or bad framing)",
                    "bad_chunk"};

@@ -3,6 +3,9 @@
 // and a trailer field over 64 KiB makes Boost 1.74's field container throw std::length_error out of
 // the read (that killed tendrild once). This parser builds the same request message but
 // - refuses trailer fields (no route takes any): error `trailers_not_accepted`;
+// - refuses a Transfer-Encoding whose final coding is not `chunked` (RFC 9112 §6.3: its body length
+//   cannot be known, and a proxy in front may frame it differently), and Transfer-Encoding together
+//   with Content-Length (§6.1; Beast refuses only some orders of the two);
 // - turns every exception of the field container into an error code (`field_too_large`, `bad_alloc`);
 // - bounds each chunk extension (`chunk_extension_too_large`) and the body (Beast's body_limit);
 // - with the connection's read buffer capped at kReadBufferBytes, no single line of the request (a
@@ -31,6 +34,8 @@ enum class RequestError {
   trailers_not_accepted = 1,
   field_too_large,
   chunk_extension_too_large,
+  transfer_encoding_not_chunked,
+  transfer_encoding_with_content_length,
 };
 const boost::system::error_category& request_error_category() noexcept;
 boost::system::error_code make_error_code(RequestError e) noexcept;

@@ -43,8 +43,12 @@ StringResponse method_not_allowed(const Request& req, const char* allow) {
 }
 
 bool origin_refused(const HttpServer::Impl& server, const Request& req) {
-  const auto origin = req.find(bhttp::field::origin);
-  return origin != req.end() && !origin_allowed(origin->value(), server.allowed_origins);
+  // A request has one origin (RFC 6454 §7.3): two Origin fields are refused, whatever they say, since a
+  // check of one and a proxy or handler reading the other could disagree.
+  const auto [first, end] = req.equal_range(bhttp::field::origin);
+  if (first == end) return false;
+  if (std::next(first) != end) return true;
+  return !origin_allowed(first->value(), server.allowed_origins);
 }
 
 StringResponse origin_refusal(const Request& req) {
@@ -366,10 +370,13 @@ UpgradeDecision decide_upgrade(HttpServer::Impl& server, const Request& req, std
     return out;
   }
   if (origin_refused(server, req)) {
-    out.refusal =
-        error_response(req, ApiResult::error(403, "origin_not_allowed",
-                                             "WebSocket Origin \"" + std::string(req[bhttp::field::origin]) +
-                                                 "\" is not in the allowlist"));
+    out.refusal = error_response(
+        req,
+        ApiResult::error(403, "origin_not_allowed",
+                         req.count(bhttp::field::origin) > 1
+                             ? std::string("a WebSocket handshake may carry one Origin header, not several")
+                             : "WebSocket Origin \"" + std::string(req[bhttp::field::origin]) +
+                                   "\" is not in the allowlist"));
     return out;
   }
   auto auth = server.authenticate(req, target, connection_id, /*accept_query_token=*/true,

@@ -31,6 +31,15 @@ class WsSession final : public WsConnection {
 
   void run(Request request) {
     request_ = std::move(request);
+    // The connection's slot (connection_limits.hpp) passes to this session: on the HTTP session's
+    // strand, which is this one's, so its close hook sees the hand-over before it could run.
+    slot_ = server_.connections.slot_of(id());
+    if (slot_) {
+      slot_->handed_over = true;
+      slot_->attach(id(), [weak = std::weak_ptr<WsConnection>(shared_from_this())] {
+        if (const auto self = weak.lock()) self->hard_close();
+      });
+    }
     net::dispatch(ws_.get_executor(),
                   [self = self_()] { self->contain("accept", [&] { self->do_accept(); }); });
   }
@@ -59,7 +68,14 @@ class WsSession final : public WsConnection {
   }
 
   void do_accept() {
-    ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+    // Timeouts (README "Limits"): the handshake answer within handshake_timeout; a peer that sends
+    // nothing for idle_timeout is pinged at half of it and closed at the end (a vanished console's
+    // descriptor comes back; every client answers pings by itself).
+    auto timeouts = websocket::stream_base::timeout::suggested(beast::role_type::server);
+    timeouts.handshake_timeout = server_.opts.handshake_timeout;
+    timeouts.idle_timeout = server_.opts.idle_timeout;
+    timeouts.keep_alive_pings = true;
+    ws_.set_option(timeouts);
     ws_.set_option(websocket::stream_base::decorator([](websocket::response_type& res) {
       res.set(bhttp::field::server, "tendril");
       res.set(bhttp::field::sec_websocket_protocol, std::string(fg::kSubprotocol));
@@ -116,6 +132,7 @@ class WsSession final : public WsConnection {
   beast::flat_buffer buffer_;
   Request request_;
   bool failed_ = false;
+  std::shared_ptr<ConnectionSlot> slot_;
 };
 
 template <class Stream>

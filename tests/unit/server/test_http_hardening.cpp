@@ -1,7 +1,14 @@
 // The HTTP edge under hostile input (issue "One unauthenticated request kills the server"): requests
 // the parser must refuse with an answer, limits on every part of a request, exceptions contained per
 // connection, and WebSocket clients that stop reading.
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <chrono>
+#include <memory>
 #include <string>
 #include <thread>
 
@@ -32,7 +39,95 @@ class HttpHardeningTest : public HttpServerTest {
     if (at == std::string::npos) return ~std::uint64_t{0};
     return std::stoull(text.substr(at + name.size() + 2));
   }
+  // Waits (at most 2 s) until a metric has a value; true when it did.
+  bool metric_becomes(const std::string& name, std::uint64_t value) {
+    for (int i = 0; i < 400; ++i) {
+      if (metric(name) == value) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return false;
+  }
 };
+
+// A client TCP connection at the socket level: it sends only what it is told to, so it can sit idle
+// like the probe's connections, and it can come from another loopback address (Linux routes all of
+// 127/8 to the loopback interface), which the server sees as another client machine.
+class TestSocket {
+ public:
+  explicit TestSocket(unsigned short port, const char* from_address = nullptr)
+      : fd_(::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0)) {
+    if (from_address != nullptr) {
+      sockaddr_in local{};
+      local.sin_family = AF_INET;
+      ::inet_pton(AF_INET, from_address, &local.sin_addr);
+      EXPECT_EQ(::bind(fd_, reinterpret_cast<const sockaddr*>(&local), sizeof local), 0);
+    }
+    sockaddr_in server{};
+    server.sin_family = AF_INET;
+    server.sin_port = htons(port);
+    ::inet_pton(AF_INET, "127.0.0.1", &server.sin_addr);
+    EXPECT_EQ(::connect(fd_, reinterpret_cast<const sockaddr*>(&server), sizeof server), 0);
+  }
+  ~TestSocket() { ::close(fd_); }
+  TestSocket(const TestSocket&) = delete;
+  TestSocket& operator=(const TestSocket&) = delete;
+
+  void send(const std::string& bytes) { ::send(fd_, bytes.data(), bytes.size(), MSG_NOSIGNAL); }
+  // True when the server closed the connection within `wait` (what it wrote first is in received).
+  bool closed_within(std::chrono::milliseconds wait) {
+    const auto deadline = std::chrono::steady_clock::now() + wait;
+    while (!closed_ && read_some(deadline)) {
+    }
+    return closed_;
+  }
+  // The next complete response (framed by its Content-Length), or "" when none came within `wait`.
+  std::string response_within(std::chrono::milliseconds wait) {
+    const auto deadline = std::chrono::steady_clock::now() + wait;
+    while (true) {
+      const auto header_end = received.find("\r\n\r\n");
+      if (header_end != std::string::npos) {
+        const auto length_at = received.find("Content-Length: ");
+        const std::size_t length =
+            length_at < header_end ? std::stoul(received.substr(length_at + 16)) : std::size_t{0};
+        if (received.size() >= header_end + 4 + length) {
+          std::string response = received.substr(0, header_end + 4 + length);
+          received.erase(0, response.size());
+          return response;
+        }
+      }
+      if (closed_ || !read_some(deadline)) return {};
+    }
+  }
+  std::string received;
+
+ private:
+  // Reads what arrives before `deadline`; false when nothing did.
+  bool read_some(std::chrono::steady_clock::time_point deadline) {
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    pollfd poll_fd{fd_, POLLIN, 0};
+    if (left.count() <= 0 || ::poll(&poll_fd, 1, static_cast<int>(left.count())) <= 0) return false;
+    char chunk[4096];
+    const auto n = ::recv(fd_, chunk, sizeof chunk, 0);
+    if (n <= 0) {
+      closed_ = true;  // end of stream or reset
+    } else {
+      received.append(chunk, static_cast<std::size_t>(n));
+    }
+    return true;
+  }
+
+  int fd_;
+  bool closed_ = false;
+};
+
+std::string authenticated_get(const std::string& target) {
+  return "GET " + target + " HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + std::string(kToken) +
+         "\r\n\r\n";
+}
+
+constexpr auto kUnauthenticatedConnections = "tendril_http_connections{state=\"unauthenticated\"}";
+constexpr auto kAuthenticatedConnections = "tendril_http_connections{state=\"authenticated\"}";
 
 TEST_F(HttpHardeningTest, OversizedTrailerValueIsRefusedAndTheServerLives) {
   start();
@@ -233,6 +328,197 @@ TEST_F(HttpHardeningTest, AWebSocketClientThatStopsReadingIsClosedAndCounted) {
   WsClient reader;
   ASSERT_EQ(reader.connect(port_, ws_target()), 101);
   reader.read_greeting();
+}
+
+// Issue 30: about 20,000 idle unauthenticated connections used up the descriptors and a new e-stop
+// client got no answer. Now they form a bounded pool, and a new connection closes the oldest of them.
+TEST_F(HttpHardeningTest, AFullPoolOfIdleConnectionsCannotKeepANewEstopOut) {
+  options_.max_connections = 12;
+  options_.max_unauthenticated_connections = 8;
+  start();
+  WsClient console;  // an operator's console, authenticated: never closed to make room
+  ASSERT_EQ(console.connect(port_, ws_target()), 101);
+  console.read_greeting();
+  std::vector<std::unique_ptr<TestSocket>> idle;
+  for (int i = 0; i < 8; ++i) {
+    idle.push_back(std::make_unique<TestSocket>(port_));
+    ASSERT_TRUE(metric_becomes(kUnauthenticatedConnections, i + 1u)) << "connection " << i;
+  }
+  const auto estop = http_request(port_, bhttp::verb::post, "/api/v1/estop", "", bearer());
+  EXPECT_EQ(estop.status, 200) << estop.raw.body();
+  EXPECT_EQ(api_.estops, 1);
+  EXPECT_TRUE(idle.front()->closed_within(std::chrono::milliseconds(2000))) << "the oldest made room";
+  EXPECT_FALSE(idle.back()->closed_within(std::chrono::milliseconds(50)));
+  EXPECT_EQ(metric("tendril_http_connections_evicted_total"), 1u);
+  console.send_text(R"({"op":"getParameters","parameterNames":[],"id":"x"})");
+  EXPECT_FALSE(console.read_op("parameterValues").is_null());
+}
+
+TEST_F(HttpHardeningTest, AnAddressAtItsLimitPushesOutOnlyItsOwnConnections) {
+  options_.max_unauthenticated_per_address = 3;
+  start();
+  TestSocket other_machine(port_, "127.0.0.2");
+  std::vector<std::unique_ptr<TestSocket>> mine;
+  for (int i = 0; i < 3; ++i) mine.push_back(std::make_unique<TestSocket>(port_, "127.0.0.1"));
+  ASSERT_TRUE(metric_becomes(kUnauthenticatedConnections, 4u));
+  TestSocket fourth(port_, "127.0.0.1");
+  fourth.send("GET /api/v1/health HTTP/1.1\r\nHost: x\r\n\r\n");
+  EXPECT_EQ(fourth.response_within(std::chrono::milliseconds(2000)).rfind("HTTP/1.1 200", 0), 0u);
+  EXPECT_TRUE(mine.front()->closed_within(std::chrono::milliseconds(2000)));
+  EXPECT_FALSE(mine.back()->closed_within(std::chrono::milliseconds(50)));
+  EXPECT_FALSE(other_machine.closed_within(std::chrono::milliseconds(50)));
+}
+
+TEST_F(HttpHardeningTest, AtTheTotalLimitANewConnectionIsRefusedAndOperatorsStay) {
+  options_.max_connections = 3;
+  options_.max_unauthenticated_connections = 2;
+  start();
+  std::vector<std::unique_ptr<TestSocket>> operators;
+  for (int i = 0; i < 3; ++i) {
+    operators.push_back(std::make_unique<TestSocket>(port_));
+    operators.back()->send(authenticated_get("/api/v1/robots"));
+    ASSERT_EQ(operators.back()->response_within(std::chrono::milliseconds(2000)).rfind("HTTP/1.1 200", 0),
+              0u);
+  }
+  ASSERT_TRUE(metric_becomes(kAuthenticatedConnections, 3u));
+  TestSocket late(port_);
+  EXPECT_TRUE(late.closed_within(std::chrono::milliseconds(2000)));
+  EXPECT_TRUE(late.received.empty()) << late.received;
+  EXPECT_EQ(metric("tendril_http_connections_refused_total{limit=\"total\"}"), 1u);
+  for (auto& keeper : operators) {
+    keeper->send(authenticated_get("/api/v1/robots"));
+    EXPECT_EQ(keeper->response_within(std::chrono::milliseconds(2000)).rfind("HTTP/1.1 200", 0), 0u);
+  }
+}
+
+TEST_F(HttpHardeningTest, UnauthenticatedConnectionsMustSendTheirHeaderInTime) {
+  options_.handshake_timeout = std::chrono::seconds(1);
+  start();
+  TestSocket silent(port_);
+  TestSocket slow(port_);
+  slow.send("GET /api/v1/health HTTP/1.1\r\nHost: x\r\n");  // a header that never ends
+  TestSocket keeper(port_);
+  keeper.send(authenticated_get("/api/v1/robots"));
+  ASSERT_EQ(keeper.response_within(std::chrono::milliseconds(1000)).rfind("HTTP/1.1 200", 0), 0u);
+  const auto started = std::chrono::steady_clock::now();
+  EXPECT_TRUE(silent.closed_within(std::chrono::milliseconds(1800)));
+  EXPECT_TRUE(slow.closed_within(std::chrono::milliseconds(500)));
+  EXPECT_LT(std::chrono::steady_clock::now() - started, std::chrono::milliseconds(1800));
+  // An authenticated connection idles longer (idle_timeout, 60 s) and is still served.
+  std::this_thread::sleep_until(started + std::chrono::milliseconds(1300));
+  keeper.send(authenticated_get("/api/v1/robots"));
+  EXPECT_EQ(keeper.response_within(std::chrono::milliseconds(1000)).rfind("HTTP/1.1 200", 0), 0u);
+}
+
+// RFC 9112 §6.3: a Transfer-Encoding whose final coding is not chunked leaves the body length unknown
+// (a proxy in front may frame it otherwise): 400 and close. With chunked last it is read as usual.
+TEST_F(HttpHardeningTest, TransferEncodingMustEndInChunked) {
+  start();
+  for (const std::string fields : {"Transfer-Encoding: gzip\r\n", "Transfer-Encoding: chunked, gzip\r\n",
+                                   "Transfer-Encoding: gzip\r\nContent-Length: 2\r\n",
+                                   "Transfer-Encoding: chunked\r\nTransfer-Encoding: gzip\r\n"}) {
+    const auto exchange =
+        raw_exchange(port_, "POST /api/v1/lease HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " +
+                                std::string(kToken) + "\r\n" + fields + "\r\n{}");
+    EXPECT_EQ(first_status(exchange.received), 400) << fields << exchange.received;
+    EXPECT_NE(exchange.received.find("bad_transfer_encoding"), std::string::npos) << fields;
+    EXPECT_NE(exchange.received.find("Connection: close"), std::string::npos) << fields;
+  }
+  EXPECT_EQ(metric("tendril_http_requests_refused_total{reason=\"transfer_encoding\"}"), 4u);
+  ASSERT_EQ(http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer()).status, 200);
+  const auto accepted = raw_exchange(
+      port_, "POST /api/v1/robots/srmc/state_command HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " +
+                 std::string(kToken) +
+                 "\r\nTransfer-Encoding: gzip, chunked\r\n\r\n14\r\n{\"command\":\"enable\"}\r\n0\r\n\r\n");
+  EXPECT_EQ(first_status(accepted.received), 200) << accepted.received;
+  EXPECT_EQ(api_.state_commands, 1);
+}
+
+TEST_F(HttpHardeningTest, EveryOriginHeaderIsChecked) {
+  start();
+  const std::string allowed = "Origin: http://127.0.0.1:" + std::to_string(port_) + "\r\n";
+  const std::string foreign = "Origin: http://evil.example\r\n";
+  for (const std::string origins : {allowed + foreign, foreign + allowed, allowed + allowed}) {
+    const auto rest = raw_exchange(port_, "GET /api/v1/robots HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " +
+                                              std::string(kToken) + "\r\n" + origins + "\r\n");
+    EXPECT_EQ(first_status(rest.received), 403) << origins << rest.received;
+    const auto upgrade =
+        raw_exchange(port_, "GET " + ws_target() +
+                                " HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                                "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+                                "Sec-WebSocket-Protocol: foxglove.websocket.v1\r\n" +
+                                origins + "\r\n");
+    EXPECT_EQ(first_status(upgrade.received), 403) << origins << upgrade.received;
+  }
+  const auto one = raw_exchange(port_, "GET /api/v1/robots HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " +
+                                           std::string(kToken) + "\r\n" + allowed + "\r\n");
+  EXPECT_EQ(first_status(one.received), 200) << one.received;
+}
+
+TEST(TakeoverOffers, AtTheCapTheOldestOfferIsWithdrawn) {
+  using tendril::server::http::LeaseManager;
+  LeaseManager lease(std::chrono::seconds(30));
+  const auto now = LeaseManager::Clock::now();
+  ASSERT_TRUE(lease.acquire("bearer", "holder", "token", now));
+  // The first offer's token sorts after every later one.
+  lease.issue_takeover_token("lease:first", "zz-first", now);
+  for (int i = 1; i < 64; ++i) {
+    lease.issue_takeover_token("lease:" + std::to_string(i), "aa-" + std::to_string(100 + i),
+                               now + std::chrono::milliseconds(i));
+  }
+  const auto later = now + std::chrono::milliseconds(100);
+  ASSERT_TRUE(lease.takeover_token_valid("lease:first", "zz-first", later));
+  lease.issue_takeover_token("lease:late", "mm-late", later);  // the 65th
+  EXPECT_FALSE(lease.takeover_token_valid("lease:first", "zz-first", later)) << "the oldest goes";
+  EXPECT_TRUE(lease.takeover_token_valid("lease:1", "aa-101", later));
+  EXPECT_TRUE(lease.takeover_token_valid("lease:late", "mm-late", later));
+}
+
+// Opening pages with ?token= made new cookie sessions that pushed out the oldest: the console's.
+std::string page_cookie(unsigned short port) {
+  const Reply page = http_request(port, bhttp::verb::get, std::string("/?token=") + kToken);
+  const std::string set_cookie(page.raw[bhttp::field::set_cookie]);
+  return set_cookie.substr(0, set_cookie.find(';'));
+}
+
+TEST_F(HttpHardeningTest, TheConsoleSessionSurvivesAFloodOfNewSessions) {
+  options_.max_sessions = 4;
+  start();
+  const std::string console_cookie = page_cookie(port_);
+  ASSERT_FALSE(console_cookie.empty());
+  WsClient console;
+  ASSERT_EQ(console.connect(port_, "/ws", {{"Cookie", console_cookie}}), 101);
+  console.read_greeting();
+  int refused = 0;
+  for (int i = 0; i < 10; ++i) {
+    const Reply page = http_request(port_, bhttp::verb::get, std::string("/?token=") + kToken);
+    if (page.status == 503) {
+      ++refused;
+      expect_error_shape(page, 503, "too_many_sessions");
+    }
+  }
+  EXPECT_EQ(refused, 7);  // 3 more fit; every session was used just now
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots", "", {{"Cookie", console_cookie}}).status,
+            200);
+}
+
+TEST_F(HttpHardeningTest, AnIdleSessionMakesRoomButNotOneWithAWebSocket) {
+  options_.max_sessions = 2;
+  options_.lease_timeout = std::chrono::milliseconds(300);
+  start();
+  const std::string console_cookie = page_cookie(port_);
+  WsClient console;
+  ASSERT_EQ(console.connect(port_, "/ws", {{"Cookie", console_cookie}}), 101);
+  console.read_greeting();
+  const std::string idle_cookie = page_cookie(port_);
+  ASSERT_FALSE(idle_cookie.empty());
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  EXPECT_FALSE(page_cookie(port_).empty()) << "the idle session made room";
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots", "", {{"Cookie", idle_cookie}}).status,
+            401);
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, "/api/v1/robots", "", {{"Cookie", console_cookie}}).status,
+            200);
+  EXPECT_EQ(http_request(port_, bhttp::verb::get, std::string("/?token=") + kToken).status, 503);
 }
 
 }  // namespace

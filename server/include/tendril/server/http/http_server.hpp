@@ -72,7 +72,27 @@ struct HttpOptions {
   // closed and counted rather than later flushing seconds of stale frames from the kernel buffer.
   std::chrono::milliseconds ws_stalled_write_timeout{5000};
   std::size_t ws_max_subscriptions = 256;
-  std::size_t max_sessions = 1024;  // cookie sessions kept; the oldest is forgotten first
+  // Cookie sessions kept. When full, a new one replaces the least recently used session that holds no
+  // lease, has no open WebSocket and was not used within lease_timeout; with none, it is refused (503).
+  std::size_t max_sessions = 1024;
+  // Connection limits (server/src/http/README.md, "Limits"). 0 = derived from the process's descriptor
+  // limit (RLIMIT_NOFILE, whose soft limit start() raises toward the hard limit, at most 65536): total
+  // = min(4096, limit - descriptor_reserve), unauthenticated = 3/4 of the total. A new connection beyond
+  // a limit closes the oldest idle unauthenticated one (of its own address at the per-address limit),
+  // or is closed at once when there is none; authenticated connections are never closed for room.
+  std::size_t max_connections = 0;
+  std::size_t max_unauthenticated_connections = 0;
+  std::size_t max_unauthenticated_per_address = 64;
+  // Descriptors kept for the rest of the process: files, the CAN bus, DDS, recordings.
+  std::size_t descriptor_reserve = 256;
+  // Until authenticated, a connection must send each request header (the first one, TLS handshake
+  // included, counted from the accept) within handshake_timeout; an authenticated connection may idle
+  // idle_timeout between requests (a WebSocket: no frame for idle_timeout, a ping at half of it).
+  std::chrono::seconds handshake_timeout{10};
+  std::chrono::seconds idle_timeout{60};
+  // After the process ran out of descriptors (EMFILE, ENFILE, ENOBUFS, ENOMEM) the listener waits
+  // this long before it accepts again, instead of spinning on the error.
+  std::chrono::milliseconds accept_backoff{50};
   // Planning, jobs and vessel uploads (planning_routes.hpp); null = those routes answer 503. Vessel
   // files may be up to PlanningApi::max_vessel_bytes() (413 above).
   PlanningApi* planning = nullptr;

@@ -20,6 +20,7 @@
 #pragma once
 
 #include <chrono>
+#include <cstddef>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -35,6 +36,7 @@ class LeaseManager {
  public:
   using Clock = std::chrono::steady_clock;
   static constexpr std::chrono::seconds kTakeoverTokenLifetime{15};
+  static constexpr std::size_t kMaxTakeoverOffers = 64;
   // Key prefix of a caller that identifies itself by a lease token alone.
   static constexpr std::string_view kTokenKeyPrefix = "lease:";
 
@@ -73,7 +75,8 @@ class LeaseManager {
   std::chrono::milliseconds timeout() const noexcept { return timeout_; }
 
   // A one-time token that lets `key` take the lease over from its current holder within
-  // kTakeoverTokenLifetime. `random` is the token text (the caller makes it unguessable).
+  // kTakeoverTokenLifetime. `random` is the token text (the caller makes it unguessable). At most
+  // kMaxTakeoverOffers are pending (one per requester); beyond that the oldest offer is withdrawn.
   void issue_takeover_token(const std::string& key, const std::string& random, Clock::time_point now);
   enum class TakeoverResult { kTaken, kBadToken };
   struct Takeover {
@@ -105,8 +108,10 @@ class LeaseManager {
   struct PendingTakeover {
     std::string key;
     Clock::time_point expires;
+    std::uint64_t issued = 0;  // order of issue: at the cap, the oldest offer goes
   };
   std::map<std::string, PendingTakeover> takeover_tokens_;  // token -> who may use it, until when
+  std::uint64_t takeovers_issued_ = 0;
 };
 
 // The leases of a server's robots, one LeaseManager each: a surgeon may command the catheter while a
