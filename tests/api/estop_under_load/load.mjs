@@ -427,9 +427,23 @@ export async function runClass(t, cls, {rounds, spreadMs = 0, sampleTimeoutMs = 
         result.failures.push(`${s.kind} e-stop ${s.kind === 'rest' ? result.rest.length : result.ws.length}: ${s.detail} (after ${fmt(s.ms)} ms)`);
         return false;
       }
-      const st = await control.get(`/robots/${ROBOT}/operating_state`);
-      if (st.status !== 200 || JSON.parse(st.text).estop !== true) {
-        result.failures.push(`after a ${s.kind} e-stop answered 200, operating_state is ${st.status} ${st.error || st.text}`);
+      // An answered e-stop is latched: operating_state says so at once. When it does not, it is read
+      // again for up to a second to tell a late latch from a lost e-stop (both fail).
+      const latched = async () => {
+        const st = await control.get(`/robots/${ROBOT}/operating_state`);
+        return {st, yes: st.status === 200 && JSON.parse(st.text).estop === true};
+      };
+      const first = await latched();
+      if (!first.yes) {
+        const t0 = performance.now();
+        let later = first;
+        while (!later.yes && performance.now() - t0 < 1000) {
+          await new Promise((r) => setTimeout(r, 10));
+          later = await latched();
+        }
+        const when = later.yes ? `it said estop true ${fmt(performance.now() - t0)} ms later` : 'and still not 1 s later (the e-stop was lost)';
+        result.failures.push(`after a ${s.kind} e-stop answered 200, operating_state did not say estop true (${when}); ` +
+          `first read: ${first.st.status} ${first.st.error || first.st.text.slice(0, 300)}`);
       }
       if (performance.now() - leaseAt > 15000) {
         await lease();
