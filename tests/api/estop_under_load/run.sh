@@ -3,25 +3,30 @@
 # (quadratic JSON bodies, slow work on the network threads, idle connections) each run a few seconds
 # while REST and WebSocket e-stops are timed (estop_under_load.test.mjs; ~40 s). Then SIGTERM must
 # disable the drives and end the process cleanly.
-# The server gets a soft RLIMIT_NOFILE of 1024 (the systemd default; TENDRIL_ESTOP_NOFILE to change
-# it), so the 2,000 idle connections are more than its descriptors; the test client gets the hard
-# limit (it holds those 2,000).
+# The server gets RLIMIT_NOFILE 1024, soft and hard (TENDRIL_ESTOP_NOFILE to change it), so the 2,000
+# idle connections are more than its descriptors; the test client gets its shell's hard limit.
 # Usage: tests/api/estop_under_load/run.sh [tendrild]
 set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 # shellcheck source=tests/api/server.sh
 source "$here/../server.sh"
-trap stop_tendrild EXIT INT TERM
+trap stop_tendrild EXIT INT TERM  # (and the wrapper, below)
 binary="${1:-${TENDRILD:-$repo_root/build/server/tendrild}}"
 [ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
 
+# The server runs with RLIMIT_NOFILE 1024, soft and hard (the systemd default soft limit; hard too, so
+# that a server raising its soft limit cannot step out of the attack): started through a wrapper that
+# sets it. TENDRIL_ESTOP_NOFILE changes it. The client keeps this shell's limit (it holds 2,000).
 server_nofile="${TENDRIL_ESTOP_NOFILE:-1024}"
-ulimit -S -n "$server_nofile" || { echo "cannot set the soft descriptor limit to $server_nofile" >&2; exit 2; }
-start_tendrild "$binary" || exit 1
-echo "tendrild descriptor limit: $(awk '/Max open files/ {print $4 " soft, " $5 " hard"}' /proc/"$tendrild_pid"/limits)"
-# The client's own limit: as high as allowed (the server keeps the limit it started with).
-ulimit -S -n "$(ulimit -H -n)"
-echo "test client descriptor limit: $(ulimit -S -n)"
+wrapper_dir="$(mktemp -d /tmp/tendril-estop-load.XXXXXX)"
+trap 'stop_tendrild; rm -rf "$wrapper_dir"' EXIT INT TERM
+[ -x "$binary" ] || { echo "usage: $0 [path to tendrild]   ('$binary' is not an executable file)" >&2; exit 2; }
+binary="$(cd "$(dirname "$binary")" && pwd)/$(basename "$binary")"
+printf '#!/bin/sh\nulimit -n %s || exit 2\nexec "%s" "$@"\n' "$server_nofile" "$binary" > "$wrapper_dir/tendrild"
+chmod +x "$wrapper_dir/tendrild"
+start_tendrild "$wrapper_dir/tendrild" || exit 1
+ulimit -S -n "$(ulimit -H -n)"  # the client's own limit, as high as allowed
+echo "tendrild $binary: descriptor limit $(awk '/Max open files/ {print $4 " soft, " $5 " hard"}' /proc/"$tendrild_pid"/limits); the test client's $(ulimit -S -n)"
 
 node --test --test-concurrency=1 "$here"/*.test.mjs
 status=$?
