@@ -9,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <sstream>
 #include <thread>
 #include <vector>
@@ -288,6 +289,99 @@ TEST(PlanningServiceOnTheSampleVessel, PlansWithinTheJointLimitsAndTheRuntimeLoa
   EXPECT_EQ(bad_stl.message.find("STL", bad_stl.message.find("STL") + 1), std::string::npos)
       << bad_stl.message;
   EXPECT_EQ(planning.upload_vessel(csv, "application/pdf", {}).status, 415);
+}
+
+// CSV text of a synthetic ICA with a point every `spacing` mm (x,y,z,radius).
+std::string ica_csv(double spacing, std::size_t* points = nullptr) {
+  teleop::SyntheticIcaOptions o;
+  o.point_spacing = spacing;
+  const auto ica = teleop::make_synthetic_ica(3, o);
+  if (points != nullptr) *points = ica.points.size();
+  std::ostringstream csv;
+  csv.precision(9);
+  for (std::size_t i = 0; i < ica.points.size(); ++i)
+    csv << ica.points[i].x() << ',' << ica.points[i].y() << ',' << ica.points[i].z() << ',' << ica.radii[i]
+        << '\n';
+  return csv.str();
+}
+
+// The vessel store is bounded by count and by the memory of the centerlines it keeps (issue 30: a
+// 28.6 MiB upload kept 148 MB, 16 of them about 2.4 GB); the oldest upload is forgotten first.
+TEST(PlanningServiceVesselStore, KeepsVesselsWithinACountAndAByteBudgetOldestFirst) {
+  std::size_t points = 0;
+  const auto csv = ica_csv(0.01, &points);  // 15 000 points
+  PlanningOptions options;
+  options.max_vessels = 3;
+  // Room for two of these vessels: 32 bytes a point (x, y, z, radius as doubles) and a little more.
+  options.max_stored_vessel_bytes = 2 * points * 32 + 16 * 1024;
+  PlanningService planning({load_robot_config(kSrmc)}, options);
+
+  const auto first = planning.upload_vessel(csv, "text/csv", {{"name", "first"}});
+  ASSERT_EQ(first.status, 201) << first.message;
+  // What is kept is the centerline itself: no spare vector capacity, nothing of the file's text.
+  const auto bytes = first.body["stored_bytes"].get<std::size_t>();
+  std::cout << "[ store ] " << csv.size() << " bytes of CSV, " << points << " points: " << bytes
+            << " bytes kept\n";
+  EXPECT_GE(bytes, points * 32);
+  EXPECT_LE(bytes, points * 32 + 4096);
+  EXPECT_EQ(first.body["store"]["vessels"], 1);
+  EXPECT_EQ(first.body["store"]["max_vessels"], 3);
+  EXPECT_EQ(first.body["store"]["bytes"], bytes);
+  EXPECT_EQ(first.body["store"]["max_bytes"], options.max_stored_vessel_bytes);
+  EXPECT_NE(first.body["store"]["policy"].get<std::string>().find("oldest"), std::string::npos);
+
+  const auto second = planning.upload_vessel(csv, "text/csv", {});
+  ASSERT_EQ(second.status, 201) << second.message;
+  EXPECT_EQ(second.body["store"]["forgotten"], nlohmann::json::array());
+  // A third would pass the byte budget (not the count): the first is forgotten.
+  const auto third = planning.upload_vessel(csv, "text/csv", {});
+  ASSERT_EQ(third.status, 201) << third.message;
+  EXPECT_EQ(third.body["store"]["forgotten"], nlohmann::json::array({first.body["id"]}));
+  EXPECT_EQ(third.body["store"]["vessels"], 2);
+  EXPECT_LE(third.body["store"]["bytes"].get<std::size_t>(), options.max_stored_vessel_bytes);
+  EXPECT_EQ(planning.vessel(first.body["id"].get<std::string>(), {}).status, 404);
+  EXPECT_EQ(planning.vessel(second.body["id"].get<std::string>(), {}).status, 200);
+  EXPECT_EQ(planning.vessels().body.size(), 2u);
+
+  // Small vessels: the count decides.
+  const auto small = ica_csv(0.5);
+  ASSERT_EQ(planning.delete_vessel(second.body["id"].get<std::string>()).status, 200);
+  const auto after_delete = planning.upload_vessel(small, "text/csv", {});
+  ASSERT_EQ(after_delete.status, 201);
+  EXPECT_EQ(after_delete.body["store"]["vessels"], 2);
+  EXPECT_EQ(after_delete.body["store"]["bytes"],
+            bytes + after_delete.body["stored_bytes"].get<std::size_t>());
+  ASSERT_EQ(planning.upload_vessel(small, "text/csv", {}).status, 201);
+  const auto over_count = planning.upload_vessel(small, "text/csv", {});
+  EXPECT_EQ(over_count.body["store"]["forgotten"], nlohmann::json::array({third.body["id"]}));
+  EXPECT_EQ(over_count.body["store"]["vessels"], 3);
+
+  // One vessel larger than the whole budget is refused, saying both sizes.
+  const auto too_large = planning.upload_vessel(ica_csv(0.002), "text/csv", {});
+  EXPECT_EQ(too_large.status, 413);
+  EXPECT_EQ(too_large.code, "vessel_too_large");
+  EXPECT_NE(too_large.message.find("MiB in memory"), std::string::npos) << too_large.message;
+  EXPECT_EQ(planning.vessels().body.size(), 3u);  // nothing was forgotten for it
+}
+
+TEST(PlanningServiceVesselStore, RefusesAFileOfMoreBranchesThanAVesselHas) {
+  PlanningOptions options;
+  options.max_vessel_branches = 10;
+  PlanningService planning({load_robot_config(kSrmc)}, options);
+  // Short straight pieces 50 mm apart: each is a branch.
+  const auto pieces = [](int count) {
+    std::ostringstream csv;
+    for (int b = 0; b < count; ++b)
+      for (int i = 0; i < 4; ++i) csv << 50 * b << ",0," << i << '\n';
+    return csv.str();
+  };
+  const auto ten = planning.upload_vessel(pieces(10), "text/csv", {});
+  ASSERT_EQ(ten.status, 201) << ten.message;
+  EXPECT_EQ(ten.body["branches"].size(), 10u);
+  const auto eleven = planning.upload_vessel(pieces(11), "text/csv", {});
+  EXPECT_EQ(eleven.code, "bad_vessel");
+  EXPECT_NE(eleven.message.find("splits into 11 branches"), std::string::npos) << eleven.message;
+  EXPECT_NE(eleven.message.find("at most 10"), std::string::npos) << eleven.message;
 }
 
 // POST /designs with flexure: the design job reports how the optimiser converged, and the flexure

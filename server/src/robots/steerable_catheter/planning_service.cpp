@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <deque>
+#include <iomanip>
 #include <mutex>
 #include <optional>
 #include <sstream>
@@ -87,21 +88,64 @@ teleop::VesselCenterline reachable_path(const teleop::CenterlinePolyline& branch
 
 json point_json(const Eigen::Vector3d& p) { return json::array({p.x(), p.y(), p.z()}); }
 
+// What is kept of one branch for the vessel listings (the JSON is made when asked: a JSON object per
+// branch cost about 1 KB, 300 MB for a 30 MB CSV of short branches).
+struct BranchSummary {
+  std::size_t points = 0;
+  double length_mm = 0.0;
+  bool has_radius = false;
+  Eigen::Vector3d start, end;
+};
+
+// A stored vessel keeps its centerline polylines (what plans and GET /vessels/{id} resample) and
+// nothing of the uploaded file: an STL mesh is reduced to its centerline before it is stored.
 struct StoredVessel {
   std::string id, name, source;
   std::vector<CenterlinePolyline> branches;
-  json branch_summaries;
+  std::vector<BranchSummary> branch_summaries;
+  std::size_t bytes = 0;  // memory the store counts for it (stored_bytes())
 
   json summary() const {
-    return {{"id", id}, {"name", name}, {"source", source}, {"branches", branch_summaries}};
+    auto branch_json = json::array();
+    for (std::size_t k = 0; k < branch_summaries.size(); ++k) {
+      const auto& b = branch_summaries[k];
+      branch_json.push_back({{"index", k},
+                             {"points", b.points},
+                             {"length_mm", b.length_mm},
+                             {"has_radius", b.has_radius},
+                             {"start", point_json(b.start)},
+                             {"end", point_json(b.end)}});
+    }
+    return {{"id", id},
+            {"name", name},
+            {"source", source},
+            {"stored_bytes", bytes},
+            {"branches", std::move(branch_json)}};
   }
 };
+
+// The heap memory a stored vessel holds (what the store's byte limit counts).
+std::size_t stored_bytes(const StoredVessel& v) {
+  std::size_t bytes = sizeof(StoredVessel) + v.id.capacity() + v.name.capacity() + v.source.capacity() +
+                      v.branches.capacity() * sizeof(CenterlinePolyline) +
+                      v.branch_summaries.capacity() * sizeof(BranchSummary);
+  for (const auto& b : v.branches)
+    bytes += b.points.capacity() * sizeof(Eigen::Vector3d) + b.radii.capacity() * sizeof(double);
+  return bytes;
+}
+
+std::string mebibytes(std::size_t bytes) {
+  std::ostringstream text;
+  text << std::fixed << std::setprecision(1) << static_cast<double>(bytes) / (1024.0 * 1024.0) << " MiB";
+  return text.str();
+}
 
 // Parses an uploaded vessel file into branches and checks each one is usable as a centerline in mm.
 std::variant<std::vector<CenterlinePolyline>, ApiResult> parse_vessel(std::string_view body,
                                                                       const std::string& content_type,
-                                                                      std::size_t max_bytes,
+                                                                      const PlanningOptions& options,
                                                                       std::string& source) {
+  const std::size_t max_bytes = options.max_vessel_bytes;
   const auto type = media_type(content_type);
   if (type == "text/csv" || type == "application/csv") {
     source = "csv";
@@ -127,6 +171,11 @@ std::variant<std::vector<CenterlinePolyline>, ApiResult> parse_vessel(std::strin
     return bad_vessel(e.what());
   }
   if (branches.empty()) return bad_vessel("the file holds no centerline points");
+  if (branches.size() > options.max_vessel_branches)
+    return bad_vessel("the file splits into " + std::to_string(branches.size()) +
+                      " branches (a step more than 5 times the median point spacing starts a new one); at "
+                      "most " +
+                      std::to_string(options.max_vessel_branches) + " are accepted");
   for (std::size_t k = 0; k < branches.size(); ++k) {
     const double length = polyline_length(branches[k]);
     try {
@@ -311,7 +360,8 @@ struct PlanningService::Impl {
   JobQueue queue;
   mutable std::mutex mutex;
   std::map<std::string, std::shared_ptr<const StoredVessel>> vessels;
-  std::deque<std::string> vessel_order;
+  std::deque<std::string> vessel_order;  // oldest first
+  std::size_t vessel_bytes = 0;          // stored_bytes() of all the vessels kept
   std::uint64_t next_vessel = 1;
   std::atomic<std::uint64_t> side_view_frames{0};  // fresh camera noise for every picture
 
@@ -338,31 +388,65 @@ struct PlanningService::Impl {
     }
   }
 
-  std::shared_ptr<const StoredVessel> store(std::vector<CenterlinePolyline> branches, std::string source,
-                                            std::string name) {
+  struct Stored {
+    std::shared_ptr<const StoredVessel> vessel;
+    std::vector<std::string> forgotten;  // older vessels let go to make room, oldest first
+  };
+
+  // Keeps the vessel, forgetting the oldest ones while more than max_vessels are kept or they take more
+  // than max_stored_vessel_bytes together. A vessel larger than that on its own is refused (413).
+  std::variant<Stored, ApiResult> store(std::vector<CenterlinePolyline> branches, std::string source,
+                                        std::string name) {
     auto v = std::make_shared<StoredVessel>();
     v->source = std::move(source);
     v->branches = std::move(branches);
-    v->branch_summaries = json::array();
-    for (std::size_t k = 0; k < v->branches.size(); ++k) {
-      const auto& b = v->branches[k];
-      v->branch_summaries.push_back({{"index", k},
-                                     {"points", b.points.size()},
-                                     {"length_mm", polyline_length(b)},
-                                     {"has_radius", !b.radii.empty()},
-                                     {"start", point_json(b.points.front())},
-                                     {"end", point_json(b.points.back())}});
+    for (auto& b : v->branches) {
+      // A reader grows its vectors by doubling: up to half of what they hold can be spare capacity.
+      b.points.shrink_to_fit();
+      b.radii.shrink_to_fit();
+      v->branch_summaries.push_back(
+          {b.points.size(), polyline_length(b), !b.radii.empty(), b.points.front(), b.points.back()});
     }
+    v->branches.shrink_to_fit();
+    v->branch_summaries.shrink_to_fit();
     std::lock_guard lock(mutex);
     v->id = "v" + std::to_string(next_vessel++);
     v->name = name.empty() ? v->id : std::move(name);
+    v->bytes = stored_bytes(*v);
+    if (v->bytes > options.max_stored_vessel_bytes)
+      return ApiResult::error(413, "vessel_too_large",
+                              "the vessel's centerline takes " + mebibytes(v->bytes) +
+                                  " in memory; the vessel store keeps at most " +
+                                  mebibytes(options.max_stored_vessel_bytes) +
+                                  " of centerlines: send a sparser centerline (a point every 0.05 mm is "
+                                  "as fine as a plan resamples)");
     vessels[v->id] = v;
     vessel_order.push_back(v->id);
-    while (vessel_order.size() > options.max_vessels) {
-      vessels.erase(vessel_order.front());
+    vessel_bytes += v->bytes;
+    Stored stored{v, {}};
+    while (vessel_order.size() > options.max_vessels || vessel_bytes > options.max_stored_vessel_bytes) {
+      const auto oldest = vessels.find(vessel_order.front());
+      vessel_bytes -= oldest->second->bytes;
+      stored.forgotten.push_back(oldest->first);
+      vessels.erase(oldest);
       vessel_order.pop_front();
     }
-    return v;
+    return stored;
+  }
+
+  // The 201 answer of an upload: the vessel, and what the store keeps now and at most.
+  json stored_json(const Stored& stored) const {
+    json out = stored.vessel->summary();
+    std::lock_guard lock(mutex);
+    out["store"] = {{"vessels", vessel_order.size()},
+                    {"max_vessels", options.max_vessels},
+                    {"bytes", vessel_bytes},
+                    {"max_bytes", options.max_stored_vessel_bytes},
+                    {"forgotten", stored.forgotten},
+                    {"policy", "at most " + std::to_string(options.max_vessels) + " vessels and " +
+                                   mebibytes(options.max_stored_vessel_bytes) +
+                                   " of centerlines are kept; the oldest upload is forgotten first"}};
+    return out;
   }
 
   std::shared_ptr<const StoredVessel> find_vessel(const std::string& id) const {
@@ -572,15 +656,16 @@ std::size_t PlanningService::max_vessel_bytes() const { return impl_->options.ma
 ApiResult PlanningService::upload_vessel(std::string_view body, const std::string& content_type,
                                          const QueryParameters& query) {
   std::string source;
-  auto parsed = parse_vessel(body, content_type, impl_->options.max_vessel_bytes, source);
+  auto parsed = parse_vessel(body, content_type, impl_->options, source);
   if (auto* err = std::get_if<ApiResult>(&parsed)) return *err;
   std::string name;
   if (const auto it = query.find("name"); it != query.end()) {
     name = it->second;
     if (name.size() > 128) return bad_request("name: at most 128 characters");
   }
-  auto v = impl_->store(std::move(std::get<std::vector<CenterlinePolyline>>(parsed)), source, name);
-  return ApiResult::success(v->summary(), 201);
+  auto stored = impl_->store(std::move(std::get<std::vector<CenterlinePolyline>>(parsed)), source, name);
+  if (auto* err = std::get_if<ApiResult>(&stored)) return *err;
+  return ApiResult::success(impl_->stored_json(std::get<Impl::Stored>(stored)), 201);
 }
 
 ApiResult PlanningService::vessels() const {
@@ -628,8 +713,11 @@ ApiResult PlanningService::vessel(const std::string& id, const QueryParameters& 
 
 ApiResult PlanningService::delete_vessel(const std::string& id) {
   std::lock_guard lock(impl_->mutex);
-  if (!impl_->vessels.erase(id))
+  const auto it = impl_->vessels.find(id);
+  if (it == impl_->vessels.end())
     return ApiResult::error(404, "unknown_vessel", "there is no vessel '" + id + "'");
+  impl_->vessel_bytes -= it->second->bytes;
+  impl_->vessels.erase(it);
   auto& order = impl_->vessel_order;
   order.erase(std::remove(order.begin(), order.end(), id), order.end());
   return ApiResult::success({{"deleted", id}});
@@ -642,13 +730,14 @@ ApiResult PlanningService::submit_plan_file(std::string_view body, const std::st
   auto request = impl_->read_plan_request(r);
   if (auto* err = std::get_if<ApiResult>(&request)) return *err;
   std::string source;
-  auto parsed = parse_vessel(body, content_type, impl_->options.max_vessel_bytes, source);
+  auto parsed = parse_vessel(body, content_type, impl_->options, source);
   if (auto* err = std::get_if<ApiResult>(&parsed)) return *err;
   // The file is also stored, so the console can show it and later plans can name it.
   const auto it = query.find("name");
-  auto v = impl_->store(std::move(std::get<std::vector<CenterlinePolyline>>(parsed)), source,
-                        it == query.end() ? std::string{} : it->second.substr(0, 128));
-  return impl_->start_job("plan", v, std::get<PlanRequest>(request));
+  auto stored = impl_->store(std::move(std::get<std::vector<CenterlinePolyline>>(parsed)), source,
+                             it == query.end() ? std::string{} : it->second.substr(0, 128));
+  if (auto* err = std::get_if<ApiResult>(&stored)) return *err;
+  return impl_->start_job("plan", std::get<Impl::Stored>(stored).vessel, std::get<PlanRequest>(request));
 }
 
 ApiResult PlanningService::submit_plan(const json& body) {

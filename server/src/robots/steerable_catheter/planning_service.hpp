@@ -28,6 +28,10 @@ struct PlanningOptions {
   std::size_t max_finished_jobs = 32;
   std::size_t max_vessels = 16;                          // the oldest upload is forgotten first
   std::size_t max_vessel_bytes = std::size_t{32} << 20;  // per file (413 above)
+  // All stored centerlines together (the oldest upload is forgotten first; one vessel larger than this
+  // is refused with 413). A 28 MiB CSV of 750 000 points keeps 23 MiB; an STL keeps only its centerline.
+  std::size_t max_stored_vessel_bytes = std::size_t{256} << 20;
+  std::size_t max_vessel_branches = 1000;  // a file that splits into more is refused (400 bad_vessel)
 };
 
 class PlanningService final : public PlanningApi {
