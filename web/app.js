@@ -7,7 +7,7 @@ import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';
 import {CatheterPanel} from './catheter.js';
 import {MbcrPanel} from './mbcr.js';
-import {buildJointPanel} from './joints.js';
+import {buildJointPanel, displayUnit} from './joints.js';
 import {ImagePanel} from './images.js';
 import {decodeCompressedImage} from './protobuf.js';
 import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} from './live.js';
@@ -17,6 +17,7 @@ import {arrangeImaging, wireEnlarge} from './layout.js';
 import {TimePlot} from './plot.js';
 import {TRACKING_TOPIC, TrackingPanel} from './tracking.js';
 import {ReplayBar} from './replay.js';
+import {operatorWords} from './words.js';
 
 const api = new Api();
 const $ = (sel) => document.querySelector(sel);
@@ -48,6 +49,7 @@ const ui = {
   moveButton: $('#move-button'),
   moveHint: $('[data-testid="move-hint"]'),
   movePreview: $('[data-testid="move-preview"]'),
+  goalsCleared: $('[data-testid="goals-cleared"]'),
   goalFromSetpoint: $('#goal-from-setpoint-button'),
   status: $('[data-testid="command-status"]'),
   events: $('[data-testid="event-log"]'),
@@ -153,10 +155,15 @@ const images = {
 
 // ---------------------------------------------------------------- status line
 let statusTimer = null;
+let statusSetMs = 0;
+// In operator words (what to press, not the request to send); the server's sentence is in the title.
 function showStatus(text, kind = 'ok') {
-  ui.status.textContent = text;
+  ui.status.textContent = operatorWords(text);
   ui.status.title = text;
   ui.status.className = `command-status ${kind}`;
+  statusSetMs = Date.now();
+  // A motion under way, until it ends or a stop ends it (applyOperatingState says which).
+  if (kind === 'ok' && /^(Moving|Step |Withdrawing)/.test(text)) state.motionStatus = {text, atMs: Date.now()};
   clearTimeout(statusTimer);
   if (kind === 'ok') statusTimer = setTimeout(() => { ui.status.textContent = ''; }, 6000);
 }
@@ -189,7 +196,23 @@ async function runCommand(label, fn) {
 function applyOperatingState(os, readAtMs = NaN) {
   if (!os || typeof os.state !== 'string') return;
   if (!os.estop && state.operating?.estop && readAtMs < state.estopSentMs && wallNowMs() - state.estopSentMs < 2000) return;
+  const estopNow = !!os.estop && !state.operating?.estop;
+  const wasEnabled = state.operating?.state === 'ENABLED' && !state.operating?.estop;
+  const wasBusy = !!state.operating?.is_busy;
   state.operating = os;
+  if (estopNow) clearGoalsOnEstop();
+  // A "Moving to …" line is about a motion that a hold, a fault or an e-stop has ended: it says so.
+  // (The motion's line may already have given way to the server's own words about the stop.)
+  const motion = state.motionStatus;
+  if (motion && !os.is_busy && !wasBusy && Date.now() - motion.atMs > 2000) state.motionStatus = null;
+  if (motion && wasEnabled && (os.estop || os.state !== 'ENABLED') && (wasBusy || Date.now() - motion.atMs < 2000)) {
+    state.motionStatus = null;
+    const cause = currentHold(os)?.cause;
+    const why = os.estop ? 'E-STOP' : os.state === 'PAUSED' ? (HOLD_TITLES[cause] || `held: ${String(cause || 'paused').replace(/_/g, ' ')}`).toLowerCase()
+        : os.state === 'FAULT' ? 'fault' : os.state.toLowerCase();
+    const server = /^server: /.test(ui.status.textContent) ? ` · ${ui.status.title}` : '';
+    showStatus(`Stopped before the goal: ${why}. ${motion.text.replace(/:.*$/, '')} did not finish.${server}`, 'notice');
+  }
   procedure.onState(os);
   const estop = !!os.estop;
   const label = estop ? 'E-STOP' : os.state;
@@ -204,6 +227,52 @@ function applyOperatingState(os, readAtMs = NaN) {
   updateModeBar();
   plan?.updateButtons();
   if (catheter && os.configuration) catheter.update(os);
+}
+
+// An E-STOP ends what was typed: goals typed before it (joint goals, the catheter's configuration
+// fields, the preview of what would move) no longer wait, ready to move, through Reset and Enable.
+// The page says what it cleared, in the status line and where the preview was, until a goal is typed.
+function clearGoalsOnEstop() {
+  const cleared = [];
+  if (joints?.edited()) {
+    cleared.push(joints.preview().replace(/^will move: /, '').split(' · ')[0]);
+    joints.clearEdits();
+  }
+  if (catheter?.hasGoal?.()) {
+    cleared.push(catheter.goalText());
+    catheter.clearTouched();
+  }
+  if (!cleared.length) return;
+  state.goalsCleared = `E-STOP cleared the goals you had typed (${cleared.join('; ')}): nothing waits to move; ` +
+      'type them again after Reset and Enable.';
+  ui.goalsCleared.textContent = state.goalsCleared;
+  ui.goalsCleared.hidden = false;
+  showStatus(state.goalsCleared, 'notice');
+  updateControls();
+}
+
+function goalsTypedAgain() {
+  if (!state.goalsCleared) return;
+  state.goalsCleared = '';
+  ui.goalsCleared.hidden = true;
+  ui.goalsCleared.textContent = '';
+}
+
+// "Relax springs" is accepted at once and runs while the robot holds: its status line follows the
+// hold's relax (running, then done or stopped short) instead of saying "done" when it was sent.
+let relaxWatch = null;  // {sinceMs, seenRunning} while this console's relax runs
+function watchRelax(hold) {
+  if (!relaxWatch) return;
+  const running = !!hold?.relax?.running;
+  if (running) {
+    relaxWatch.seenRunning = true;
+    return;
+  }
+  if (!relaxWatch.seenRunning && Date.now() - relaxWatch.sinceMs < 1500) return;
+  relaxWatch = null;
+  if (!hold) showStatus('Relax springs: the hold has ended', 'ok');
+  else if (hold.cleared) showStatus('Relax springs: done, the springs are relaxed: Resume to continue', 'ok');
+  else showStatus(`Relax springs stopped short: ${hold.message || 'the cause persists'}`, 'notice');
 }
 
 // The cause the server gives with the state (operating_state.fault), else the newest safety event.
@@ -264,8 +333,8 @@ function updateBanner() {
   ui.banner.title = `${title}: ${cause} ${next}`.trim();
   ui.banner.dataset.cause = hold ? hold.cause : '';
   ui.bannerTitle.textContent = title;
-  ui.bannerCause.textContent = cause;
-  ui.bannerNext.textContent = next;
+  ui.bannerCause.textContent = operatorWords(cause);
+  ui.bannerNext.textContent = operatorWords(next);
   // The ways out the server allows now, as buttons beside the words. They stay in place while the
   // page shows old data (disabled below), so the way out does not vanish on a slow frame.
   const allowed = new Set(hold ? hold.allowed || [] : []);
@@ -276,8 +345,17 @@ function updateBanner() {
   ui.withdrawButton.hidden = !allowed.has('withdraw');
   ui.bannerResume.hidden = !hold;
   ui.bannerResume.classList.toggle('btn-go', !!hold?.cleared);
-  ui.bannerResume.title = hold && !hold.cleared ? `Not yet: ${hold.next || 'the cause persists'}` : '';
-  for (const b of [ui.relaxButton, ui.withdrawButton, ui.bannerResume]) b.disabled = !state.leaseHeld || state.stale;
+  for (const b of [ui.relaxButton, ui.withdrawButton, ui.bannerResume]) {
+    b.disabled = !state.leaseHeld || state.stale;
+    b.title = !state.leaseHeld ? 'Take the lease to command' : state.stale ? 'Waits for fresh data (the page shows old data)' : '';
+  }
+  // Resume only once the hold's cause has cleared (it was offered, and refused, while it persisted);
+  // the banner's words say what clears it.
+  if (hold && !hold.cleared) {
+    ui.bannerResume.disabled = true;
+    ui.bannerResume.title = `Not yet: ${operatorWords(hold.next || 'the cause persists')}`;
+  }
+  watchRelax(hold);
 }
 
 function updateControls() {
@@ -299,7 +377,15 @@ function updateControls() {
   ui.leaseButton.disabled = viewer;
   const hold = currentHold(os);
   ui.resumeButton.classList.toggle('btn-go', !!hold?.cleared);
-  ui.resumeButton.title = hold && !hold.cleared ? `Not yet: ${hold.next || 'the cause persists'}` : '';
+  ui.resumeButton.title = hold && !hold.cleared ? `Not yet: ${operatorWords(hold.next || 'the cause persists')}`
+      : stale ? 'Waits for fresh data (the page shows old data)' : '';
+  if (hold && !hold.cleared) ui.resumeButton.disabled = true;
+  // Enable is not offered (nor green) while another operator holds this robot's lease.
+  const leaseOther = !state.leaseHeld && state.leaseOther;
+  if (leaseOther) ui.enableButton.disabled = true;
+  ui.enableButton.classList.toggle('btn-go', !ui.enableButton.disabled);
+  ui.enableButton.title = leaseOther ? `Another operator holds the lease (${state.leaseOther}): take it over first`
+      : stale && !enabled ? 'Waits for fresh data (the page shows old data)' : '';
   ui.resetButton.disabled = !os || (!estop && os.state !== 'FAULT') || stale || viewer;
   let hint = '';
   if (!os) hint = 'Waiting for the robot state…';
@@ -329,7 +415,7 @@ function updateControls() {
   const panelHint = !os ? 'Waiting for the robot state…' : viewer ? 'Viewer: watch only.'
       : state.offline ? 'No connection.' : stale ? 'Stale data: commands wait for fresh data.'
       : !state.leaseHeld ? 'Take the lease to command.' : '';
-  kindPanel?.setCommandable?.(!panelHint, panelHint, {enabled, estop});
+  kindPanel?.setCommandable?.(!panelHint, panelHint, {enabled, estop, mode: os?.mode ?? ''});
 }
 
 // The session's role as the server states it (serverInfo metadata): a viewer may watch and subscribe
@@ -352,8 +438,9 @@ function setRole(role) {
 }
 
 function setLease(held, otherMessage = '') {
-  const changed = state.leaseHeld !== held;
+  const changed = state.leaseHeld !== held || state.leaseOther !== (held ? '' : otherMessage);
   state.leaseHeld = held;
+  state.leaseOther = held ? '' : otherMessage;
   if (changed) updateBanner();
   ui.lease.classList.toggle('held', held);
   ui.lease.classList.toggle('other', !held && !!otherMessage);
@@ -489,7 +576,9 @@ function plotJointState(names, values, series) {
   if (!trackingPlot || !Array.isArray(values)) return;
   const joint = ui.plotJoint.value;
   const index = Array.isArray(names) ? names.indexOf(joint) : state.robot.joints.findIndex((j) => j.name === joint);
-  if (index >= 0) trackingPlot.push(series, performance.now() / 1000, Number(values[index]));
+  // In the unit the Joints tab shows (degrees for a revolute joint).
+  const scale = displayUnit(state.robot.joints.find((j) => j.name === joint)?.unit).scale;
+  if (index >= 0) trackingPlot.push(series, performance.now() / 1000, Number(values[index]) * scale);
 }
 
 function applyShape(shape) {
@@ -699,7 +788,7 @@ function renderFrame() {
     const scene = latest.take(topics.scene);
     lastTaken.set(topics.scene, start);
     if (scene) {
-      view?.applySceneUpdate(scene.msg);
+      view?.applySceneUpdate(ownEntities(scene.msg));
       applyTipFromScene(scene.msg);
     }
     sceneNextAt = t0 + Math.min(1000, (performance.now() - t0) * (1 + SCENE_SHARE));
@@ -829,8 +918,13 @@ function connectWebSocket(robotName) {
   const t = topicNames(robotName);
   topics = t;
   latest.clear();
+  // Every handler acts for its own socket only: the socket of the robot shown before closes after this
+  // one opened (the close handshake and the new upgrade race), and its close once cleared this one's
+  // live flag, so the page polled REST with no images for minutes while its new stream was connected.
+  const mine = () => window.tendrilConnection === conn;
   const conn = new FoxgloveConnection(`${scheme}//${location.host}/ws`, [...Object.values(t), ...kindPanelTopics()], {
     onOpen: () => {
+      if (!mine()) return;
       state.wsLive = true;
       net.answered();
       images.ap.setConnected(true);
@@ -841,19 +935,22 @@ function connectWebSocket(robotName) {
       api.faults().then((d) => addEvents(eventsFromFaults(d))).catch(() => {});
     },
     onClose: () => {
+      if (!mine()) return;
       state.wsLive = false;
       images.ap.setConnected(false);
       images.lateral.setConnected(false);
       refreshConnectionIndicator();
     },
-    onServerInfo: (info) => setRole(info?.metadata?.role),
+    onServerInfo: (info) => { if (mine()) setRole(info?.metadata?.role); },
     onChannels: (advertised) => {
+      if (!mine()) return;
       state.advertised = advertised;
       images.ap.setAdvertised(advertised.has(t.ap));
       images.lateral.setAdvertised(advertised.has(t.lateral));
       chooseTimingSource();
     },
     onRaw: (topic, bytes, stampNs) => {
+      if (!mine()) return;
       if (topic === TRACKING_TOPIC) {
         try {
           tipTracking?.onMessage(JSON.parse(new TextDecoder().decode(bytes)));
@@ -899,11 +996,24 @@ function connectWebSocket(robotName) {
         if (state.latencyMs.length > 200) state.latencyMs.splice(0, 100);
       }
     },
-    onStatus: (msg) => { if (msg.level >= 1) showStatus(`server: ${msg.message}`, msg.level >= 2 ? 'error' : 'ok'); },
+    // The server's warnings; one about another robot ("ur5 e-stop: …", also in the Events tab) does not
+    // take the status line of the robot shown (it overwrote what had become of this robot's move).
+    onStatus: (msg) => {
+      if (!mine() || !(msg.level >= 1)) return;
+      const text = String(msg.message ?? '');
+      if (state.robots.some((r) => r !== state.robot && text.startsWith(`${r.name} `))) return;
+      // A note this page has just made about the same event (what an E-STOP cleared, a move it ended)
+      // keeps its place; the server's words follow it.
+      if (ui.status.classList.contains('notice') && Date.now() - statusSetMs < 3000) {
+        if (!ui.status.title.includes(text)) showStatus(`${ui.status.title} · server: ${text}`, 'notice');
+        return;
+      }
+      showStatus(`server: ${text}`, msg.level >= 2 ? 'error' : 'ok');
+    },
   });
   if (tipTracking?.on) conn.addTopic(TRACKING_TOPIC);  // the switch stays on across a robot change
-  conn.open();
-  window.tendrilConnection = conn;  // for debugging from the browser console, and the browser tests
+  window.tendrilConnection = conn;
+  conn.open();  // for debugging from the browser console, and the browser tests
   window.tendrilLive = {latest, clock, state, shown, net, view: () => view, tracking: () => tipTracking};
 }
 
@@ -1014,7 +1124,8 @@ async function estop() {
     // The server's answer says the e-stop is latched: shown at once, not when the stream or the next
     // animation frame brings it (a page whose frames lag showed PAUSED for seconds after the latch).
     if (answer?.estop === true && state.operating) applyOperatingState({...state.operating, estop: true});
-    showStatus('E-STOP sent: every robot is stopping', 'ok');
+    showStatus(`E-STOP sent: every robot is stopping${state.goalsCleared ? `. ${state.goalsCleared}` : ''}`,
+               state.goalsCleared ? 'notice' : 'ok');
   } catch (err) {
     showStatus(`E-STOP FAILED: ${describeError(err)}. Use the hardware stop.`, 'error');
   }
@@ -1084,6 +1195,13 @@ function buildModeBar(robot) {
   updateModeBar();
 }
 
+// This console's refused switches (mode, the server's sentence, when): a refusal the server keeps is
+// this console's when it names the same mode and reason as one of them, else another client's.
+const ownRefusals = [];
+function isOwnRefusal(refusal) {
+  return ownRefusals.some((r) => r.mode === refusal.mode && !!refusal.reason && r.message.includes(refusal.reason));
+}
+
 function updateModeBar() {
   const os = state.operating;
   for (const b of ui.modeButtons.querySelectorAll('button[data-mode]')) {
@@ -1093,9 +1211,17 @@ function updateModeBar() {
     b.disabled = state.stale || state.role === 'viewer';
   }
   ui.modeBar.dataset.currentMode = os?.mode ?? '';
-  // The last refused switch, as the server keeps it (whoever asked for it).
+  // The last refused switch, as the server keeps it (until the next switch that succeeds) for whoever
+  // asked. This console's own refusal is its error, said whole (wrapped in its box); another client's
+  // (a script, another console) is only noted, compactly and attributed, with the reason in the title:
+  // a curl script's refusal once filled every console's mode bar with 640 px of text that did not wrap.
   const refusal = os?.mode_refusal;
-  ui.modeRefusal.textContent = refusal ? `${prettyMode(refusal.mode)} refused: ${refusal.reason}` : '';
+  const own = refusal && isOwnRefusal(refusal);
+  ui.modeRefusal.textContent = !refusal ? '' : own ? `${prettyMode(refusal.mode)} refused: ${operatorWords(refusal.reason)}`
+      : `Another client's switch to ${prettyMode(refusal.mode)} was refused`;
+  ui.modeRefusal.title = refusal ? `${own ? 'Your' : 'Another client\'s (not this console\'s)'} switch to ` +
+      `${prettyMode(refusal.mode)} was refused: ${refusal.reason}` : '';
+  ui.modeRefusal.dataset.owner = !refusal ? '' : own ? 'this' : 'other';
   ui.modeRefusal.hidden = !refusal;
   const path = plan?.path;
   ui.configStep.textContent = path && path.loaded ? (path.step >= 0 ? `${path.step} / ${path.steps - 1}` : `— / ${path.steps - 1}`) : '—';
@@ -1153,7 +1279,10 @@ function wireCommands() {
   ui.relaxButton.addEventListener('click', async () => {
     // While relaxing the same button stops it (a pause while held stops the relax).
     if (ui.relaxButton.dataset.relaxing === 'true') await runCommand('Stop relaxing', () => api.stateCommand(state.robot.name, 'pause'));
-    else await runCommand('Relax springs', () => api.stateCommand(state.robot.name, 'relax'));
+    else if (await runCommand('Relax springs', () => api.stateCommand(state.robot.name, 'relax'))) {
+      showStatus('Relaxing the springs: the bend drives follow them…', 'notice');
+      relaxWatch = {sinceMs: Date.now(), seenRunning: false};
+    }
     refreshStateSoon();
   });
   ui.withdrawButton.addEventListener('click', () => withdraw(1.0));
@@ -1183,8 +1312,21 @@ function wireCommands() {
     const button = ev.target.closest('button[data-mode]');
     if (!button) return;
     const mode = button.dataset.mode;
-    const answer = await runCommand(`Mode ${prettyMode(mode)}`, () => api.setMode(state.robot.name, mode));
+    let refusedWith = '';
+    const answer = await runCommand(`Mode ${prettyMode(mode)}`, async () => {
+      try {
+        return await api.setMode(state.robot.name, mode);
+      } catch (err) {
+        refusedWith = describeError(err);
+        throw err;
+      }
+    });
+    if (!answer) {
+      ownRefusals.push({mode, message: refusedWith, atMs: wallNowMs()});
+      if (ownRefusals.length > 8) ownRefusals.shift();
+    }
     ui.modeBar.dataset.refused = answer ? '' : mode;
+    updateModeBar();
     refreshStateSoon();
   });
   for (const tab of ui.tabs) {
@@ -1204,7 +1346,7 @@ function wireCommands() {
   }
   ui.plotJoint.addEventListener('change', () => {
     const joint = state.robot.joints.find((j) => j.name === ui.plotJoint.value);
-    trackingPlot.configure({unit: joint?.unit || '', minSpan: joint?.unit === 'rad' ? 0.01 : 0.1});
+    trackingPlot.configure({unit: displayUnit(joint?.unit).symbol || '', minSpan: 0.1});
   });
   ui.form.addEventListener('submit', async (ev) => {
     ev.preventDefault();
@@ -1317,8 +1459,57 @@ function feedKindPanel(due, start) {
   }
 }
 
+// What a robot offers, from its GET /robots entry: the Plan tab (vessel plans, path following) and the
+// Tracking tab (the imaged tip) only for a robot with those modes; the arm asked GET path_following
+// every 5 s and got a 422 each time.
+const hasModes = (robot, mode) => Array.isArray(robot?.modes) && robot.modes.includes(mode);
+const offersPlan = (robot) => hasModes(robot, 'path_following');
+const offersTracking = (robot) => hasModes(robot, 'image_guided');
+
+// The robot shown is kept across a reload: ?robot= in the address (a link to one robot), else the one
+// this browser showed last.
+const ROBOT_KEY = 'tendril.robot';
+function rememberedRobot() {
+  const fromUrl = new URL(window.location.href).searchParams.get('robot');
+  if (fromUrl && state.robots.some((r) => r.name === fromUrl)) return fromUrl;
+  let stored = null;
+  try {
+    stored = localStorage.getItem(ROBOT_KEY);
+  } catch {
+    // storage unavailable (private mode): the first robot
+  }
+  return stored && state.robots.some((r) => r.name === stored) ? stored : state.robots[0].name;
+}
+function rememberRobot(name) {
+  try {
+    localStorage.setItem(ROBOT_KEY, name);
+  } catch {
+    // storage unavailable: the address still says it
+  }
+  const url = new URL(window.location.href);
+  if (state.robots.length > 1) url.searchParams.set('robot', name);
+  else url.searchParams.delete('robot');
+  history.replaceState(null, '', url.pathname + (url.search || '') + url.hash);
+}
+
+// A scene message's entities of the shown robot only (ids are "<robot>/…"; a panel's own have no robot).
+function ownEntities(update) {
+  const others = state.robots.filter((r) => r !== state.robot).map((r) => `${r.name}/`);
+  if (!update || !Array.isArray(update.entities) || !others.length) return update;
+  return {...update, entities: update.entities.filter((e) => !others.some((p) => String(e.id || '').startsWith(p)))};
+}
+
 function selectRobot(name) {
   const robot = state.robots.find((r) => r.name === name) || state.robots[0];
+  if (ui.robotSelect.value !== robot.name) ui.robotSelect.value = robot.name;
+  rememberRobot(robot.name);
+  // Nothing of the robot shown before stays in the 3D view.
+  for (const other of state.robots) if (other !== robot) view?.removeEntities(`${other.name}/`);
+  // Tabs for what this robot offers; a hidden tab that was open gives way to Joints.
+  for (const [tab, offered] of [[$('#tab-plan'), offersPlan(robot)], [$('#tab-tracking'), offersTracking(robot)]]) {
+    tab.hidden = !offered;
+    if (!offered && tab.getAttribute('aria-selected') === 'true') selectTab($('#tab-joints'));
+  }
   // A status line about the last robot (e.g. "Lease taken") would read as if it were about this one.
   if (state.robot && state.robot !== robot) showStatus(`Showing ${robot.name}`, 'ok');
   state.robot = robot;
@@ -1327,7 +1518,10 @@ function selectRobot(name) {
   const kind = robot.kind ? robot.kind.replace(/_/g, ' ') : 'robot';
   $('[data-testid="scene-title"]').textContent = `${kind[0].toUpperCase()}${kind.slice(1)} shape`;
   document.title = `${robot.name.toUpperCase()} · tendril console`;
-  joints = buildJointPanel(ui.form, robot.joints, () => updateControls(), {onStep: stepJoint});
+  joints = buildJointPanel(ui.form, robot.joints, () => {
+    if (joints?.edited()) goalsTypedAgain();
+    updateControls();
+  }, {onStep: stepJoint});
   procedure.setRobot(robot);
   buildModeBar(robot);
   ui.catheterTab.hidden = !robot.configuration;
@@ -1343,9 +1537,9 @@ function selectRobot(name) {
   if (isMbcr) mbcr ??= new MbcrPanel($('#panel-mbcr'), api, {status: showStatus});
   mbcr?.setRobot(isMbcr ? robot : null);
   if (!isMbcr && ui.mbcrTab.getAttribute('aria-selected') === 'true') selectTab(ui.tabs[0]);
-  ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${j.unit})`, j.name)));
+  ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${displayUnit(j.unit).symbol})`, j.name)));
   const first = robot.joints[0];
-  trackingPlot?.configure({unit: first?.unit || '', minSpan: first?.unit === 'rad' ? 0.01 : 0.1});
+  trackingPlot?.configure({unit: displayUnit(first?.unit).symbol || '', minSpan: 0.1});
   state.timingSource = null;
   if (timingPlot) chooseTimingSource();
   // Each robot has its own lease: show the new robot's, not the last one's, until GET says otherwise.
@@ -1357,6 +1551,7 @@ function selectRobot(name) {
   mountKindPanel(robot);
   if (window.tendrilConnection) {
     window.tendrilConnection.close();
+    state.wsLive = false;  // until the new robot's socket opens
     connectWebSocket(robot.name);
   }
 }
@@ -1396,7 +1591,7 @@ async function start() {
   }
   ui.robotSelect.replaceChildren(...state.robots.map((r) => new Option(r.name, r.name)));
   ui.robotSelect.addEventListener('change', () => selectRobot(ui.robotSelect.value));
-  selectRobot(state.robots[0].name);
+  selectRobot(rememberedRobot());
   try {
     addEvents(eventsFromFaults(await api.faults()));
   } catch {
@@ -1412,13 +1607,13 @@ async function start() {
   requestAnimationFrame(renderFrame);
   setInterval(() => { if (performance.now() - lastAgeUpdate > 250) updateAges(); }, 250);  // rAF sleeps in hidden tabs
   plan.refresh();
-  plan.refreshPath();
+  if (offersPlan(state.robot)) plan.refreshPath();
   // Path-following state (step, moving) is not on the stream (see the README): GET it once a second
   // while a plan is loaded, every 5 s otherwise, never while the server does not answer.
   let pathTick = 0;
   setInterval(() => {
     pathTick++;
-    if (plan.pathAvailable === false || !net.reachable) return;
+    if (plan.pathAvailable === false || !net.reachable || !offersPlan(state.robot)) return;
     if (plan.path?.loaded || pathTick % 5 === 0) plan.refreshPath().then(updateModeBar);
   }, 1000);
 }

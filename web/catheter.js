@@ -19,6 +19,8 @@ const PREVIEW_ORDER = [2, 3, 0, 1];
 const clamp1 = (v) => Math.max(-1, Math.min(1, Number.isFinite(v) ? v : 0));
 const fmt = (v, digits = 1) => (Number.isFinite(v) ? v.toFixed(digits) : '—');
 
+import {operatorWords} from './words.js';
+
 export class CatheterPanel {
   constructor(root, api, {robotName, showStatus}) {
     this.root = root;
@@ -327,6 +329,10 @@ export class CatheterPanel {
     this.renderPreview();
   }
 
+  // A configuration goal typed and not yet sent, and what it says ("proximal bend θ 0.0° → 5.0°").
+  hasGoal() { return this.sliders.some((s) => s.touched); }
+  goalText() { return this.el.preview.textContent.replace(/^will move: /, '').split(' · ')[0]; }
+
   clearTouched() {
     for (const s of this.sliders) {
       s.touched = false;
@@ -424,8 +430,8 @@ export class CatheterPanel {
     // The same cause and way out as the banner, next to the gauges they are about.
     const hold = os.state === 'PAUSED' && os.hold && os.hold.message ? os.hold : null;
     this.el.hold.hidden = !hold;
-    if (hold) this.el.hold.textContent = `Held: ${hold.message}. ${hold.next || ''}`;
-    this.renderGuidance(os.image_guidance);
+    if (hold) this.el.hold.textContent = operatorWords(`Held: ${hold.message}. ${hold.next || ''}`);
+    this.renderGuidance(os.image_guidance, os);
     const j = os.joystick || {};
     const guided = os.mode === 'image_guided';
     this.el.status.textContent = j.conflict ? 'two joysticks hold their deadman: nothing moves'
@@ -437,7 +443,9 @@ export class CatheterPanel {
   }
 
   // operating_state.image_guidance (null outside the mode): what the loop does and why, in words.
-  renderGuidance(g) {
+  // The loop's word follows the robot's state: "tracking" only while the robot can follow (it said
+  // tracking while PAUSED with both bend drives held).
+  renderGuidance(g, os = this.operating) {
     this.el.guidance.hidden = !g;
     if (!g) return;
     const words = {
@@ -447,6 +455,11 @@ export class CatheterPanel {
       refused: 'tip fix refused',
       lost: 'tracking lost: the bends hold; insertion stays with you',
     };
+    const moving = os && os.state === 'ENABLED' && !os.estop;
+    if (!moving && !g.tracking_lost) {
+      words[g.status] = `not following: the robot is ${os?.estop ? 'E-STOPPED' : String(os?.state || '?')}` +
+          `${os?.state === 'PAUSED' ? ' (held: the bends stay where they are until Resume)' : ''}`;
+    }
     const status = g.tracking_lost ? 'lost' : g.status;
     const age = Number.isFinite(g.tracking_age_s) ? ` · last fix ${fmt(g.tracking_age_s, 1)} s ago` : '';
     this.el.guidanceStatus.dataset.status = status;

@@ -76,6 +76,7 @@ export function createPanel(root, ctx) {
 // rim), refreshed every 50 ms, well within the robot's 150 ms command timeout.
 const ROLL_RATE_RAD_S = 0.05;
 const ROLL_REFRESH_MS = 50;
+const ROLL_TITLE = 'Hold (pointer, or Enter / Space) to roll along the contact (the disk centre at most 5 mm/s)';
 
 class ContinuumPanel {
   constructor(root, ctx) {
@@ -145,17 +146,34 @@ class ContinuumPanel {
     // stream while a button is held, refreshed within the robot's command timeout, stopped on release.
     const rollButton = (sign, label) => {
       const b = el('button', {type: 'button', className: 'btn', 'data-testid': `continuum-roll-${sign > 0 ? 'plus' : 'minus'}`,
-                              text: label, title: 'Hold to roll along the contact (the disk centre at most 5 mm/s)'});
+                              text: label, title: ROLL_TITLE});
+      b.setAttribute('aria-keyshortcuts', 'Enter Space');
       b.addEventListener('pointerdown', () => this.startRoll(sign * ROLL_RATE_RAD_S));
       for (const ev of ['pointerup', 'pointerleave', 'pointercancel', 'blur']) b.addEventListener(ev, () => this.stopRoll());
+      // From the keyboard too: Enter or Space held on the focused button rolls, its release stops (the
+      // buttons were pointer-only). The key is the button's own here (not the catheter's deadman).
+      b.addEventListener('keydown', (ev) => {
+        if (ev.key !== 'Enter' && ev.code !== 'Space') return;
+        ev.preventDefault();
+        ev.stopPropagation();
+        if (!ev.repeat) this.startRoll(sign * ROLL_RATE_RAD_S);
+      });
+      b.addEventListener('keyup', (ev) => {
+        if (ev.key !== 'Enter' && ev.code !== 'Space') return;
+        ev.preventDefault();
+        ev.stopPropagation();
+        this.stopRoll();
+      });
       return b;
     };
     u.rollButtons = [rollButton(-1, '◀ Roll'), rollButton(1, 'Roll ▶')];
+    // Why the Roll buttons are disabled, in words beside them (they were disabled without a word).
+    u.rollWhy = el('div', {className: 'rp-hint', 'data-testid': 'continuum-roll-why', role: 'status'});
 
     this.root.append(
         el('div', {className: 'panel-age'}, 'continuum values ', u.age),
         group('Safety supervisor', '(no mode bypasses it)', u.supervisor, u.reason, u.contact,
-              el('div', {className: 'form-row'}, u.unbias, u.rollButtons)),
+              el('div', {className: 'form-row'}, u.unbias, u.rollButtons), u.rollWhy),
         group('Speed scale', `(proximity: v_min ${fmt(this.info.speed?.min_mm_s, 2)} … v_max ${fmt(this.info.speed?.max_mm_s, 0)} mm/s over ${fmt(this.dMax, 0)} mm)`,
               el('div', {className: 'rp-scale'},
                  el('div', {className: 'rp-bar', role: 'meter', 'aria-label': 'Speed-scale factor'}, u.scaleBar), u.scale),
@@ -175,6 +193,7 @@ class ContinuumPanel {
 
   setCommandable(ok, hint) {
     this.commandable = ok;
+    this.notCommandable = ok ? '' : hint || 'commands are not available';
     const buttons = [...Object.values(this.ui.modeButtons), ...this.ui.armButtons, ...this.ui.mapButtons, this.ui.unbias];
     for (const b of buttons) b.disabled = !ok;
     this.updateRollButtons();
@@ -185,7 +204,13 @@ class ContinuumPanel {
   // Roll only while commandable and held on a contact; a lost condition ends a running roll.
   updateRollButtons() {
     const ok = this.commandable && this.inContact;
-    for (const b of this.ui.rollButtons) b.disabled = !ok;
+    const why = ok ? '' : !this.commandable ? `Roll: ${String(this.notCommandable).replace(/\.$/, '')}.`
+        : 'Roll: only while the robot holds on a contact (rolls along the object it touches).';
+    for (const b of this.ui.rollButtons) {
+      b.disabled = !ok;
+      b.title = ok ? ROLL_TITLE : why;
+    }
+    this.ui.rollWhy.textContent = why;
     if (!ok) this.stopRoll();
   }
 

@@ -3,8 +3,14 @@
 // the limits). Goals follow the setpoint until the operator edits them; a move sends the edited goals
 // and, for every joint nobody touched, the setpoint read when the command is sent (never a value the
 // page saw earlier). The preview line says what will move before it moves.
+// A revolute joint (the API's unit rad) is shown, typed and stepped in degrees, as everywhere else in the
+// console (typing 3 for the roll meant 171.9° before); the conversion happens here, at the API boundary:
+// the values the page receives and the goals it sends stay in the API's rad.
 
 const DECIMALS = {mm: 2, rad: 3, deg: 1};
+const RAD_TO_DEG = 180 / Math.PI;
+// The unit a joint is shown in, and the factor from its API unit to it.
+export function displayUnit(unit) { return unit === 'rad' ? {unit: 'deg', symbol: '°', scale: RAD_TO_DEG} : {unit, symbol: unit, scale: 1}; }
 const STEP = {mm: 0.01, rad: 0.001, deg: 0.1};
 // Step moves, as the cockpits of endovascular robots offer them: ±1 mm for a prismatic joint, ±5° for a
 // revolute one (the label says it in the unit a surgeon reads; the command is in the joint's unit).
@@ -31,14 +37,15 @@ function el(tag, attrs = {}, ...children) {
 export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}) {
   form.replaceChildren();
   const rows = jointDescriptions.map((j, index) => {
-    const unit = j.unit || '';
-    const decimals = DECIMALS[unit] ?? 3;
-    const step = STEP[unit] ?? 0.001;
-    const lower = Number(j.lower);
-    const upper = Number(j.upper);
+    const apiUnit = j.unit || '';
+    // Shown (and typed) in `unit`: degrees for a revolute joint; `scale` takes an API value to it.
+    const {unit: shownAs, symbol: unit, scale} = displayUnit(apiUnit);
+    const decimals = DECIMALS[shownAs] ?? 3;
+    const step = STEP[shownAs] ?? 0.001;
+    const lower = Number(j.lower) * scale;
+    const upper = Number(j.upper) * scale;
     const id = `joint-${index}`;
     const fmt = (v) => (Number.isFinite(v) ? v.toFixed(decimals) : '—');
-    const degrees = (v) => (unit === 'rad' && Number.isFinite(v) ? `${(v * 180 / Math.PI).toFixed(1)}°` : '');
 
     const measuredValue = el('span', {'data-testid': `joint-measured-${j.name}`, text: '—'});
     const setpointValue = el('span', {'data-testid': `joint-setpoint-${j.name}`, text: '—'});
@@ -49,13 +56,13 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
     const number = el('input', {
       type: 'number', id: `${id}-goal`, min: String(lower), max: String(upper), step: String(step),
       inputmode: 'decimal', 'data-testid': `joint-goal-${j.name}`,
-      'aria-label': `${prettyName(j.name)} goal in ${unit}`,
+      'aria-label': `${prettyName(j.name)} goal in ${shownAs === 'deg' ? 'degrees' : unit}`,
     });
     const slider = el('input', {
       type: 'range', min: String(lower), max: String(upper), step: String(step),
-      'data-testid': `joint-slider-${j.name}`, 'aria-label': `${prettyName(j.name)} goal slider in ${unit}`,
+      'data-testid': `joint-slider-${j.name}`, 'aria-label': `${prettyName(j.name)} goal slider in ${shownAs === 'deg' ? 'degrees' : unit}`,
     });
-    const stepMove = STEP_MOVE[unit];
+    const stepMove = STEP_MOVE[apiUnit];
     const stepButton = (sign) => {
       const b = el('button', {
         type: 'button', class: 'btn btn-small btn-step', 'data-testid': `joint-step-${sign > 0 ? 'plus' : 'minus'}-${j.name}`,
@@ -66,13 +73,12 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
       return b;
     };
     const steps = stepMove ? [stepButton(-1), stepButton(1)] : [];
-    const limitsText = `${fmt(lower)} … ${fmt(upper)} ${unit}` +
-      (unit === 'rad' ? ` (${degrees(lower)} … ${degrees(upper)})` : '');
+    const limitsText = `${fmt(lower)} … ${fmt(upper)}${shownAs === 'deg' ? '°' : ` ${unit}`}`;
     const row = el('fieldset', {class: 'joint', 'data-testid': `joint-row-${j.name}`, 'aria-label': prettyName(j.name)},
       el('div', {class: 'joint-head'},
         el('span', {class: 'joint-name', text: prettyName(j.name)}),
         el('span', {class: 'joint-limits', 'data-testid': `joint-limits-${j.name}`, text: `limits ${limitsText}`,
-                    title: Number.isFinite(Number(j.max_velocity)) ? `max velocity ${j.max_velocity} ${unit}/s` : ''})),
+                    title: Number.isFinite(Number(j.max_velocity)) ? `max velocity ${fmt(Number(j.max_velocity) * scale)} ${unit}/s` : ''})),
       el('div', {class: 'joint-values'},
         el('div', {class: 'readout'}, el('span', {class: 'readout-label', text: 'measured'}),
           el('span', {class: 'readout-value'}, measuredValue, el('span', {class: 'unit', text: unit}), measuredDeg)),
@@ -86,7 +92,7 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
     form.appendChild(row);
 
     const r = {
-      name: j.name, unit, lower, upper, decimals, row, number, slider, fill, spMark, measuredValue, measuredDeg,
+      name: j.name, unit, scale, lower, upper, decimals, row, number, slider, fill, spMark, measuredValue, measuredDeg,
       setpointValue, fmt, steps, edited: false, measured: NaN, setpoint: NaN,
     };
     const fraction = (v) => Math.min(1, Math.max(0, (v - lower) / (upper - lower || 1)));
@@ -133,11 +139,11 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
 
   return {
     updateMeasured(js) {
-      forEachValue(js, js.position, (r, v) => {
+      forEachValue(js, js.position, (r, apiValue) => {
+        const v = apiValue * r.scale;
         r.measured = v;
         r.measuredValue.textContent = r.fmt(v);
         r.measuredValue.parentElement.parentElement.dataset.value = String(v);
-        r.measuredDeg.textContent = r.unit === 'rad' && Number.isFinite(v) ? `${(v * 180 / Math.PI).toFixed(1)}°` : '';
         r.fill.style.width = `${(r.fraction(v) * 100).toFixed(2)}%`;
         const margin = (r.upper - r.lower) * 0.03;
         r.row.classList.toggle('near-limit', v <= r.lower + margin || v >= r.upper - margin);
@@ -145,7 +151,8 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
     },
     updateSetpoint(js) {
       if (!js) return;
-      forEachValue(js, js.position, (r, v) => {
+      forEachValue(js, js.position, (r, apiValue) => {
+        const v = apiValue * r.scale;
         r.setpoint = v;
         r.setpointValue.textContent = r.fmt(v);
         r.spMark.style.left = `calc(${(r.fraction(v) * 100).toFixed(2)}% - 1px)`;
@@ -158,7 +165,7 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
     // The move_jp goal: edited joints as typed, the others at `setpoint` (positions in joint order,
     // read from the server just before sending).
     goals(setpoint) {
-      return rows.map((r, i) => (r.edited ? Number(r.number.value) : Number(setpoint?.[i] ?? r.setpoint)));
+      return rows.map((r, i) => (r.edited ? Number(r.number.value) / r.scale : Number(setpoint?.[i] ?? r.setpoint / r.scale)));
     },
     edited() { return rows.some((r) => r.edited); },
     // Step buttons are live only while a move could be commanded; `why` is their tooltip otherwise.
@@ -174,13 +181,17 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
       const r = rows[index];
       if (!r || !Array.isArray(setpoint)) return null;
       const goal = setpoint.map(Number);
-      const target = Math.min(r.upper, Math.max(r.lower, goal[index] + delta));
+      const target = Math.min(r.upper / r.scale, Math.max(r.lower / r.scale, goal[index] + delta));
       if (Math.abs(target - goal[index]) < 1e-9) return null;
       goal[index] = target;
       return goal;
     },
     jointName(index) { return rows[index] ? prettyName(rows[index].name).toLowerCase() : ''; },
-    format(index, v) { return rows[index] ? `${rows[index].fmt(Number(v))} ${rows[index].unit}` : String(v); },
+    // A value in the API's unit, as the panel shows it ("30.0°", "12.00 mm").
+    format(index, v) {
+      const r = rows[index];
+      return r ? `${r.fmt(Number(v) * r.scale)}${r.unit === '°' ? '°' : ` ${r.unit}`}` : String(v);
+    },
     invalidJoints() { return rows.filter((r) => r.edited && !r.validate()).map((r) => prettyName(r.name)); },
     // "will move: insertion 10.00 → 30.00 mm · unchanged: roll, proximal bend, distal bend"
     preview() {
@@ -188,8 +199,8 @@ export function buildJointPanel(form, jointDescriptions, onChange, {onStep} = {}
       if (!moving.length) return '';
       const still = rows.filter((r) => !r.edited).map((r) => prettyName(r.name).toLowerCase());
       const parts = moving.map((r) => {
-        const deg = r.unit === 'rad' ? ` (${(Number(r.number.value) * 180 / Math.PI).toFixed(1)}°)` : '';
-        return `${prettyName(r.name).toLowerCase()} ${r.fmt(r.setpoint)} → ${r.fmt(Number(r.number.value))} ${r.unit}${deg}`;
+        const u = r.unit === '°' ? '°' : ` ${r.unit}`;
+        return `${prettyName(r.name).toLowerCase()} ${r.fmt(r.setpoint)} → ${r.fmt(Number(r.number.value))}${u}`;
       });
       return `will move: ${parts.join(', ')}${still.length ? ` · unchanged: ${still.join(', ')}` : ''}`;
     },

@@ -146,10 +146,10 @@ class UltrasoundPanel {
     this.updateTfInfo();
   }
 
-  setCommandable(ok, hint) {
+  setCommandable(ok, hint, robotState = {}) {
     this.commandable = ok;
     this.commandHint = hint;
-    this.calibration?.setCommandable(ok);
+    this.calibration?.setCommandable(ok, robotState);
     this.updateButtons();
   }
 

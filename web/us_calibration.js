@@ -5,6 +5,11 @@
 // the kinds: a kind a plug-in adds shows up without a change here.
 import {el, fmt, describe, robotCommand} from './panel_kit.js';
 
+// Kinds whose routine moves the arm, and what it needs for that: the robot–world calibration drives
+// the probe through 12 poses in Cartesian control, so the server refuses it unless the arm is ENABLED
+// in cartesian mode. Its button says so instead of being offered and then refused.
+const NEEDS = {robot: {mode: 'cartesian'}};
+
 function when(unixS) {
   if (!Number.isFinite(unixS)) return '—';
   return new Date(unixS * 1000).toISOString().replace('T', ' ').replace(/\.\d+Z$/, ' UTC');
@@ -41,19 +46,49 @@ export class CalibrationPanel {
     this.updateButtons();
   }
 
-  setCommandable(ok) {
+  // robotState: {enabled, mode} of the arm (operating_state), for the kinds that move it.
+  setCommandable(ok, robotState = {}) {
     this.commandable = ok;
+    this.robotState = robotState;
     this.updateButtons();
   }
 
+  // Why `kind` cannot be calibrated now, in words, or '' when it can.
+  notNow(kind) {
+    const need = NEEDS[kind];
+    if (this.running) return `a ${this.running.kind} calibration is running`;
+    if (!need || !this.robotState) return '';
+    if (this.robotState.estop) return 'the e-stop is latched: Reset, then Enable';
+    if (!this.robotState.enabled) return 'the arm moves through 12 poses: Enable it first';
+    if (need.mode && this.robotState.mode !== need.mode) {
+      return `the arm moves through 12 poses in ${need.mode} control: press the Cartesian mode button first ` +
+          `(it is in ${String(this.robotState.mode || '?').replace(/_/g, ' ')} mode)`;
+    }
+    return '';
+  }
+
   updateButtons() {
-    for (const r of Object.values(this.rows)) r.button.disabled = !this.commandable || !!this.running;
+    for (const [kind, r] of Object.entries(this.rows)) {
+      const why = this.commandable ? this.notNow(kind) : '';
+      r.button.disabled = !this.commandable || !!this.running || !!why;
+      r.button.title = why ? `Not now: ${why}` : `run the ${kind} calibration routine`;
+      r.button.dataset.why = why;
+      // The reason in view beside the button, until it no longer holds.
+      if (why) {
+        r.message.textContent = `Not now: ${why}`;
+        r.message.dataset.why = 'true';
+      } else if (r.message.dataset.why === 'true') {
+        r.message.textContent = '';
+        r.message.dataset.why = '';
+      }
+    }
   }
 
   async calibrate(kind) {
     const r = this.rows[kind];
     r.message.textContent = 'sending…';
     r.message.dataset.refused = 'false';
+    r.message.dataset.why = '';
     try {
       await robotCommand(this.ctx.api, this.robot.name, 'calibrate', {kind});
       r.message.textContent = 'started';

@@ -6,7 +6,8 @@
 # cockpit.e2e.mjs against a fresh one of the same kind; two_robots.e2e.mjs against one that adds the
 # SIMULATED UR5 arm; mbcr.e2e.mjs against one that adds the SIMULATED mbcr_vd robot; tracking.e2e.mjs (the Tracking tab) against a fresh one; holds.e2e.mjs, which needs wall contact, against one that keeps the shipped
 # SIMULATED vessel (TENDRIL_VESSEL_URL and TENDRIL_VESSEL_TOKEN point at it); replay.e2e.mjs against
-# tendrild --replay on a few seconds another server recorded. One server runs at a time: two sanitized
+# tendrild --replay on a few seconds another server recorded; surgeon.e2e.mjs (issue 31) against one
+# with the catheter, the continuum robot and the arm. One server runs at a time: two sanitized
 # servers with real-time threads beside a software-rendering Chromium starve the browser on two cores.
 # Usage: tests/e2e/run.sh [path/to/tendrild] (default $TENDRILD, else build/server/tendrild).
 # Screenshots: tests/e2e/artifacts/ (git-ignored).
@@ -60,7 +61,8 @@ stop_tendrild
 # The ultrasound arm's panel (ultrasound.e2e.mjs): a sweep from the console while the catheter moves.
 # The server's calibration store starts empty (server.sh): the test calibrates the arm from the
 # console before the sweep.
-TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
+# In simulated time (--simulated-time): a stall of this machine slips time and cannot fault or hold the arm.
+TENDRIL_TEST_SIMULATED_TIME=1 TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
 run_file "$here/ultrasound.e2e.mjs"
 stop_tendrild
 
@@ -83,6 +85,14 @@ TENDRILD_ARGS="--config {config} --replay $TENDRIL_RECORDING_DIR" start_tendrild
 run_file "$here/replay.e2e.mjs"
 stop_tendrild
 [ -n "${KEEP_TENDRILD_LOG:-}" ] || rm -rf "$recorded_workdir"
+
+# Issue 31, the console as a surgeon drives it (surgeon.e2e.mjs): the catheter, the continuum robot and
+# the arm in one server: refused mode switches and the layout from 1280 to 2560 px, goals typed before
+# an E-STOP, degrees, switching robots (the stream stays live), per-robot tabs and 3D view.
+TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/sdu_continuum.json $repo_root/config/robots/ur5_arm.json" \
+  start_tendrild "$binary" || exit 1
+run_file "$here/surgeon.e2e.mjs"
+stop_tendrild
 
 TENDRIL_TEST_VESSEL=1 start_tendrild "$binary" || exit 1
 export TENDRIL_VESSEL_URL="$TENDRIL_URL" TENDRIL_VESSEL_TOKEN="$TENDRIL_TOKEN" TENDRIL_VESSEL_LOG="$TENDRIL_LOG"
