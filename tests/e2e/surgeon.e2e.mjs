@@ -390,3 +390,56 @@ test('the continuum robot: Roll says why it is not available, in words beside it
   }));
   await releaseLease();
 });
+
+test('the continuum robot\'s contact hold says what works while held, in operator words, and Roll works from the keyboard', async () => {
+  await page.setViewportSize({width: 1280, height: 800});
+  await page.selectOption(tid('robot-select'), 'sdu');
+  await waitFor(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live');
+  await takeLease('sdu');
+  await page.click(tid('tab-robot'));
+  await waitFor(() => !document.querySelector('[data-testid="continuum-arm-reset"]').disabled);
+  await page.click(tid('continuum-arm-reset'));
+  await enable();
+  // Bend toward the SIMULATED arm (23° in the Joints tab, 0.40 rad at the API) and bring the arm in.
+  await page.click(tid('tab-joints'));
+  await page.fill(tid('joint-goal-bending'), '23');
+  await command('move-button', /Moving to goal/);
+  await page.click(tid('tab-robot'));
+  await page.fill(tid('continuum-arm-speed'), '20');
+  await page.click(tid('continuum-arm-approach'));
+  await waitFor(() => document.querySelector('[data-testid="continuum-contact"]').dataset.contact === 'true' &&
+                      document.querySelector('[data-testid="state-badge"]').dataset.state === 'PAUSED', null, {timeout: 180000});
+  await waitFor(() => document.querySelector('[data-testid="banner-next"]').textContent.length > 0);
+  const next = await page.locator(tid('banner-next')).textContent();
+  // What works while held, in operator words: no request to send, no contact guidance (refused while
+  // held), the Roll buttons named as they are on screen.
+  assert.doesNotMatch(next, /POST \/api|\/roll|guidance/i, next);
+  assert.match(next, /roll along it: press the ◀ Roll \/ Roll ▶ buttons in the Robot tab/, next);
+  assert.match(await page.locator(tid('banner-next')).evaluate((e) => e.closest('[data-testid="banner"]').title), /./);
+  await page.screenshot({path: path.join(ARTIFACTS, '31-continuum-contact-hold.png')});
+  // Roll from the keyboard: Enter held on the focused Roll ▶ rolls, its release stops. (A page that goes
+  // STALE while it is held ends the roll by design; then it is pressed again, at most 5 times.)
+  const measured = async () => (await scriptCall('GET', '/robots/sdu/measured_js')).json.position;
+  let moved = 0;
+  let q0;
+  let q1;
+  for (let attempt = 1; attempt <= 5 && !(moved > 0.005); attempt++) {
+    await waitFor(() => !document.querySelector('[data-testid="continuum-roll-plus"]').disabled);
+    assert.equal(await page.locator(tid('continuum-roll-why')).textContent(), '', 'no reason shown while Roll is available');
+    q0 = await measured();
+    await page.focus(tid('continuum-roll-plus'));
+    await page.keyboard.down('Enter');
+    await page.waitForTimeout(1500);
+    await page.keyboard.up('Enter');
+    await page.waitForTimeout(500);
+    q1 = await measured();
+    moved = Math.max(...q1.map((v, i) => Math.abs(v - q0[i])));
+    if (!(moved > 0.005)) console.log(`# keyboard roll attempt ${attempt}: no motion; ${await page.locator(tid('continuum-roll-why')).textContent()}`);
+  }
+  assert.ok(moved > 0.005, `Enter on Roll ▶ rolled the segment: ${JSON.stringify({q0, q1})}`);
+  await page.waitForTimeout(500);
+  const q2 = await measured();
+  assert.ok(Math.max(...q2.map((v, i) => Math.abs(v - q1[i]))) < 0.002, `released, the roll stopped: ${JSON.stringify({q1, q2})}`);
+  await page.click(tid('continuum-arm-retreat'));
+  assert.deepEqual(pageErrors, []);
+});

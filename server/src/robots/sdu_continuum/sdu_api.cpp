@@ -166,8 +166,8 @@ class SduApi final : public RobotApiExtension {
     const std::string base = "POST /api/v1/robots/" + robot_.config().name;
     switch (cause) {
       case cont::SduCause::kContact:
-        return "Move the object away (or roll along it: " + base +
-               "/roll), then resume; contact-based guidance may back away from the push meanwhile.";
+        // Only what works while held: guidance (also contact-based) is refused until the hold clears.
+        return "Move the object away (or roll along it: " + base + "/roll), then resume.";
       case cont::SduCause::kBaselineDrift:
         return "Take the sleeve clear of every object and re-zero the Hall sensors (" + base +
                "/unbias), then resume.";
