@@ -160,13 +160,16 @@ void HttpServer::Impl::accept_connection(tcp::socket socket) {
   accepted_slot.reset();  // normally taken by the session already
 }
 
-// Out of descriptors: make room, then wait accept_backoff before accepting again. Room comes from the
-// oldest idle unauthenticated connection (its descriptor is free by the time the back-off ends); with
-// none, the spare descriptor is given up for a moment to take the waiting client and close it, so that
-// it hears "closed" at once rather than waiting for a timeout.
+// Out of descriptors: make room, then wait before accepting again. Room comes from the oldest idle
+// unauthenticated connection: its close (posted to its strand) has run 1 ms later, and each retry costs
+// one such connection, so this cannot spin; a backlog of new clients (an e-stop among them) gets in
+// at about 1 ms each rather than 50. With none to close, the spare descriptor is given up for a moment
+// to take the waiting client and close it (it hears "closed" at once rather than timing out), and the
+// listener waits accept_backoff.
 void HttpServer::Impl::on_descriptors_exhausted() {
   ++accept_backoffs;
-  if (!connections.evict_oldest() && spare_descriptor >= 0) {
+  const bool evicted = connections.evict_oldest();
+  if (!evicted && spare_descriptor >= 0) {
     ::close(spare_descriptor);
     const int waiting = ::accept4(acceptor->native_handle(), nullptr, nullptr, SOCK_CLOEXEC | SOCK_NONBLOCK);
     if (waiting >= 0) {
@@ -175,7 +178,7 @@ void HttpServer::Impl::on_descriptors_exhausted() {
     }
     spare_descriptor = open_spare_descriptor();  // may fail while descriptors are short: retried below
   }
-  accept_timer->expires_after(opts.accept_backoff);
+  accept_timer->expires_after(evicted ? std::chrono::milliseconds(1) : opts.accept_backoff);
   accept_timer->async_wait([this](beast::error_code ec) {
     if (ec || !acceptor->is_open()) return;
     if (spare_descriptor < 0) spare_descriptor = open_spare_descriptor();

@@ -90,8 +90,9 @@ struct HttpOptions {
   // idle_timeout between requests (a WebSocket: no frame for idle_timeout, a ping at half of it).
   std::chrono::seconds handshake_timeout{10};
   std::chrono::seconds idle_timeout{60};
-  // After the process ran out of descriptors (EMFILE, ENFILE, ENOBUFS, ENOMEM) the listener waits
-  // this long before it accepts again, instead of spinning on the error.
+  // After the process ran out of descriptors (EMFILE, ENFILE, ENOBUFS, ENOMEM) with no idle
+  // unauthenticated connection to close, the listener waits this long before it accepts again,
+  // instead of spinning on the error (after closing one it retries 1 ms later).
   std::chrono::milliseconds accept_backoff{50};
   // Planning, jobs and vessel uploads (planning_routes.hpp); null = those routes answer 503. Vessel
   // files may be up to PlanningApi::max_vessel_bytes() (413 above).
