@@ -4,6 +4,7 @@
 #include <pthread.h>
 #include <signal.h>
 
+#include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +14,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "tendril/dds/dds_bridge.hpp"
@@ -121,6 +123,21 @@ void print_console_url(const tendril::server::ServerConfig& config, const tendri
             << http.port() << "/?token=" << token << std::endl;
 }
 
+// How long a stop may take after SIGINT/SIGTERM before the process ends regardless (the drives are
+// disabled first, so what is cut short is the rest: a recording's footer, a job, a client's upload).
+constexpr std::chrono::seconds kShutdownBound{5};
+
+void start_shutdown_watchdog() {
+  std::thread([] {
+    std::this_thread::sleep_for(kShutdownBound);
+    std::cerr << "tendrild: still stopping " << kShutdownBound.count()
+              << " s after the signal (a thread is still busy, e.g. with a client's upload); the drives were "
+                 "disabled first; exiting now"
+              << std::endl;
+    std::_Exit(5);
+  }).detach();
+}
+
 // tendrild --replay: the robots are described (built from their files, never started: every bus is
 // treated as virtual, so no SocketCAN interface is even opened) and the recording is published through
 // the WebSocket. Returns the exit code.
@@ -169,6 +186,7 @@ int run_replay(tendril::server::ServerConfig config, const std::string& token,
   sigwait(&stop_signals, &signal_number);
   std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
             << " received: stopping the replay" << std::endl;
+  start_shutdown_watchdog();
   http.stop();
   replay->stop();
   std::cerr << "tendrild: replay stopped after " << replay->status().messages_sent << " messages"
@@ -407,7 +425,17 @@ int main(int argc, char** argv) {
     int signal_number = 0;
     sigwait(&stop_signals, &signal_number);
     std::cerr << "tendrild: " << (signal_number == SIGINT ? "SIGINT" : "SIGTERM")
-              << " received: disabling the drives and stopping" << std::endl;
+              << " received: disabling the drives, then stopping" << std::endl;
+    // Whatever the other threads are doing (a client's upload being parsed), the process ends within
+    // kShutdownBound; by then the drives were disabled first, below.
+    start_shutdown_watchdog();
+    // The drives first: the control loop stops and every device is deactivated (the drives disabled)
+    // before anything waits for the network threads.
+    runtime.stop();
+    std::vector<std::string> still_on;
+    const bool disabled = runtime.drives_disabled(&still_on);
+    std::cerr << "tendrild: " << (disabled ? "drives disabled" : "drives stopped")
+              << "; stopping the front end" << std::endl;
     if (dds) dds->stop();  // before the front end whose command path it uses
     http.stop();
     if (recording) {
@@ -419,9 +447,7 @@ int main(int argc, char** argv) {
     }
     if (planning) planning->shutdown();
     if (imaging) imaging->stop();
-    runtime.stop();
-    std::vector<std::string> still_on;
-    if (!runtime.drives_disabled(&still_on)) {
+    if (!disabled) {
       std::cerr << "tendrild: stopped, but these drives did not confirm they are disabled:";
       for (const auto& d : still_on) std::cerr << " " << d;
       std::cerr << " (they quick-stop by themselves when the master heartbeat ends)" << std::endl;
