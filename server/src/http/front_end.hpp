@@ -44,6 +44,7 @@
 #include "tendril/server/http/http_server.hpp"
 #include "tendril/server/http/lease.hpp"
 #include "tendril/server/http/request_codec.hpp"
+#include "work_lane.hpp"
 
 namespace tendril::server {
 
@@ -200,6 +201,13 @@ class HttpServer::Impl {
 
   // Runtime.
   std::unique_ptr<net::io_context> ioc;
+  // Where requests' work runs, off the I/O threads (work_lane.hpp): ordinary requests, and large
+  // uploads and slow pictures. Made in start(), stopped in stop() before the I/O threads.
+  std::unique_ptr<http::WorkLane> request_lane;
+  std::unique_ptr<http::WorkLane> upload_lane;
+  // Large bodies being read or waiting for their work (at most upload_threads + upload_queue): each
+  // may be up to the largest body limit, so their number bounds the memory uploads can take.
+  std::atomic<std::size_t> large_bodies_in_flight{0};
   std::unique_ptr<tcp::acceptor> acceptor;
   // Connection limits (connection_limits.hpp), fixed in start().
   ConnectionRegistry connections;

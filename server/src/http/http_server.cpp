@@ -359,6 +359,11 @@ void HttpServer::start() {
       s.publisher_wake.notify_all();
     });
   }
+  // Below the I/O threads in priority: their work must never keep a thread from reading an e-stop.
+  s.request_lane = std::make_unique<http::WorkLane>(
+      http::WorkLane::Options{"requests", s.opts.request_threads, s.opts.request_queue, 5});
+  s.upload_lane = std::make_unique<http::WorkLane>(
+      http::WorkLane::Options{"uploads", s.opts.upload_threads, s.opts.upload_queue, 15});
   for (int i = 0; i < s.opts.io_threads; ++i) s.io_threads.emplace_back([&s] { s.run_io(); });
   if (s.opts.publish_rate_hz > 0) {
     s.publisher = std::thread([&s] {
@@ -405,6 +410,10 @@ void HttpServer::stop() {
   for (auto& session : s.live_sessions()) {
     net::post(s.ioc->get_executor(), [session] { session->hard_close(); });
   }
+  // The lanes first: a finished task posts its answer to a connection's strand, which needs the
+  // io_context alive (stopped is fine). A task still running (an upload being parsed) is waited for.
+  s.request_lane->stop();
+  s.upload_lane->stop();
   s.ioc->stop();
   for (auto& thread : s.io_threads) thread.join();
   s.io_threads.clear();

@@ -9,6 +9,8 @@
 // under it (byte_stream.hpp), so Beast's HTTP operations are compiled once.
 #pragma once
 
+#include <exception>
+#include <limits>
 #include <memory>
 #include <optional>
 
@@ -82,9 +84,13 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
 
   void do_read() {
     // Beast checks Content-Length against the body limit while it parses the header, before the
-    // route is known: admit the largest body any route takes here, and narrow it in on_header.
+    // route and the caller are known: no limit here; on_header sets the route's for this caller (and
+    // refuses a declared length over it) before a byte of the body is read.
     body_limit_ = server_.largest_body_limit();
+    decision_ = {};
     parser_.emplace(body_limit_);
+    // (Not boost::none: Boost 1.74 compares a length against an empty optional as "over the limit".)
+    parser_->body_limit(std::numeric_limits<std::uint64_t>::max());
     wait_for_request();
     bhttp::async_read_header(stream_, buffer_, *parser_,
                              [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
@@ -98,14 +104,15 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   void on_header(beast::error_code ec) {
     if (ec) return on_read(ec);
     const auto& header = parser_->get();
-    // Large bodies (vessel files, plans) only for an authenticated caller on a route that takes them:
-    // before authentication, the whole request is bounded by the ordinary limits.
-    if (!admits_large_body(server_, header, connection_id_)) body_limit_ = server_.opts.max_body_bytes;
+    const auto declared = parser_->content_length();
+    const bool has_body = parser_->chunked() || (declared && *declared > 0);
+    // The e-stop is latched here; a caller who may not send this body is known here too.
+    decision_ = decide_header(server_, header, has_body, connection_id_);
+    body_limit_ = decision_.refusal ? server_.opts.max_body_bytes : decision_.body_limit;
     // A declared length over the route's limit is refused before the body is read; a chunked body
-    // is held to the limit chunk by chunk.
-    if (const auto declared = parser_->content_length(); declared && *declared > body_limit_) {
-      return on_read(bhttp::error::body_limit);
-    }
+    // is held to the limit chunk by chunk. A refused caller's small body is read (never parsed), so
+    // that the answer reaches it and the connection stays usable; a larger one is not read at all.
+    if (declared && *declared > body_limit_) return on_read(bhttp::error::body_limit);
     parser_->body_limit(body_limit_);
     bhttp::async_read(stream_, buffer_, *parser_,
                       [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
@@ -116,19 +123,75 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   void on_read(beast::error_code ec) {
     if (ec) {
       const auto refusal = http::refusal_for(ec, body_limit_);
-      if (!refusal) return do_close();
-      server_.count_refused(refusal->metric);
       // The rest of the connection's bytes cannot be trusted to frame a next request: answer and close.
       Request partial;
       partial.version(parser_ && parser_->is_header_done() ? parser_->get().version() : 11);
       partial.keep_alive(false);
+      // An e-stop already latched is answered as one, whatever became of its body.
+      if (decision_.estop) return send(api_response(partial, *decision_.estop));
+      if (!refusal) return do_close();
+      if (decision_.refusal) return send(api_response(partial, *decision_.refusal));
+      server_.count_refused(refusal->metric);
       return send(
           error_response(partial, ApiResult::error(refusal->status, refusal->code, refusal->message)));
     }
     Request request = parser_->release();
+    if (decision_.estop) return send(api_response(request, *decision_.estop));
+    if (decision_.refusal) {
+      server_.count_refused("before_body");
+      return send(api_response(request, *decision_.refusal));
+    }
     if (boost::beast::websocket::is_upgrade(request)) return handle_upgrade(std::move(request));
-    RouteResult result = route_request(server_, request, connection_id_);
-    send(std::move(result));
+    switch (decision_.lane) {
+      case RequestLane::kInline:
+        return send(route_request(server_, request, connection_id_));
+      case RequestLane::kRequests:
+        return run_in_lane(*server_.request_lane, std::move(request));
+      case RequestLane::kUploads:
+        return run_in_lane(*server_.upload_lane, std::move(request));
+    }
+  }
+
+  // The request's work on a worker of `lane`; its answer is written from this connection's strand.
+  // Nothing more is read from this connection meanwhile (one request at a time, as before).
+  void run_in_lane(http::WorkLane& lane, Request&& request) {
+    auto shared_request = std::make_shared<Request>(std::move(request));
+    const bool queued =
+        lane.try_submit([self = this->shared_from_this(), executor = stream_.get_executor(), shared_request] {
+          // An exception that escaped the route is contained on the connection's strand, as one there
+          // would be: counted, logged once, and only this connection closed.
+          std::shared_ptr<RouteResult> result;
+          std::exception_ptr escaped;
+          try {
+            result = std::make_shared<RouteResult>(
+                route_request(self->server_, *shared_request, self->connection_id_));
+          } catch (...) {
+            escaped = std::current_exception();
+          }
+          net::post(executor, [self, result, escaped] {
+            self->contain("route", [&] {
+              if (escaped) std::rethrow_exception(escaped);
+              self->send(std::move(*result));
+            });
+          });
+        });
+    if (queued) return;
+    server_.count_refused("busy_" + lane.name());
+    auto response = error_response(
+        *shared_request,
+        ApiResult::error(503, "server_busy",
+                         lane.name() == "uploads"
+                             ? "the server is already working on " + std::to_string(lane.max_queued()) +
+                                   " large requests (uploads, pictures); send this one again when one of "
+                                   "them has finished"
+                             : "the server has " + std::to_string(lane.max_queued()) +
+                                   " requests waiting; send this one again in a moment"));
+    response.set(bhttp::field::retry_after, "1");
+    send(std::move(response));
+  }
+
+  static StringResponse api_response(const Request& request, const ApiResult& result) {
+    return result.ok() ? json_response(request, result.status, result.body) : error_response(request, result);
   }
 
   void handle_upgrade(Request req) {
@@ -203,6 +266,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   beast::flat_buffer buffer_;
   std::optional<http::BoundedRequestParser> parser_;
   std::size_t body_limit_ = 0;  // of the request being read
+  HeaderDecision decision_;     // of the request being read (decide_header)
   HttpServer::Impl& server_;
   const std::uint64_t connection_id_;
   bool failed_ = false;

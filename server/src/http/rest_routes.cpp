@@ -354,12 +354,121 @@ RouteResult route_request(HttpServer::Impl& server, const Request& req, std::uin
   }
 }
 
-bool admits_large_body(HttpServer::Impl& server, const Request& header, std::uint64_t connection_id) {
-  if (server.opts.planning == nullptr) return false;
+namespace {
+
+ApiResult origin_error(const Request& header) {
+  return ApiResult::error(
+      403, "origin_not_allowed",
+      "Origin \"" + std::string(header[bhttp::field::origin]) + "\" is not in the allowlist");
+}
+
+// GET /api/v1/robots/{robot}/calibration/side_view renders a picture (about half a second).
+bool slow_picture(const std::vector<std::string>& route) {
+  return route.size() == 4 && route[0] == "robots" && route[2] == "calibration" && route[3] == "side_view";
+}
+
+// Routes under /api/v1/robots/{robot}/ whose POST needs that robot's lease: the core commands, the robot
+// type's own and path following (ControlApi::robot_commands; planning_routes.cpp).
+bool needs_robot_lease(HttpServer::Impl& server, const std::vector<std::string>& route) {
+  if (route.size() < 3 || route[0] != "robots") return false;
+  const std::string& verb = route[2];
+  if (route.size() == 3 && core_robot_commands().count(verb) != 0) return true;
+  if (verb == "path_following") return route.size() == 3 || (route.size() == 4 && route[3] == "step");
+  if (route.size() != 3 || !server.api.has_robot(route[1])) return false;
+  for (const auto& info : server.api.robot_commands(route[1]))
+    if (info.name == verb) return true;
+  return false;
+}
+
+}  // namespace
+
+HeaderDecision decide_header(HttpServer::Impl& server, const Request& header, bool has_body,
+                             std::uint64_t connection_id) {
+  HeaderDecision out;
+  out.body_limit = server.opts.max_body_bytes;
   const RequestTarget target = parse_target(header.target());
-  if (!target.valid || !takes_large_body(header.method_string(), target.path)) return false;
-  if (origin_refused(server, header)) return false;
-  return !server.authenticate(header, target, connection_id, false, false, /*websocket=*/false).error;
+  if (!target.valid) return out;  // route_request answers 400
+  if (target.path != "/api" && target.path.rfind("/api/", 0) != 0) {
+    out.lane = target.path == "/metrics" ? RequestLane::kRequests : RequestLane::kInline;
+    return out;
+  }
+  const auto segments = split_path(target.path);
+  if (segments.size() < 2 || segments[1] != "v1") return out;
+  const std::vector<std::string> route(segments.begin() + 2, segments.end());
+  const auto method = header.method();
+  if (route == std::vector<std::string>{"health"} || route == std::vector<std::string>{"openapi.json"}) {
+    out.lane = RequestLane::kInline;
+    return out;
+  }
+  if (route == std::vector<std::string>{"estop"} && method == bhttp::verb::post) {
+    // Safety first: the e-stop is latched now, before its body is read or any other request's work.
+    out.lane = RequestLane::kInline;
+    if (origin_refused(server, header)) {
+      out.refusal = origin_error(header);
+      return out;
+    }
+    auto auth = server.authenticate(header, target, connection_id, false, false, /*websocket=*/false);
+    if (auth.error) {
+      out.refusal = std::move(auth.error);
+      return out;
+    }
+    out.estop = server.execute(Command::kEstop, {}, json::object(), auth.identity);
+    return out;
+  }
+  if (method == bhttp::verb::get || method == bhttp::verb::head) {
+    out.lane = slow_picture(route) ? RequestLane::kUploads : RequestLane::kRequests;
+    return out;
+  }
+  const bool large = takes_large_body(header.method_string(), target.path);
+  out.lane = large ? RequestLane::kUploads : RequestLane::kRequests;
+  // Without a body there is nothing to hold back: the route answers as usual. With one, whoever may
+  // not send it is refused now, before its bytes are read or parsed.
+  if (!has_body) return out;
+  if (origin_refused(server, header)) {
+    out.refusal = origin_error(header);
+    return out;
+  }
+  auto auth = server.authenticate(header, target, connection_id, false, false, /*websocket=*/false);
+  if (auth.error) {
+    out.refusal = std::move(auth.error);
+    return out;
+  }
+  if (server.opts.replay) return out;  // every command answers 409 replay_mode, whoever sends it
+  const Identity& who = auth.identity;
+  if (who.role != Role::kOperator) {
+    out.refusal = ApiResult::error(403, "forbidden_role",
+                                   "this session is a viewer (read-only): it reads and may press the "
+                                   "e-stop, but sends no " +
+                                       std::string(header.method_string()) + " " + target.path);
+    return out;
+  }
+  if (needs_robot_lease(server, route)) {
+    if (!server.api.has_robot(route[1])) {
+      out.refusal = unknown_robot_result(route[1]);
+      return out;
+    }
+    ApiResult allowed = server.execute(Command::kAuthorizeOnly, route[1], {}, who);
+    if (!allowed.ok()) {
+      out.refusal = std::move(allowed);
+      return out;
+    }
+  }
+  if (large && server.opts.planning != nullptr) {
+    const std::size_t most =
+        static_cast<std::size_t>(std::max(1, server.opts.upload_threads)) + server.opts.upload_queue;
+    if (server.large_bodies_in_flight.fetch_add(1) >= most) {
+      --server.large_bodies_in_flight;
+      out.refusal = ApiResult::error(503, "server_busy",
+                                     "the server is already receiving or working on " + std::to_string(most) +
+                                         " large requests (vessel files, plans, calibration pictures); send "
+                                         "this one again when one of them has finished");
+      return out;
+    }
+    out.large_body_slot =
+        std::shared_ptr<void>(nullptr, [&server](void*) { --server.large_bodies_in_flight; });
+    out.body_limit = server.largest_body_limit();
+  }
+  return out;
 }
 
 UpgradeDecision decide_upgrade(HttpServer::Impl& server, const Request& req, std::uint64_t connection_id) {

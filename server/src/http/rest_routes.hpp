@@ -2,6 +2,7 @@
 // sockets here, so the routes compile once for plain and TLS connections and are tested without I/O.
 #pragma once
 
+#include <memory>
 #include <optional>
 #include <variant>
 
@@ -25,9 +26,28 @@ StringResponse error_response(const Request& req, const ApiResult& result);
 // exception from ControlApi becomes 500.
 RouteResult route_request(HttpServer::Impl& server, const Request& req, std::uint64_t connection_id);
 
-// Whether the request's route may carry a large body (vessel file, plan) and the caller is
-// authenticated: only then is the body limit raised above HttpOptions::max_body_bytes.
-bool admits_large_body(HttpServer::Impl& server, const Request& header, std::uint64_t connection_id);
+// What the front end decides once a request's header is read, before its body (http_session.hpp).
+enum class RequestLane {
+  kInline,    // on the I/O thread: the e-stop, /health, static files, the WebSocket upgrade
+  kRequests,  // HttpServer::Impl::request_lane
+  kUploads,   // HttpServer::Impl::upload_lane: large bodies and slow pictures
+};
+struct HeaderDecision {
+  // The body limit of this route for this caller: large bodies (vessel files, plans, calibration
+  // pictures) only for an authenticated operator on a route that takes them.
+  std::size_t body_limit = 0;
+  // Answer at once and close the connection without reading the body: a caller who may not send it
+  // (no or a wrong token, a foreign origin, a viewer, a robot command without the robot's lease).
+  std::optional<ApiResult> refusal;
+  // The e-stop, latched the moment its header was read; answered once its body (ignored) is read.
+  std::optional<ApiResult> estop;
+  RequestLane lane = RequestLane::kRequests;
+  // Held while a large body is read and worked on (HttpServer::Impl::large_bodies_in_flight).
+  std::shared_ptr<void> large_body_slot;
+};
+// has_body: the header declares a body (a Content-Length above 0, or chunked).
+HeaderDecision decide_header(HttpServer::Impl& server, const Request& header, bool has_body,
+                             std::uint64_t connection_id);
 
 // The checks of a WebSocket upgrade on /ws: path, origin, token, subprotocol.
 struct UpgradeDecision {

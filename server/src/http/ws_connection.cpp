@@ -181,22 +181,23 @@ void WsConnection::on_open() {
   send_text(fg::advertise_services(server_.services));
 }
 
-void WsConnection::on_message(bool is_text, const std::string& message) {
+bool WsConnection::on_message(bool is_text, const std::string& message) {
   ++server_.ws_client_messages;
   if (!take_rate_token()) {
     violation("client message rate limit exceeded (" + std::to_string(server_.opts.ws_client_rate_hz) +
               " messages/s); message ignored");
-    return;
+    return true;
   }
   try {
     if (is_text) {
       handle_text(message);
     } else {
-      handle_binary(message);
+      return handle_binary(message);
     }
   } catch (const std::exception& e) {
     send_text(fg::status(fg::StatusLevel::kError, std::string("internal error: ") + e.what()));
   }
+  return true;
 }
 
 bool WsConnection::take_rate_token() {
@@ -440,7 +441,7 @@ void WsConnection::handle_client_advertise(const fg::ClientAdvertiseOp& advertis
   }
 }
 
-void WsConnection::handle_binary(const std::string& data) {
+bool WsConnection::handle_binary(const std::string& data) {
   auto parsed = fg::parse_client_binary(data);
   if (auto* error = std::get_if<fg::ProtocolError>(&parsed)) {
     violation(error->message);
@@ -449,7 +450,7 @@ void WsConnection::handle_binary(const std::string& data) {
     if (it == client_channels_.end()) {
       violation("message data on channel " + std::to_string(message->channel_id) +
                 " that was not advertised");
-      return;
+      return true;
     }
     const ApiResult body = parse_json_body(message->payload, server_.opts.max_ws_message_bytes);
     const auto& [robot, command] = it->second;
@@ -462,8 +463,34 @@ void WsConnection::handle_binary(const std::string& data) {
                            "/" + robot + "/" + leaf + ": " + result.code + ": " + result.message));
     }
   } else if (auto* call = std::get_if<fg::ServiceCallRequest>(&parsed)) {
-    handle_service_call(*call);
+    return run_service_call(*call);
   }
+  return true;
+}
+
+// The e-stop is answered here, on the I/O thread; every other service call's work runs on the request
+// lane (as a REST request's does), and this connection reads its next message once it is done.
+bool WsConnection::run_service_call(const fg::ServiceCallRequest& call) {
+  const auto estop =
+      std::find_if(server_.service_defs.begin(), server_.service_defs.end(), [&](const auto& d) {
+        return d.id == call.service_id && d.command && d.command->kind == Command::kEstop;
+      });
+  if (estop != server_.service_defs.end() || !server_.request_lane) {
+    handle_service_call(call);
+    return true;
+  }
+  // The call's views point into this connection's read buffer: the lane gets its own copies.
+  auto owned = std::make_shared<std::pair<std::string, std::string>>(call.encoding, call.payload);
+  const bool queued = server_.request_lane->try_submit(
+      [self = shared_from_this(), owned, service_id = call.service_id, call_id = call.call_id] {
+        self->handle_service_call(fg::ServiceCallRequest{service_id, call_id, owned->first, owned->second});
+        self->resume_reading();
+      });
+  if (queued) return false;
+  send_text(fg::service_call_failure(call.service_id, call.call_id,
+                                     "the server has " + std::to_string(server_.request_lane->max_queued()) +
+                                         " requests waiting; call again in a moment"));
+  return true;
 }
 
 void WsConnection::handle_service_call(const fg::ServiceCallRequest& call) {

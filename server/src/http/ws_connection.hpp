@@ -56,10 +56,13 @@ class WsConnection : public WsConnectionBase, public std::enable_shared_from_thi
   virtual void write_data(const PendingData& data) = 0;
   virtual void close_with(int code) = 0;  // a close frame, then on_closed()
   virtual void shutdown_socket() = 0;     // at once, no close frame
+  virtual void resume_reading() = 0;      // from any thread: read the next message (after on_message false)
 
   // Called by the transport on the strand.
-  void on_open();                                             // handshake done
-  void on_message(bool is_text, const std::string& message);  // one complete client message
+  void on_open();  // handshake done
+  // One complete client message. False: its work runs on the request lane, and the transport reads
+  // the next message only when resume_reading() is called (a connection's messages keep their order).
+  bool on_message(bool is_text, const std::string& message);
   void on_write_done(bool ok, std::size_t bytes);
   void on_closed();
   bool closing() const noexcept { return closing_; }
@@ -73,11 +76,12 @@ class WsConnection : public WsConnectionBase, public std::enable_shared_from_thi
   bool take_rate_token();
   void violation(const std::string& message);
   void handle_text(const std::string& text);
-  void handle_binary(const std::string& data);
+  bool handle_binary(const std::string& data);  // false: a service call went to the request lane
   nlohmann::json select_parameters(const std::vector<std::string>& names) const;
   void handle_set_parameters(const fg::SetParametersOp& set);
   void handle_subscribe(const fg::SubscribeOp& subscribe);
   void handle_client_advertise(const fg::ClientAdvertiseOp& advertise);
+  bool run_service_call(const fg::ServiceCallRequest& call);
   void handle_service_call(const fg::ServiceCallRequest& call);
   void send_binary(std::string frame);
   // Under out_mutex_: true when a write has been stuck past the bound (the client stopped reading).

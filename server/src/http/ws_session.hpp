@@ -101,8 +101,15 @@ class WsSession final : public WsConnection {
     const bool is_text = ws_.got_text();
     std::string message = beast::buffers_to_string(buffer_.data());
     buffer_.consume(buffer_.size());
-    on_message(is_text, message);
-    if (!closing()) do_read();
+    if (on_message(is_text, message) && !closing()) do_read();
+  }
+
+  void resume_reading() override {
+    net::post(ws_.get_executor(), [self = self_()] {
+      self->contain("read", [&] {
+        if (!self->closing()) self->do_read();
+      });
+    });
   }
 
   void write_message(const std::string& bytes, bool binary) override {

@@ -176,9 +176,9 @@ TEST_F(HttpHardeningTest, HugeTrailerIsNotReadIntoMemory) {
 
 TEST_F(HttpHardeningTest, OverflowingChunkSizeGets400NotASilentClose) {
   start();
-  const auto exchange = raw_exchange(port_,
-                                     "POST /api/v1/lease HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: "
-                                     "chunked\r\n\r\nFFFFFFFFFFFFFFFFFFFFFF\r\n");
+  const auto exchange = raw_exchange(
+      port_, "POST /api/v1/lease HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + std::string(kToken) +
+                 "\r\nTransfer-Encoding: chunked\r\n\r\nFFFFFFFFFFFFFFFFFFFFFF\r\n");
   EXPECT_EQ(first_status(exchange.received), 400) << exchange.received;
   EXPECT_NE(exchange.received.find("bad_chunk"), std::string::npos);
   EXPECT_TRUE(healthy());
@@ -187,8 +187,8 @@ TEST_F(HttpHardeningTest, OverflowingChunkSizeGets400NotASilentClose) {
 TEST_F(HttpHardeningTest, LongChunkExtensionIsRefused) {
   start();
   const std::string request =
-      "POST /api/v1/lease HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n2;x=" +
-      std::string(1000, 'e') + "\r\n{}\r\n0\r\n\r\n";
+      "POST /api/v1/lease HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + std::string(kToken) +
+      "\r\nTransfer-Encoding: chunked\r\n\r\n2;x=" + std::string(1000, 'e') + "\r\n{}\r\n0\r\n\r\n";
   const auto exchange = raw_exchange(port_, request);
   EXPECT_EQ(first_status(exchange.received), 400);
   EXPECT_NE(exchange.received.find("bad_chunk"), std::string::npos);

@@ -60,6 +60,13 @@ struct HttpOptions {
   std::size_t max_ws_message_bytes =
       std::size_t{64} * 1024;  // client WebSocket messages (connection closed above)
   int io_threads = 2;
+  // Requests' work runs off the I/O threads, which only read and write (and answer the e-stop the
+  // moment its header is read): ordinary requests on request_threads, large uploads (vessels, plans,
+  // calibration pictures) and slow pictures on upload_threads. A full queue answers 503 server_busy.
+  int request_threads = 2;
+  std::size_t request_queue = 256;
+  int upload_threads = 1;
+  std::size_t upload_queue = 4;
   double publish_rate_hz = 50;  // topic publishing; <= 0 = no publisher thread (call publish_once())
   std::chrono::milliseconds lease_timeout{30000};
   // Client WebSocket message rate limit (token bucket) and how many protocol violations
