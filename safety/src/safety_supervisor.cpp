@@ -9,7 +9,7 @@
 namespace tendril::safety {
 namespace {
 
-void copy_text(char (&dst)[96], const char* src) noexcept {
+void copy_text(char (&dst)[kSafetyTextSize], const char* src) noexcept {
   std::snprintf(dst, sizeof(dst), "%s", src != nullptr ? src : "");
 }
 
@@ -140,7 +140,7 @@ CommandResult SafetySupervisor::reset_estop(double t) noexcept {
 
 void SafetySupervisor::fault(double t, FaultCode code, int joint, const char* detail) noexcept {
   process_estop_request(t);
-  char text[96];
+  char text[kSafetyTextSize];
   if (joint >= 0 && static_cast<std::size_t>(joint) < limits_.size())
     std::snprintf(text, sizeof(text), "%s on joint '%s'%s%s", to_string(code), limits_[joint].name.c_str(),
                   detail ? ": " : "", detail ? detail : "");
@@ -152,7 +152,7 @@ void SafetySupervisor::fault(double t, FaultCode code, int joint, const char* de
 bool SafetySupervisor::hold(double t, FaultCode code, int joint, const char* detail) noexcept {
   process_estop_request(t);
   if (state_.load(std::memory_order_relaxed) != OperatingState::kEnabled) return false;
-  char text[96];
+  char text[kSafetyTextSize];
   if (joint >= 0 && static_cast<std::size_t>(joint) < limits_.size())
     std::snprintf(text, sizeof(text), "hold: %s on joint '%s'%s%s", to_string(code),
                   limits_[joint].name.c_str(), detail ? ": " : "", detail ? detail : "");
@@ -389,8 +389,12 @@ bool SafetySupervisor::report_cycle(double t, double lost, bool moving) noexcept
     if (protecting) ++r.stalls_over_bound_at_rest;
     return false;
   }
-  char text[96];
-  std::snprintf(text, sizeof(text), "control loop lost %.0f ms while moving (bound %.0f ms); quick stop",
+  // Measured by the loop's own clock (the time since its previous cycle), not by a device: the
+  // computer did not run the loop in time. A device that went silent has a fault of its own that names it.
+  char text[kSafetyTextSize];
+  std::snprintf(text, sizeof(text),
+                "the control loop ran %.0f ms late while moving (bound %.0f ms, measured by its own clock): "
+                "the computer was too busy, not a device going silent; quick stop",
                 lost * 1e3, options_.max_lost_control_time * 1e3);
   raise_fault(t, FaultCode::kLostControlTime, -1, text);
   return true;

@@ -50,6 +50,12 @@ options:
   --allowed-origin O   also accept browser connections from origin O (repeatable), e.g. when
                        serving behind a proxy or from a container; default: the server's own
   --no-realtime        do not ask for SCHED_FIFO / mlockall for the control thread
+  --simulated-time     run the robots in simulated time: the SIMULATED devices, buses and control loop
+                       are stepped one period at a time, at real-time pace while the machine keeps up;
+                       a stall of the machine slips simulated time instead of losing control time, so
+                       it can neither fault nor hold a robot. For tests of the logic on a busy machine;
+                       refused unless every device is SIMULATED (every bus "virtual"). GET /robots
+                       says so in each robot's description, /metrics in tendril_simulated_time
   --no-dds             do not join DDS (default: tendrild is a DDS participant publishing rt/<robot>/...
                        topics and taking commands; README, "DDS")
   --dds-domain N       DDS domain id, 0 to 232 (default 0, as ROS 2's ROS_DOMAIN_ID); Cyclone DDS reads
@@ -201,6 +207,7 @@ int main(int argc, char** argv) {
   std::filesystem::path config_file;
   std::string listen, token;
   bool no_realtime = false;
+  bool simulated_time = false;
   bool dds_enabled = true;
   std::uint32_t dds_domain = 0;
   std::vector<std::string> extra_origins;
@@ -227,6 +234,8 @@ int main(int argc, char** argv) {
       extra_origins.push_back(value("--allowed-origin"));
     } else if (arg == "--no-realtime") {
       no_realtime = true;
+    } else if (arg == "--simulated-time") {
+      simulated_time = true;
     } else if (arg == "--replay") {
       replay_path = value("--replay");
       if (replay_path.empty()) usage_error("--replay expects an MCAP file or a folder of them");
@@ -275,6 +284,8 @@ int main(int argc, char** argv) {
     }
     if (token.empty()) token = config.token;
     if (token.empty()) token = random_token();
+    if (!replay_path.empty() && simulated_time)
+      usage_error("--simulated-time runs robots; a replay (--replay) drives none");
     if (!replay_path.empty())
       return run_replay(std::move(config), token, extra_origins, replay_path, stop_signals);
 
@@ -285,6 +296,13 @@ int main(int argc, char** argv) {
     ro.control_rate_hz = config.control_rate_hz;
     ro.realtime_priority = config.realtime_priority && !no_realtime;
     ro.scene_vessel = scene.branches;
+    ro.simulated_time = simulated_time;
+    if (simulated_time)
+      std::cerr
+          << "tendrild: SIMULATED TIME (--simulated-time): devices and control loop stepped one period at "
+             "a time; a stall of this machine slips simulated time and is never lost control time. Not "
+             "a real-time run."
+          << std::endl;
     const RobotTypes& types = builtin_robot_types();
     RobotRuntime runtime(config.robots, ro, types);
     std::string scene_robot = scene.robot;

@@ -105,6 +105,11 @@ void PeriodicThread::run() {
       if (gap > period_) {
         timing.lost = std::chrono::duration_cast<std::chrono::nanoseconds>(gap - period_);
         if (gap >= 2 * period_) late_cycles_.fetch_add(1, std::memory_order_relaxed);
+        constexpr std::array<std::chrono::milliseconds, 4> kLostOver{
+            std::chrono::milliseconds(1), std::chrono::milliseconds(5), std::chrono::milliseconds(20),
+            std::chrono::milliseconds(50)};
+        for (std::size_t k = 0; k < kLostOver.size(); ++k)
+          if (timing.lost > kLostOver[k]) lost_over_[k].fetch_add(1, std::memory_order_relaxed);
         auto prev = lost_max_ns_.load(std::memory_order_relaxed);
         while (timing.lost.count() > prev &&
                !lost_max_ns_.compare_exchange_weak(prev, timing.lost.count(), std::memory_order_relaxed)) {
@@ -141,6 +146,10 @@ LoopStatistics PeriodicThread::statistics() const noexcept {
   s.overruns = overruns_.load();
   s.late_cycles = late_cycles_.load();
   s.lost_max_us = static_cast<double>(lost_max_ns_.load()) / 1000.0;
+  s.lost_over_1ms = lost_over_[0].load();
+  s.lost_over_5ms = lost_over_[1].load();
+  s.lost_over_20ms = lost_over_[2].load();
+  s.lost_over_50ms = lost_over_[3].load();
   s.period_error_p50_us = period_error_.quantile(0.5);
   s.period_error_p99_us = period_error_.quantile(0.99);
   s.period_error_max_us = period_error_.max();

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <regex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -306,6 +307,16 @@ TEST_F(SerialArmTest, ASilentForceSensorHoldsTheArmAndResumeIsRefused) {
   ASSERT_GT(held_after, 0) << op().dump();
   EXPECT_LE(held_after, 20);
   EXPECT_EQ(op()["hold"]["cause"], "sensor stream stale");
+  // The hold's text (the event log, GET /api/v1/faults): which device, for how long, and that the loop
+  // kept time: a silent sensor, not a busy computer.
+  std::string message;
+  for (const auto& e : api->faults())
+    if (e["kind"] == "hold" && message.empty()) message = e["message"].get<std::string>();
+  EXPECT_TRUE(
+      std::regex_match(message, std::regex("hold: sensor stream stale: SIMULATED force sensor of 'ur5' sent "
+                                           "nothing for 2[01] ms \\(bound 20 ms\\): the device went "
+                                           "silent; the control loop kept time \\(0 ms late this cycle\\)")))
+      << message;
   const auto resume = api->state_command("ur5", {{"command", "resume"}});
   EXPECT_EQ(resume.status, 409);
   EXPECT_EQ(resume.code, "hold_not_cleared") << resume.message;

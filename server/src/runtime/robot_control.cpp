@@ -184,6 +184,7 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
   const std::size_t n = r.n;
   ctx.t = t;
   ctx.now_ns = now_ns;
+  ctx.lost = lost;
 
   // 1. Read the joints.
   std::array<hardware::JointFeedback, kMaxJoints> fb;
@@ -211,8 +212,15 @@ void RobotRuntime::Impl::control_robot(RobotUnit& r, double t, double lost) noex
   for (std::size_t i = 0; i < n; ++i) {
     const char* joint = r.config.joints[i].name().c_str();
     if (s.link_was_alive[i] && !fb[i].link_alive) {
-      char detail[96];
-      text(detail, "drive '%s' stopped sending heartbeats", joint);
+      // The drive's own silence, measured by the heartbeat consumer against the bus's timeout; the
+      // control loop's lateness this cycle is named beside it, so a busy computer is told from a
+      // broken device.
+      char detail[safety::kSafetyTextSize];
+      std::snprintf(detail, sizeof detail,
+                    "drive '%s' sent no heartbeat for over %d ms (its bus's drive_heartbeat_timeout_ms): "
+                    "the device went silent; the control loop %s%.0f ms late this cycle)",
+                    joint, r.heartbeat_timeout_ms[i], lost * 1e3 < 1.0 ? "kept time (" : "was also late (",
+                    lost * 1e3);
       sup.fault(t, safety::FaultCode::kDriveHeartbeatLost, static_cast<int>(i), detail);
     }
     s.link_was_alive[i] = fb[i].link_alive;

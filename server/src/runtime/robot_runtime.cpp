@@ -124,7 +124,9 @@ class Assembly final : public RobotAssembly {
     im_.control_thread_components.push_back(component.get());
     im_.extra_components.push_back(std::move(component));
   }
-  bool stepped() const override { return im_.options.stepped; }
+  // Stepped by a test's hand: in simulated time the runtime paces itself, and the types' own threads
+  // (a mapper, a poller) run as they do live.
+  bool stepped() const override { return im_.options.stepped && !im_.options.simulated_time; }
   double control_period() const override { return im_.period; }
   const std::vector<teleop::CenterlinePolyline>& scene_vessel() const override {
     return im_.options.scene_vessel;
@@ -160,6 +162,17 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
   im.period = 1.0 / options.control_rate_hz;
   if (robots.empty())
     throw ConfigError("no robot configured: the server file must list at least one robot file");
+  if (options.simulated_time) {
+    // Simulated time steps every device by hand: a real one would run on its own clock meanwhile.
+    for (const auto& rc : robots)
+      for (const auto& bc : rc.buses)
+        if (bc.interface != "virtual")
+          throw ConfigError(rc.file.string() + ": buses: bus '" + bc.name + "' is the SocketCAN interface '" +
+                            bc.interface +
+                            "'; simulated time (--simulated-time) is only for SIMULATED devices: every bus "
+                            "must be \"virtual\". Real hardware runs in real time.");
+    im.options.stepped = true;
+  }
 
   // 1. Every file against its type's merged schema; rates and names.
   std::set<std::string> names;
@@ -308,6 +321,10 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
                           std::to_string(rc.max_lost_control_ms));
       so.max_lost_control_time = rc.max_lost_control_ms / 1000.0;
     }
+    for (std::size_t i = 0; i < unit->n; ++i)
+      for (const auto& bc : rc.buses)
+        if (rc.joints[i].drive && bc.name == rc.joints[i].drive->bus)
+          unit->heartbeat_timeout_ms[i] = bc.drive_heartbeat_timeout_ms;
     safety::LimitSet limit_set(std::move(limits));
     unit->operating_limits.store(safety::OperatingLimits::configured(limit_set, so.command_timeout));
     unit->supervisor = std::make_unique<safety::SafetySupervisor>(std::move(limit_set), so);
@@ -350,9 +367,14 @@ RobotRuntime::RobotRuntime(std::vector<RobotConfig> robots, RuntimeOptions optio
 RobotRuntime::~RobotRuntime() { stop(); }
 
 double RobotRuntime::time() const noexcept {
+  if (impl_->options.simulated_time)  // stepped by the pacing thread: its published copy
+    return seconds_since(impl_->start_time, std::chrono::steady_clock::time_point(std::chrono::nanoseconds(
+                                                impl_->published_now_ns.load(std::memory_order_acquire))));
   const auto now = impl_->options.stepped ? impl_->stepped_now : std::chrono::steady_clock::now();
   return seconds_since(impl_->start_time, now);
 }
+
+bool RobotRuntime::simulated_time() const noexcept { return impl_->options.simulated_time; }
 
 std::size_t RobotRuntime::robot_count() const noexcept { return impl_->robots.size(); }
 std::uint64_t RobotRuntime::control_ticks() const noexcept { return impl_->ticks.load(); }
@@ -423,12 +445,22 @@ void RobotRuntime::start() {
   for (auto& r : im.robots) r->plugin->start();
   if (im.options.stepped) {
     im.stepped_now = std::chrono::steady_clock::now();
+    im.published_now_ns.store(im.stepped_now.time_since_epoch().count(), std::memory_order_release);
   } else {
     for (auto* c : im.components)
       if (!im.in_control_thread(c)) c->activate(im.options.realtime_priority);
   }
   im.running.store(true);
-  if (!im.options.stepped) {
+  if (im.options.simulated_time) {
+    // One step per period at real-time pace while the machine keeps up. After a stall the pacing
+    // thread skips the periods it missed (PeriodicThread never bursts): simulated time slips behind
+    // the wall clock, every step is one nominal period, and no control time is lost. Its statistics
+    // (loop_statistics()) still measure the machine's stalls, for the record. Normal priority: its
+    // lateness is harmless, and a SCHED_FIFO pacer would starve the threads that serve what it
+    // simulates (the topics, the API) on a busy machine, which is what a test would then see.
+    im.control_thread.start(
+        "sim-time", dt, [&im](const CycleTiming&) { im.advance_one_period(); }, false);
+  } else if (!im.options.stepped) {
     im.control_thread.start(
         "control", dt,
         [&im, previous = std::chrono::steady_clock::time_point{}](const CycleTiming& c) mutable {
@@ -448,7 +480,14 @@ void RobotRuntime::start() {
 void RobotRuntime::step() {
   auto& im = *impl_;
   if (!im.options.stepped) throw std::logic_error("RobotRuntime::step() is for stepped mode only");
+  if (im.options.simulated_time)
+    throw std::logic_error("RobotRuntime::step(): in simulated time the runtime paces itself");
   if (!im.running.load()) throw std::logic_error("RobotRuntime::step() before start()");
+  im.advance_one_period();
+}
+
+void RobotRuntime::Impl::advance_one_period() {
+  auto& im = *this;
   im.stepped_now +=
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));
   const auto now = im.stepped_now;
@@ -471,11 +510,14 @@ void RobotRuntime::step() {
   im.stepped_sim_lost = 0.0;
   im.stepped_control_devices_lost = 0.0;
   for (auto* c : im.components) c->step(now, im.period, true);
+  im.published_now_ns.store(now.time_since_epoch().count(), std::memory_order_release);
 }
 
 void RobotRuntime::stall(std::chrono::nanoseconds duration, Stall what) {
   auto& im = *impl_;
   if (!im.options.stepped) throw std::logic_error("RobotRuntime::stall() is for stepped mode only");
+  if (im.options.simulated_time)
+    throw std::logic_error("RobotRuntime::stall(): in simulated time no stall is lost time");
   if (!im.running.load()) throw std::logic_error("RobotRuntime::stall() before start()");
   const auto period =
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::duration<double>(im.period));

@@ -140,6 +140,11 @@ std::vector<RobotDescription> RobotRuntime::robots() const {
     d.name = r->config.name;
     d.kind = r->config.kind;
     d.description = r->config.description;
+    if (impl_->options.simulated_time)
+      d.description += std::string(d.description.empty() ? "" : " ") +
+                       "[SIMULATED TIME: the server steps its SIMULATED devices and control loop one period "
+                       "at a time; a stall of the machine slips simulated time and is never lost time. Not "
+                       "a real-time run]";
     for (const auto& j : r->config.joints) d.joints.push_back(j.limit);
     // Listed as an operator meets them: joint, the robot type's own modes, then path following (when
     // the type's plans apply), whatever their ids.
@@ -885,6 +890,10 @@ std::vector<SafetyEventView> RobotRuntime::events_since(std::uint64_t since, std
 std::string RobotRuntime::metrics() const {
   std::ostringstream m;
   const auto ls = impl_->control_thread.statistics();
+  m << "# HELP tendril_simulated_time 1 when the server runs in simulated time (tendrild --simulated-time: "
+       "stepped, a stall slips simulated time and is never lost; the control_* figures below then time the "
+       "pacing thread), 0 in real time.\n# TYPE tendril_simulated_time gauge\ntendril_simulated_time "
+    << (impl_->options.simulated_time ? 1 : 0) << "\n";
   m << "# HELP tendril_control_cycles_total Control loop cycles run.\n# TYPE tendril_control_cycles_total "
        "counter\n"
     << "tendril_control_cycles_total " << impl_->ticks.load() << "\n";

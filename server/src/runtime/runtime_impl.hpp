@@ -170,6 +170,9 @@ struct RobotUnit {
   std::atomic<std::uint64_t> mailbox_full{0};
   std::size_t n = 0;
   JointArray max_acceleration{};
+  // Per joint: its bus's drive heartbeat timeout (ms; 0 without a CANopen drive), named in the fault
+  // text when the drive goes silent.
+  std::array<int, kMaxJoints> heartbeat_timeout_ms{};
   double velocity_gain = 10.0;             // 1/s: position error fed back on velocity joints
   std::mutex path_mutex;                   // network threads only
   std::shared_ptr<const LoadedPath> path;  // guarded by path_mutex
@@ -238,6 +241,11 @@ struct RobotRuntime::Impl {
   double stepped_lost = 0.0;
   double stepped_sim_lost = 0.0;
   double stepped_control_devices_lost = 0.0;  // a control-thread stall: what its own devices missed
+  // Simulated time: stepped_now for readers on other threads (time()), ns since the clock's epoch.
+  std::atomic<std::int64_t> published_now_ns{0};
+
+  // Stepped mode: one period of simulated time (RobotRuntime::step(); the pacing thread in simulated time).
+  void advance_one_period();
 
   bool in_control_thread(const hardware::HardwareComponent* c) const noexcept {
     return std::find(control_thread_components.begin(), control_thread_components.end(), c) !=

@@ -271,7 +271,9 @@ TEST(SafetySupervisor, LostControlTimeFaultsOnlyAMovingRobot) {
   EXPECT_TRUE(s->report_cycle(t += 0.090, 0.090, true));
   EXPECT_EQ(s->state(), OperatingState::kFault);
   EXPECT_EQ(s->fault_cause().code, FaultCode::kLostControlTime);
-  EXPECT_STREQ(s->fault_cause().text, "control loop lost 90 ms while moving (bound 75 ms); quick stop");
+  EXPECT_STREQ(s->fault_cause().text,
+               "the control loop ran 90 ms late while moving (bound 75 ms, measured by its own clock): the "
+               "computer was too busy, not a device going silent; quick stop");
   EXPECT_DOUBLE_EQ(s->lost_control().max_lost, 0.500);
   EXPECT_DOUBLE_EQ(s->lost_control().max_lost_moving, 0.090);
   EXPECT_EQ(s->lost_control().stalls_over_bound, 5u);

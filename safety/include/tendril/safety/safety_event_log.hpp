@@ -21,8 +21,8 @@ struct SafetyEvent {
   FaultCode code = FaultCode::kNone;
   OperatingState from = OperatingState::kDisabled;
   OperatingState to = OperatingState::kDisabled;
-  std::int32_t joint = -1;  // -1: not about one joint
-  char text[96] = {};       // short message for a person, NUL-terminated
+  std::int32_t joint = -1;          // -1: not about one joint
+  char text[kSafetyTextSize] = {};  // short message for a person, NUL-terminated
 };
 
 class SafetyEventLog {

@@ -77,7 +77,7 @@ struct FaultInfo {
   FaultCode code = FaultCode::kNone;
   int joint = -1;
   double time = 0.0;
-  char text[96] = {};
+  char text[kSafetyTextSize] = {};
 };
 
 struct TickResult {

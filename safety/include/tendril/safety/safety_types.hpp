@@ -23,6 +23,10 @@ enum class CommandResult : std::uint8_t {
   kRefusedInvalidTransition,  // e.g. resume from DISABLED, enable from PAUSED
 };
 
+// Room for a safety event's or a fault's text (NUL included): enough to say what measured the cause
+// (the control loop's own clock, or which device went silent for how long).
+inline constexpr std::size_t kSafetyTextSize = 256;
+
 enum class FaultCode : std::uint8_t {
   kNone,
   kEstop,

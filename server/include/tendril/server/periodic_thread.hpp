@@ -41,6 +41,8 @@ struct LoopStatistics {
   std::uint64_t late_cycles = 0;  // cycles that started a full period or more after the previous one
   double period_error_p50_us = 0, period_error_p99_us = 0, period_error_max_us = 0;
   double lost_max_us = 0;  // longest time without a cycle beyond one period
+  // Cycles whose lost time (see CycleTiming::lost) was over 1, 5, 20 and 50 ms.
+  std::uint64_t lost_over_1ms = 0, lost_over_5ms = 0, lost_over_20ms = 0, lost_over_50ms = 0;
   double work_p50_us = 0, work_p99_us = 0, work_max_us = 0;
   bool realtime_scheduling = false;  // SCHED_FIFO granted
   bool memory_locked = false;        // mlockall granted
@@ -87,6 +89,7 @@ class PeriodicThread {
   std::atomic<bool> stop_{false};
   std::atomic<std::uint64_t> cycles_{0}, overruns_{0}, late_cycles_{0};
   std::atomic<std::int64_t> lost_max_ns_{0};
+  std::array<std::atomic<std::uint64_t>, 4> lost_over_{};  // over 1, 5, 20, 50 ms
   std::atomic<bool> realtime_{false}, locked_{false};
   MicrosecondHistogram period_error_;
   MicrosecondHistogram work_;

@@ -34,6 +34,13 @@ struct RuntimeOptions {
   // Stepped: no threads; the owner calls step() to advance simulated devices, buses and the control
   // loop by one control period in simulated time. Used by tests to make timing deterministic.
   bool stepped = false;
+  // Simulated time (tendrild --simulated-time): stepped mode paced by the runtime's own thread, one
+  // step per period at real-time pace while the machine keeps up. Every device, bus and control cycle
+  // advances by one nominal period per step, so no time is ever lost: when the machine stalls,
+  // simulated time slips behind the wall clock instead, and no stall can fault or hold a robot. Only
+  // with every device SIMULATED (every bus "virtual"; the constructor throws ConfigError otherwise).
+  // For tests of the logic on a shared machine; step() and stall() are refused (it paces itself).
+  bool simulated_time = false;
   // The scene's vessel (ServerConfig "scene"), handed to the robot types (RobotAssembly::scene_vessel).
   std::vector<teleop::CenterlinePolyline> scene_vessel;
 };
@@ -65,6 +72,8 @@ class RobotRuntime final : public RobotService {
   void stall(std::chrono::nanoseconds duration, Stall what);
   // Current control time (s since start), stepped or real.
   double time() const noexcept;
+  // Whether the runtime runs in simulated time (RuntimeOptions::simulated_time).
+  bool simulated_time() const noexcept;
 
   // Test and diagnostics access.
   std::size_t robot_count() const noexcept;

@@ -72,6 +72,9 @@ class ControlContext {
   double period = 0.001;
   double t = 0.0;           // control time, s
   std::int64_t now_ns = 0;  // steady clock, for sensor freshness
+  // Time the loop went without a cycle before this one, beyond one period (s; 0 on time, always 0 in
+  // simulated time): a device watchdog's text says whether the loop kept time while the device was silent.
+  double lost = 0.0;
   safety::OperatingState state = safety::OperatingState::kDisabled;
   bool drives_ready = false;
   ModeId mode = kJointMode;

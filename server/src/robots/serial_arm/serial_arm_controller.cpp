@@ -48,10 +48,15 @@ void SerialArmController::sense(ControlContext& ctx) noexcept {
   force_fresh_ = force_.valid && force_age_s_ <= robot_.settings_.force_stale_s;
   if (ctx.state != OperatingState::kEnabled || !ctx.drives_ready) return;
   const auto& s = robot_.settings_;
-  char detail[96];
+  char detail[safety::kSafetyTextSize];
   if (!force_fresh_) {
-    std::snprintf(detail, sizeof detail, "force sensor silent for %.0f ms (bound %.0f ms)",
-                  force_age_s_ * 1e3, s.force_stale_s * 1e3);
+    // The sensor's silence, measured against the control loop's own clock; the loop's lateness this
+    // cycle beside it, so that a busy computer is told from a sensor that stopped answering.
+    std::snprintf(detail, sizeof detail,
+                  "%s sent nothing for %.0f ms (bound %.0f ms): the device went silent; the control loop "
+                  "%s%.0f ms late this cycle)",
+                  robot_.sensor_name_.c_str(), force_age_s_ * 1e3, s.force_stale_s * 1e3,
+                  ctx.lost * 1e3 < 1.0 ? "kept time (" : "was also late (", ctx.lost * 1e3);
     ctx.hold(safety::FaultCode::kSensorStale, -1, detail);
     return;
   }

@@ -260,6 +260,7 @@ SerialArm::SerialArm(const RobotConfig& rc, RobotAssembly& assembly)
         std::make_unique<sim::SimulatedForceSensor>(*arm, model_, *surface_, settings_.simulated_sensor);
     arm_ = arm.get();
     sensor_ = sensor.get();
+    sensor_name_ = sensor_->name();
     assembly.provide_joints(*arm_);
     // The limb first: in stepped simulation the force sensor then samples the skin where it is now.
     if (limb_)

@@ -283,6 +283,7 @@ class SerialArm final : public RobotPlugin {
   std::unique_ptr<sim::ContactSurface> surface_;  // owned here: outlives the sensor (runtime-owned)
   sim::SimulatedVelocityArm* arm_ = nullptr;      // owned by the runtime (add_component)
   sim::SimulatedForceSensor* sensor_ = nullptr;   // owned by the runtime (add_component_in_control_thread)
+  std::string sensor_name_;  // its name, for the stale-sensor hold's text (no allocation in the cycle)
   SerialArmController controller_{*this};
   hardware::LatestValue<ArmSnapshot> published_;
   hardware::LatestValue<UltrasoundProbeSample> probe_published_;
