@@ -3,6 +3,8 @@
 # After `start_tendrild <binary>`: TENDRIL_URL, TENDRIL_TOKEN and TENDRIL_LOG are exported.
 # The command line defaults to `tendrild --config <generated server.json>`; set TENDRILD_ARGS to
 # replace the arguments after the binary ({config}, {port} and {token} are substituted).
+# TENDRIL_TEST_SIMULATED_TIME=1 adds --simulated-time (tendrild --help): the logic runs in stepped time,
+# and a stall of this machine slips simulated time instead of faulting or holding a robot.
 
 repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 tendrild_pid=""
@@ -78,6 +80,7 @@ JSON
     expanded="${expanded//\{token\}/$token}"
     read -r -a args <<< "$expanded"
   fi
+  if [ "${TENDRIL_TEST_SIMULATED_TIME:-0}" = 1 ]; then args+=(--simulated-time); fi
   export TENDRIL_LOG="$tendrild_workdir/tendrild.log"
   # tendrild joins DDS by default (README, "DDS"): a test server's participant stays on loopback
   # unless the caller chose its own Cyclone DDS settings.
@@ -89,6 +92,7 @@ JSON
   (cd "$repo_root" && TENDRIL_TOKEN="$token" TENDRIL_STATE_DIR="$tendrild_workdir/state" \
      exec "$binary" "${args[@]}") > "$TENDRIL_LOG" 2>&1 &
   tendrild_pid=$!
+  export TENDRIL_PID="$tendrild_pid"
   export TENDRIL_URL="http://127.0.0.1:$port"
   export TENDRIL_TOKEN="$token"
   # Bounded by a count of tries; a server that died is reported at once with its log.
