@@ -14,7 +14,7 @@ import {Backoff, LatestByTopic, STALE_MS, ServerClock, formatAge, wallNowMs} fro
 import {PlanPanel} from './plan.js';
 import {ProcedurePanel} from './procedure.js';
 import {arrangeImaging, wireEnlarge} from './layout.js';
-import {TimePlot} from './plot.js';
+import {TimePlot, shedPlots} from './plot.js';
 import {TRACKING_TOPIC, TrackingPanel} from './tracking.js';
 import {ReplayBar} from './replay.js';
 import {operatorWords} from './words.js';
@@ -752,18 +752,59 @@ function takeOperatingState() {
   if (os) applyOperatingState(os.msg);
 }
 
+// Shedding (issue 31: under load the pages went STALE up to 100 % of the time, and while STALE every
+// command button is disabled and the joystick stops). The console's own work gives way before its
+// data: when the animation frames come late (an average gap over SHED_GAP_MS, software rendering on
+// two loaded cores), the 3D view renders at most ~3 times a second and its scene messages are decoded
+// less often, the plots redraw at 2 Hz, and the joint values no longer wait for a frame: they are
+// applied as they arrive (a few text nodes), so the data shown stays current.
+const SHED_GAP_MS = 60;
+const LATE_FRAME_MS = 80;
+let lastFrameStart = 0;
+let frameGapAvg = 16;
+let shedding = false;
+let lateJointsAt = 0;
+
+function noteFrame(start) {
+  const gap = lastFrameStart ? Math.min(2000, start - lastFrameStart) : 16;
+  lastFrameStart = start;
+  frameGapAvg = 0.85 * frameGapAvg + 0.15 * gap;
+  // Hysteresis: on above SHED_GAP_MS, off below half of it.
+  const shed = shedding ? frameGapAvg > SHED_GAP_MS / 2 : frameGapAvg > SHED_GAP_MS;
+  if (shed === shedding) return;
+  shedding = shed;
+  document.body.dataset.shedding = String(shed);
+  shedPlots(shed);
+  view?.setShedding?.(shed);
+}
+
+// The newest joint state, applied now (never older than what is shown: a late stream message after a
+// fresher REST answer is dropped).
+function takeJoints() {
+  const js = latest.take(topics.joints);
+  if (js && !(js.stampMs < shown.joints)) {
+    applyJointState(js.msg, true);
+    shown.joints = js.stampMs;
+  }
+}
+
+// A joint message that arrives while the next frame is late is shown without waiting for it.
+function jointsArrived() {
+  const now = performance.now();
+  if (now - lastFrameStart < LATE_FRAME_MS || now - lateJointsAt < 40) return;
+  lateJointsAt = now;
+  takeJoints();
+  if (now - lastAgeUpdate >= 100) updateAges();
+}
+
 // One animation frame: the newest message of each topic, decoded once.
 function renderFrame() {
   requestAnimationFrame(renderFrame);
   if (!topics) return;
   const start = performance.now();
+  noteFrame(start);
   takeOperatingState();
-  const js = latest.take(topics.joints);
-  // Never older than what is shown (a late stream message after a fresher REST answer is dropped).
-  if (js && !(js.stampMs < shown.joints)) {
-    applyJointState(js.msg, true);
-    shown.joints = js.stampMs;
-  }
+  takeJoints();
   const cath = latest.take(topics.catheter);
   if (cath) {
     state.catheterMsg = cath.msg;
@@ -791,7 +832,7 @@ function renderFrame() {
       view?.applySceneUpdate(ownEntities(scene.msg));
       applyTipFromScene(scene.msg);
     }
-    sceneNextAt = t0 + Math.min(1000, (performance.now() - t0) * (1 + SCENE_SHARE));
+    sceneNextAt = t0 + Math.min(shedding ? 2000 : 1000, (performance.now() - t0) * (1 + (shedding ? 3 * SCENE_SHARE : SCENE_SHARE)));
   }
   if (!latest.pending(topics.scene)) shown.scene = shown.joints;
   if (view) view.contentStampMs = shown.scene;
@@ -994,6 +1035,7 @@ function connectWebSocket(robotName) {
         const stampMs = latest.stampOf(topic);
         state.latencyMs.push({at: wallNowMs(), ms: clock.ageMs(stampMs)});
         if (state.latencyMs.length > 200) state.latencyMs.splice(0, 100);
+        jointsArrived();
       }
     },
     // The server's warnings; one about another robot ("ur5 e-stop: …", also in the Events tab) does not
@@ -1014,7 +1056,8 @@ function connectWebSocket(robotName) {
   if (tipTracking?.on) conn.addTopic(TRACKING_TOPIC);  // the switch stays on across a robot change
   window.tendrilConnection = conn;
   conn.open();  // for debugging from the browser console, and the browser tests
-  window.tendrilLive = {latest, clock, state, shown, net, view: () => view, tracking: () => tipTracking};
+  window.tendrilLive = {latest, clock, state, shown, net, view: () => view, tracking: () => tipTracking,
+                       load: () => ({shedding, frameGapMs: frameGapAvg})};
 }
 
 // ---------------------------------------------------------------- loop timing
@@ -1388,6 +1431,7 @@ async function loadView() {
   try {
     const {CatheterView} = await import('./scene.js');
     view = new CatheterView(ui.scene);
+    view.setShedding?.(shedding);
   } catch (err) {
     const div = document.createElement('div');
     div.className = 'scene-message';

@@ -6,6 +6,11 @@
 // data source is absent (never an empty plot that looks like "all zero").
 
 const FRAME_MS = 100;
+// A page that cannot keep up (frames of 60 ms and more: software rendering on loaded cores) sheds its
+// own work before its data goes stale: the plots redraw at 2 Hz instead of 10 (app.js decides).
+const SHED_FRAME_MS = 500;
+let plotFrameMs = FRAME_MS;
+export function shedPlots(on) { plotFrameMs = on ? SHED_FRAME_MS : FRAME_MS; }
 
 function cssVar(name, fallback) {
   const v = getComputedStyle(document.documentElement).getPropertyValue(name).trim();
@@ -70,7 +75,7 @@ class CanvasPlot {
       return;
     }
     if (this.timer) return;
-    const wait = Math.max(0, FRAME_MS - (performance.now() - this.lastDraw));
+    const wait = Math.max(0, plotFrameMs - (performance.now() - this.lastDraw));
     this.timer = setTimeout(() => {
       this.timer = null;
       this.render();

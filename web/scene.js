@@ -221,15 +221,18 @@ export class CatheterView {
     // that renders the 3D view at any cost shows STALE data much of the time). A GPU's frames are
     // shorter than the bound and keep the plain rate.
     const SLOW_FRAME_MS = 50;
-    const baseFrameMs = this.software ? 100 : 30;
-    let minFrameMs = baseFrameMs;
+    // Shedding (setShedding: the page's frames are slow): at most ~3 frames a second.
+    const baseFrameMs = () => (this.shedding ? 300 : this.software ? 100 : 30);
+    let minFrameMs = baseFrameMs();
     let lastFrame = 0;
     let previous = 0;
     let rendered = false;
     const loop = (now) => {
       if (rendered) {
         const frameMs = now - previous;
-        minFrameMs = frameMs > SLOW_FRAME_MS ? Math.min(1000, Math.max(baseFrameMs, 3 * frameMs)) : baseFrameMs;
+        minFrameMs = frameMs > SLOW_FRAME_MS ? Math.min(1000, Math.max(baseFrameMs(), 3 * frameMs)) : baseFrameMs();
+      } else if (minFrameMs < baseFrameMs()) {
+        minFrameMs = baseFrameMs();
       }
       rendered = false;
       previous = now;
@@ -253,6 +256,9 @@ export class CatheterView {
   }
 
   requestRender() { this.dirty = true; }
+
+  // The page is behind (app.js): render the 3D view at most ~3 times a second until it catches up.
+  setShedding(on) { this.shedding = !!on; }
 
   // Server time of what the canvas shows: the scene graph's when nothing waits to be drawn, else the
   // last drawn one's (NaN before the first frame or without WebGL).

@@ -11,6 +11,7 @@
 import {el, group, fmt, describe, robotCommand} from './panel_kit.js';
 import {TimePlot} from './plot.js';
 import {CalibrationPanel} from './us_calibration.js';
+import {operatorWords} from './words.js';
 
 const ENTITY_PREFIX = 'ultrasound-panel/';
 const TISSUE_FRAME = 'tissue';
@@ -209,7 +210,8 @@ class UltrasoundPanel {
     u.gate.textContent = `gate ${g.open ? 'OPEN' : 'closed'}: position ${fmt(Number(g.position_error_mm), 2, 'mm')} (≤ 0.5)` +
         ` · angle ${fmt(Number(g.angle_error_rad), 3, 'rad')} (≤ 0.01) · force ${g.force_ok ? 'held' : 'not held'}`;
     u.gate.dataset.open = String(!!g.open);
-    u.message.textContent = s.message || '';
+    u.message.textContent = operatorWords(s.message || '');
+    u.message.title = s.message || '';
     if (Number.isFinite(Number(s.force_target_n))) this.forceTarget = Number(s.force_target_n);
     // Until /{robot}/force arrives (a server without it), the 20 Hz F_n of /sweep is plotted instead.
     if (!this.forceFromTopic && Number.isFinite(Number(s.force_n))) {

@@ -43,6 +43,8 @@ export function operatorWords(text) {
       return open && close ? `(press ${button})` : `press ${button}${tail}`;
     })
     .replace(/\b(?:run|send|use) press /g, 'press ')
+    // A robot's own short form: "POST sweep {"action":"plan"}" -> "press Plan".
+    .replace(/\b(?:POST|PUT) [a-z_]+ \{\s*"action"\s*:\s*"([a-z_]+)"\s*\}/g, (whole, action) => `press ${prettyMode(action)}`)
     .replace(/\s*\(REQ-[A-Z]+-\d+\)/g, '')
     .replace(/\s{2,}/g, ' ')
     .replace(/\s+([,.;:)])/g, '$1')

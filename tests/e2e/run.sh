@@ -94,6 +94,12 @@ TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/sdu_continuum.json $repo_roo
 run_file "$here/surgeon.e2e.mjs"
 stop_tendrild
 
+# Issue 31 item 13 (arm_calibrate.e2e.mjs): the ultrasound arm's Calibrate says why outside an ENABLED
+# arm in cartesian mode; a fresh server with the arm, in simulated time as for ultrasound.e2e.mjs.
+TENDRIL_TEST_SIMULATED_TIME=1 TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/us_arm.json" start_tendrild "$binary" || exit 1
+run_file "$here/arm_calibrate.e2e.mjs"
+stop_tendrild
+
 TENDRIL_TEST_VESSEL=1 start_tendrild "$binary" || exit 1
 export TENDRIL_VESSEL_URL="$TENDRIL_URL" TENDRIL_VESSEL_TOKEN="$TENDRIL_TOKEN" TENDRIL_VESSEL_LOG="$TENDRIL_LOG"
 run_file "$here/holds.e2e.mjs"

@@ -374,6 +374,58 @@ test('each robot shows only its own tabs and scene, asks nothing of another\'s, 
   assert.deepEqual(pageErrors, []);
 });
 
+// The STALE fraction of the page sampled every 100 ms for `seconds`.
+function staleFraction(seconds) {
+  return page.evaluate(async (s) => {
+    let n = 0;
+    let stale = 0;
+    const t0 = performance.now();
+    while (performance.now() - t0 < s * 1000) {
+      n++;
+      if (document.body.dataset.stale !== 'false') stale++;
+      await new Promise((r) => setTimeout(r, 100));
+    }
+    return stale / n;
+  }, seconds);
+}
+
+test('a page whose 3D renders take 300 ms sheds its own work and keeps its data current', async () => {
+  await page.setViewportSize({width: 1280, height: 800});
+  if (!page.url().startsWith(BASE_URL)) await openConsole('srmc');
+  await page.selectOption(tid('robot-select'), 'srmc');
+  await waitFor(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live');
+  await page.waitForTimeout(2000);
+  // Every render of the 3D view costs 300 ms more (as software rendering on two loaded cores did, and
+  // more with a bigger scene), and the view has something new to draw all the time.
+  await page.evaluate(() => {
+    window.slowFrames = true;
+    const renderer = window.tendrilLive.view().renderer;
+    const render = renderer.render.bind(renderer);
+    renderer.render = (...args) => {
+      const t = performance.now();
+      if (window.slowFrames) while (performance.now() - t < 300) { /* the frame's cost */ }
+      return render(...args);
+    };
+    // The view changes all the time (as while the robot moves, or the operator turns it).
+    const view = window.tendrilLive.view();
+    window.keepDirty = setInterval(() => view.requestRender(), 20);
+  });
+  try {
+    await page.waitForTimeout(3000);
+    const fraction = await staleFraction(10);
+    console.log(`# STALE ${(fraction * 100).toFixed(0)} % of 10 s with 300 ms renders; ${JSON.stringify(await page.evaluate(() => window.tendrilLive.load?.()))}`);
+    assert.equal(await page.evaluate(() => document.body.dataset.shedding), 'true', 'the page sheds its own work');
+    assert.ok(fraction < 0.1, `STALE ${(fraction * 100).toFixed(0)} % of the time with 300 ms renders`);
+  } finally {
+    await page.evaluate(() => {
+      window.slowFrames = false;
+      clearInterval(window.keepDirty);
+    });
+  }
+  // Frames on time again: the page stops shedding.
+  await waitFor(() => document.body.dataset.shedding === 'false', null, {timeout: 15000});
+});
+
 test('the continuum robot: Roll says why it is not available, in words beside it and in its title', async () => {
   await page.selectOption(tid('robot-select'), 'sdu');
   await waitFor(() => document.querySelector('[data-testid="connection-indicator"]').dataset.kind === 'live');
