@@ -4,9 +4,13 @@
 // Routes (contracts): POST/GET /vessels, GET /vessels/{id}?branch=k, POST /plans, GET/DELETE /jobs/{id},
 // GET/POST /robots/{r}/path_following, POST /robots/{r}/path_following/step. A server without the
 // planning routes (404) gets a plain "not available" message, never invented data.
+// Moving along a plan (issue 31): the step buttons say what will move before it moves (the "will move"
+// line under the path status); "Go" to a far step goes through every step between, along the plan, never
+// one joint-space jump across the vessel's bends; "Next" on a plan not yet started goes to the step
+// nearest the catheter's insertion, not to step 0 if that means withdrawing it far.
 import {ApiError} from './api.js';
 import {StepPlot} from './plot.js';
-import {planVerdict} from './plan_verdict.js';
+import {planVerdict, stepRoute, nearestStep, movePreview} from './plan_verdict.js';
 
 const $ = (sel) => document.querySelector(sel);
 const JOB_POLL_MS = 400;
@@ -54,6 +58,15 @@ export class PlanPanel {
     this.verdict = null;    // planVerdict() of the plan shown, with its job id
     this.fetchingPlan = null;
     this.pathAvailable = null;
+    this.loadedResult = null;  // the job result of the plan loaded on the robot (its steps' q), when known
+    this.measured = null;      // the robot's measured joint values (GET measured_js), for the previews
+    this.walking = false;      // a multi-step "Go" under way
+    // The "will move" preview of the step buttons, under the path status.
+    this.ui.stepPreview = document.createElement('div');
+    this.ui.stepPreview.className = 'path-status step-preview';
+    this.ui.stepPreview.dataset.testid = 'step-preview';
+    this.ui.stepPreview.setAttribute('data-testid', 'step-preview');
+    this.ui.pathStatus?.after(this.ui.stepPreview);
     this.wire();
     this.updateButtons();
   }
@@ -68,11 +81,12 @@ export class PlanPanel {
     ui.cancel.addEventListener('click', () => this.cancelPlan());
     ui.load.addEventListener('click', () => this.loadPlan());
     ui.prev.addEventListener('click', () => this.step({advance: -1}));
-    ui.next.addEventListener('click', () => this.step({advance: 1}));
-    ui.go.addEventListener('click', () => this.step({step: Number(ui.stepInput.value)}));
+    ui.next.addEventListener('click', () => this.next());
+    ui.go.addEventListener('click', () => this.goTo(Number(ui.stepInput.value)));
     ui.stepInput.addEventListener('input', () => {
       const k = Number(ui.stepInput.value);
       if (Number.isInteger(k)) this.preview(k);
+      this.renderStepPreview();
     });
   }
 
@@ -112,6 +126,13 @@ export class PlanPanel {
     try {
       this.path = await this.ctx.api.pathFollowing(robot.name);
       this.pathAvailable = true;
+      if (this.path?.loaded) {
+        try {
+          this.measured = (await this.ctx.api.measuredJs(robot.name))?.position ?? null;
+        } catch {
+          this.measured = null;
+        }
+      }
     } catch (err) {
       this.path = null;
       this.pathAvailable = !(err instanceof ApiError && [404, 405, 503].includes(err.status));
@@ -141,7 +162,46 @@ export class PlanPanel {
       }
     }
     ui.pathStatus.dataset.step = path && path.loaded ? String(path.step) : '';
+    this.renderStepPreview();
     this.updateButtons();
+  }
+
+  // The loaded plan's steps (q per step), when this page knows the plan's job result.
+  loadedSteps() {
+    const r = this.loadedResult;
+    return r && this.path?.plan && r.planId === this.path.plan && Array.isArray(r.result?.steps) ? r.result.steps : null;
+  }
+
+  // Where "Next" goes: the next step, or on a plan not started the step nearest the insertion.
+  nextTarget() {
+    const {path} = this;
+    if (!path?.loaded) return null;
+    if (path.step >= 0) return path.step + 1 < path.steps ? path.step + 1 : null;
+    const steps = this.loadedSteps();
+    return steps && Number.isFinite(Number(this.measured?.[0])) ? nearestStep(steps, this.measured[0]) : 0;
+  }
+
+  // "Next will move: …" and "Go to step k will move: …, through steps a–b" before anything moves.
+  renderStepPreview() {
+    const {ui, path} = this;
+    if (!ui.stepPreview) return;
+    const steps = this.loadedSteps();
+    const joints = this.ctx.robot()?.joints || [];
+    const lines = [];
+    if (path?.loaded && steps && this.measured) {
+      const n = this.nextTarget();
+      if (n !== null && steps[n]) {
+        lines.push(`Next → step ${n}: ${movePreview(this.measured, steps[n].q, joints)}`);
+      }
+      const k = Number(ui.stepInput.value);
+      if (Number.isInteger(k) && steps[k]) {
+        const route = stepRoute(steps, path.step, k, this.measured[0]);
+        const via = route.length > 1 ? ` (along the plan through steps ${route[0]}–${route[route.length - 1]}, ${route.length} moves)` : '';
+        lines.push(`Go → step ${k}: ${movePreview(this.measured, steps[k].q, joints)}${via}`);
+      }
+    }
+    ui.stepPreview.textContent = lines.join('\n');
+    ui.stepPreview.hidden = !lines.length;
   }
 
   // The verdict of step k of the plan loaded on the robot (null when unknown).
@@ -156,7 +216,11 @@ export class PlanPanel {
     this.fetchingPlan = planId;
     try {
       const job = await this.ctx.api.job(planId);
-      if (job?.result) this.setVerdict(planId, job.result);
+      if (job?.result) {
+        this.loadedResult = {planId, result: job.result};
+        this.setVerdict(planId, job.result);
+        this.renderStepPreview();
+      }
     } catch {
       // the job may have expired on the server: no verdict
     }
@@ -166,7 +230,8 @@ export class PlanPanel {
     const v = planVerdict(result, this.ctx.robot(), this.branchRadius);
     this.verdict = {planId, v};
     const {ui} = this;
-    const words = {ok: 'Followable', contact: 'Expect wall contact', 'cannot-follow': 'Cannot be followed', unknown: 'Not judged'};
+    const words = {ok: 'Followable', contact: 'Expect wall contact', 'cannot-follow': 'Cannot be followed', unknown: 'Not judged',
+                   'other-catheter': 'Made for another catheter'};
     ui.verdict.dataset.verdict = v.verdict;
     ui.verdict.textContent = `${v.verdict === 'ok' ? '✓' : '⚠'} ${words[v.verdict]}` +
         (v.reasons.length ? `: ${v.reasons.join('; ')}` : ': every step within the vessel and the joint limits');
@@ -218,12 +283,15 @@ export class PlanPanel {
     ui.upload.disabled = !ui.file.files?.length;
     ui.plan.disabled = !ui.vessel.value || running;
     ui.cancel.disabled = !running;
-    ui.load.disabled = !this.plan || !this.job || !commandableNow(this.ctx);
+    // A plan made for another catheter is not offered for loading (the server refuses it as well).
+    const otherCatheter = this.verdict?.planId === this.job?.id && this.verdict?.v.verdict === 'other-catheter';
+    ui.load.disabled = !this.plan || !this.job || !commandableNow(this.ctx) || otherCatheter;
+    ui.load.title = otherCatheter ? `Not loadable: ${this.verdict.v.otherCatheter}` : '';
     const commandable = this.ctx.commandable ? this.ctx.commandable() : true;
     const canStep = !!(this.path && this.path.loaded && inPathMode && os.state === 'ENABLED') && commandable;
-    ui.prev.disabled = !canStep || this.path.step <= 0;
-    ui.next.disabled = !canStep || this.path.step >= this.path.steps - 1;
-    ui.go.disabled = !canStep;
+    ui.prev.disabled = !canStep || this.walking || this.path.step <= 0;
+    ui.next.disabled = !canStep || this.walking || this.path.step >= this.path.steps - 1;
+    ui.go.disabled = !canStep || this.walking;
     let hint = '';
     if (this.path && this.path.loaded && !inPathMode) hint = 'Switch to Path following mode to step.';
     else if (this.path && this.path.loaded && os && os.state !== 'ENABLED') hint = 'Enable the robot to step.';
@@ -371,6 +439,7 @@ export class PlanPanel {
     const robot = this.ctx.robot();
     try {
       const answer = await this.ctx.api.loadPlan(robot.name, this.job.id);
+      this.loadedResult = {planId: this.job.id, result: this.plan};
       this.ctx.status(`Plan loaded on ${robot.name}: ${answer.steps} steps. Switch to Path following mode, then step.`, 'ok');
     } catch (err) {
       this.ctx.status(`Loading the plan refused: ${err.message}`, 'error');
@@ -381,14 +450,55 @@ export class PlanPanel {
 
   async step(body) {
     const robot = this.ctx.robot();
+    let ok = false;
     try {
       const answer = await this.ctx.api.pathStep(robot.name, body);
       this.preview(answer.step);
       const d = Number.isFinite(answer.duration_s) ? ` (about ${answer.duration_s.toFixed(1)} s)` : '';
       this.ctx.status(`Moving to plan step ${answer.step}${d}`, 'ok');
+      ok = true;
     } catch (err) {
       this.ctx.status(`Step refused: ${err.message}`, 'error');
     }
-    this.refreshPath();
+    await this.refreshPath();
+    return ok;
+  }
+
+  // "Next": the next step; on a plan not started, the step nearest the insertion.
+  async next() {
+    if (this.path?.loaded && this.path.step < 0) {
+      const k = this.nextTarget();
+      return this.step(k !== null && k > 0 ? {step: k} : {advance: 1});
+    }
+    return this.step({advance: 1});
+  }
+
+  // "Go": through every step between here and step k, one at a time along the plan.
+  async goTo(k) {
+    const steps = this.loadedSteps();
+    const from = this.path?.step ?? -1;
+    // Without the plan's joint values (a plan loaded elsewhere whose job expired) the walk starts at step 0.
+    const route = stepRoute(steps || Array.from({length: this.path?.steps ?? 0}, () => ({})), from, k, this.measured?.[0]);
+    if (!route.length) return this.step({step: k});  // the server names what is wrong with k
+    this.walking = true;
+    this.updateButtons();
+    try {
+      for (const j of route) {
+        if (this.path?.step === j && !this.path.moving) continue;
+        if (!(await this.step({step: j}))) return;
+        // Wait until the robot holds at step j before the next one; stop if it holds for a reason.
+        for (;;) {
+          await new Promise((r) => setTimeout(r, 150));
+          await this.refreshPath();
+          const os = this.ctx.operating?.();
+          if (!this.path?.loaded || (os && (os.state !== 'ENABLED' || os.mode !== 'path_following'))) return;
+          if (!this.path.moving) break;
+        }
+        if (this.path.step !== j) return;
+      }
+    } finally {
+      this.walking = false;
+      this.updateButtons();
+    }
   }
 }

@@ -21,7 +21,8 @@ const RANK = {ok: 0, unknown: 1, contact: 2, unreachable: 3, 'off-path': 3};
 
 // plan: the job result; robot: GET /robots entry; radiusMm: lumen radii of the branch (array) or a
 // number; returns {verdict, steps: [{step, verdict, reasons[]}], reasons[], lumenMm}.
-// verdict: 'ok' | 'contact' | 'cannot-follow' | 'unknown' (no steps).
+// verdict: 'ok' | 'contact' | 'cannot-follow' | 'unknown' (no steps) | 'other-catheter' (the plan's design is
+// not the mounted catheter's: designMismatch below).
 export function planVerdict(plan, robot, radiusMm) {
   const steps = Array.isArray(plan?.steps) ? plan.steps : [];
   const radii = Array.isArray(radiusMm) ? radiusMm.map(Number).filter((r) => Number.isFinite(r) && r > 0)
@@ -80,6 +81,90 @@ export function planVerdict(plan, robot, radiusMm) {
                  `${Number.isFinite(vessel) ? vessel.toFixed(0) : '?'} mm`);
   }
   if (!Number.isFinite(lumenMm)) reasons.push('wall contact not checked: the vessel has no radius');
-  const verdict = !result.length ? 'unknown' : bad.length ? 'cannot-follow' : contact.length ? 'contact' : 'ok';
-  return {verdict, steps: result, reasons, lumenMm};
+  // A plan for another catheter is refused before anything else (the server refuses to load it too).
+  const otherCatheter = designMismatch(plan?.design, robot?.design);
+  if (otherCatheter) reasons.unshift(otherCatheter);
+  const verdict = otherCatheter ? 'other-catheter' : !result.length ? 'unknown' : bad.length ? 'cannot-follow'
+      : contact.length ? 'contact' : 'ok';
+  return {verdict, steps: result, reasons, lumenMm, otherCatheter};
+}
+
+// ---- The catheter a plan was made for (issue 31) ----
+// A plan job's result carries the design it was planned with ({L1, L2, k1, k2, delta2, …}); GET /robots
+// gives the mounted catheter's (`design`). A plan for another catheter (the design optimiser's 5/5 mm
+// segments, the "nominal" design) puts this catheter's tip elsewhere at the same joint values: it is not
+// followable, whatever its own errors say.
+export const DESIGN_KEYS = [['L1', 'L1', 'mm'], ['L2', 'L2', 'mm'], ['k1', 'k1', 'rad/mm'], ['k2', 'k2', 'rad/mm'],
+                            ['delta2', 'δ2', 'rad']];
+
+export function describeDesign(d) {
+  if (!d) return 'unknown';
+  return DESIGN_KEYS.filter(([k]) => Number.isFinite(Number(d[k])))
+      .map(([k, label, unit]) => `${label} ${Number(d[k]).toFixed(k.startsWith('L') ? 1 : 3)} ${unit}`).join(', ');
+}
+
+// null when the plan's design is the mounted one (relative 1e-6 on each key both give), else a sentence
+// naming both designs. A plan or robot without a design: null (nothing to compare).
+export function designMismatch(planDesign, mountedDesign) {
+  if (!planDesign || !mountedDesign) return null;
+  const differs = DESIGN_KEYS.some(([k]) => {
+    const a = Number(planDesign[k]);
+    const b = Number(mountedDesign[k]);
+    if (!Number.isFinite(a) || !Number.isFinite(b)) return false;
+    return Math.abs(a - b) > 1e-6 * Math.max(1, Math.abs(b));
+  });
+  return differs ? `made for another catheter (${describeDesign(planDesign)}), not the mounted one (${describeDesign(mountedDesign)})`
+      : null;
+}
+
+// ---- Moving along a plan (issue 31) ----
+// The step whose insertion is nearest `insertion` (mm): where "Next" starts a plan that has not started,
+// so that starting never withdraws the catheter far (a plan starts at 3 mm, the catheter may be at 45).
+export function nearestStep(steps, insertion) {
+  let best = 0;
+  let bestD = Infinity;
+  (steps || []).forEach((s, k) => {
+    const d = Math.abs(Number(s?.q?.[0]) - Number(insertion));
+    if (d < bestD) { bestD = d; best = k; }
+  });
+  return best;
+}
+
+// The steps to go through from step `from` (−1: not started) to step `to`, in order, ending with `to`:
+// along the plan, one step at a time, never one joint-space jump across the vessel's bends. Not started:
+// first the step nearest the current insertion. [] when `to` is outside the plan.
+export function stepRoute(steps, from, to, insertion) {
+  const n = Array.isArray(steps) ? steps.length : 0;
+  if (!Number.isInteger(to) || to < 0 || to >= n) return [];
+  let at = from;
+  const route = [];
+  if (!Number.isInteger(at) || at < 0 || at >= n) {
+    at = nearestStep(steps, insertion);
+    route.push(at);
+  }
+  const dir = to >= at ? 1 : -1;
+  for (let k = at + dir; dir > 0 ? k <= to : k >= to; k += dir) route.push(k);
+  return route.length ? route : [to];
+}
+
+const JOINT_WORDS = ['insertion', 'roll', 'proximal bend', 'distal bend'];
+
+// "will move: insertion 45.0 → 48.0 mm, distal bend 0.10 → 0.40 mm · unchanged: roll, proximal bend" from
+// the joint values now (`from`) to the plan step's q; joints: GET /robots joints (names, units).
+export function movePreview(from, to, joints = []) {
+  const parts = [];
+  const still = [];
+  (to || []).forEach((v, i) => {
+    const j = joints[i] || {};
+    const name = j.name ? String(j.name).replace(/_/g, ' ') : JOINT_WORDS[i] || `joint ${i}`;
+    const unit = j.unit || (i === 1 ? 'rad' : 'mm');
+    const a = Number(from?.[i]);
+    const b = Number(v);
+    const digits = unit === 'rad' ? 2 : 1;
+    if (!Number.isFinite(a)) parts.push(`${name} → ${b.toFixed(digits)} ${unit}`);
+    else if (Math.abs(a - b) < (unit === 'rad' ? 0.005 : 0.05)) still.push(name);
+    else parts.push(`${name} ${a.toFixed(digits)} → ${b.toFixed(digits)} ${unit} (${b - a >= 0 ? '+' : '−'}${Math.abs(b - a).toFixed(digits)})`);
+  });
+  if (!parts.length) return `will move: nothing${still.length ? ` · unchanged: ${still.join(', ')}` : ''}`;
+  return `will move: ${parts.join(', ')}${still.length ? ` · unchanged: ${still.join(', ')}` : ''}`;
 }

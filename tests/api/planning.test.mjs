@@ -6,6 +6,7 @@ import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
 import {API, TOKEN, CLIENT_ID, REPO_ROOT, ROBOT, get, post, call, script, holdLease, assertErrorShape, pollUntil, sleep} from './helpers.mjs';
+import {planVerdict, designMismatch, stepRoute, nearestStep, movePreview} from '../../web/plan_verdict.js';
 
 const R = `/robots/${ROBOT}`;
 const icaCsv = fs.readFileSync(path.join(REPO_ROOT, 'config/vessels/synthetic_ica.csv'));
@@ -51,6 +52,41 @@ after(async () => {
 
 let vesselId;
 let planJob;
+
+// Issue 31: a plan carries the design it was made for; the console's verdict refuses one made for another
+// catheter, naming both (the design optimiser's 5/5 mm segments against the mounted 22/18.8 mm).
+test('GET /robots gives the mounted design; a plan for another design is "made for another catheter"', async () => {
+  const robots = await get('/robots');
+  assert.equal(robots.status, 200, robots.text);
+  const robot = robots.json.find((r) => r.name === ROBOT);
+  assert.ok(robot.design, JSON.stringify(robot));
+  assert.equal(robot.design.L1, 22);
+  assert.equal(robot.design.L2, 18.8);
+  const step = {q: [10, 0, 0, 0], position_error_mm: 0.2, position_error_max_mm: 0.4, orientation_error_deg: 2,
+                orientation_error_max_deg: 4};
+  const mine = planVerdict({design: {...robot.design}, steps: [step]}, robot, [2.5]);
+  assert.equal(mine.verdict, 'ok', mine.reasons.join('; '));
+  const other = planVerdict({design: {...robot.design, L1: 5, L2: 5}, steps: [step]}, robot, [2.5]);
+  assert.equal(other.verdict, 'other-catheter');
+  assert.match(other.reasons[0], /made for another catheter \(L1 5\.0 mm, L2 5\.0 mm.*not the mounted one \(L1 22\.0 mm, L2 18\.8 mm/);
+  assert.equal(designMismatch({L1: 22, L2: 18.8}, {L1: 22, L2: 18.8, k1: 0.0882}), null);
+});
+
+// Issue 31: moving along a plan goes through the steps between, and a plan not started begins at the
+// step nearest the insertion; the preview says what will move.
+test('plan step routes: along the plan, from the step nearest the insertion; "will move" preview', () => {
+  const steps = [3, 6, 9, 12, 15, 18, 45, 48].map((z) => ({q: [z, 0, 0, 0]}));
+  assert.equal(nearestStep(steps, 45), 6);
+  assert.deepEqual(stepRoute(steps, -1, 7, 45), [6, 7]);    // not started at 45 mm: no withdrawal to 3 mm
+  assert.deepEqual(stepRoute(steps, 1, 5, 6), [2, 3, 4, 5]);  // Go from 1 to 5: through 2, 3, 4
+  assert.deepEqual(stepRoute(steps, 5, 2, 15), [4, 3, 2]);
+  assert.deepEqual(stepRoute(steps, 2, 2, 9), [2]);
+  assert.deepEqual(stepRoute(steps, 2, 9, 9), []);
+  const joints = [{name: 'insertion', unit: 'mm'}, {name: 'roll', unit: 'rad'}, {name: 'proximal_bend', unit: 'mm'},
+                  {name: 'distal_bend', unit: 'mm'}];
+  assert.equal(movePreview([45, 0, 0, 0], [3, 0, 0.5, 0], joints),
+               'will move: insertion 45.0 → 3.0 mm (−42.0), proximal bend 0.0 → 0.5 mm (+0.5) · unchanged: roll, distal bend');
+});
 
 test('POST /vessels stores a CSV centerline and lists its branches', async () => {
   const res = await upload('/vessels?name=ica', icaCsv, 'text/csv');
