@@ -1616,6 +1616,7 @@ async function start() {
   tipTracking = new TrackingPanel($('#panel-tracking'), {
     api, connection: () => window.tendrilConnection ?? null, view: () => view, status: showStatus,
   });
+  document.body.dataset.shedding = 'false';
   wireCommands();
   wireEnlarge($('main.layout'));
   arrangeImaging($('.images-panel'));
