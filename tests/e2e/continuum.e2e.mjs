@@ -63,7 +63,9 @@ test('the continuum scenario from the console: approach slows the robot, touch s
 
   // Command motion toward the arm: bend the segment (the joint panel's goal in rad, and Move).
   await page.click(tid('tab-joints'));
-  await page.fill(tid('joint-goal-bending'), String(process.env.TENDRIL_SDU_BEND_RAD || 0.4));
+  // The Joints tab shows and takes a revolute joint in degrees (web/joints.js); the goal is given in rad.
+  const bendDeg = Number(process.env.TENDRIL_SDU_BEND_RAD || 0.4) * 180 / Math.PI;
+  await page.fill(tid('joint-goal-bending'), bendDeg.toFixed(1));
   await page.click(tid('move-button'));
   await page.click(tid('tab-robot'));
 
@@ -115,10 +117,17 @@ test('the continuum scenario from the console: approach slows the robot, touch s
   // A page that goes STALE while the button is held ends the roll (and disables the button) until
   // the button is pressed again: a loaded two-core machine does that (a cold CI run saw no motion at
   // all). The test presses again then, as an operator would, at most 5 times, and prints each; a roll
-  // that does not move while the page stayed fresh fails at once.
+  // that does not move while the page stayed fresh fails at once. Only the page's own staleness (the
+  // console's load on the browser, issue 31) is pressed through: the robot must be in its contact hold
+  // (PAUSED), never in FAULT, before each press, else the test fails with the fault.
   const roll = page.locator(tid('continuum-roll-plus'));
+  const robotState = async () => (await (await fetch(`${BASE_URL}/api/v1/robots/${ROBOT}/operating_state`, {
+    headers: {Authorization: `Bearer ${TOKEN}`}})).json());
   let q0, q1, moved = 0;
   for (let attempt = 1; attempt <= 5 && !(moved > 0.005); attempt++) {
+    const st = await robotState();
+    assert.notEqual(st.state, 'FAULT', `before roll attempt ${attempt} the robot faulted: ${JSON.stringify(st.fault)}, ` +
+                    `loop timing ${JSON.stringify(st.loop_timing)}`);
     await page.waitForFunction(() => !document.querySelector('[data-testid="continuum-roll-plus"]').disabled, null, WAIT);
     q0 = await measured();
     await roll.hover();
@@ -150,6 +159,7 @@ test('the continuum scenario from the console: approach slows the robot, touch s
                 `the button ${held.disabled ? 'disabled' : 'enabled'}; status "${status}"`);
   }
   assert.ok(moved > 0.005, `the roll moved the joints: ${JSON.stringify({q0, q1})}`);
+  assert.notEqual((await robotState()).state, 'FAULT', JSON.stringify((await robotState()).fault));
   await page.waitForTimeout(500);
   const q2 = await measured();
   const after = Math.max(...q2.map((v, i) => Math.abs(v - q1[i])));
