@@ -128,9 +128,16 @@ void SafetySupervisor::record(double t, EventKind kind, FaultCode code, int join
   log(t, kind, code, joint, s, s, text);
 }
 
-CommandResult SafetySupervisor::reset_estop(double t) noexcept {
+CommandResult SafetySupervisor::reset_estop(double t, std::uint64_t presses_seen) noexcept {
   process_estop_request(t);
   if (!estop_latched_.load(std::memory_order_relaxed)) return CommandResult::kAlreadyInState;
+  if (presses_seen != kAnyPress && estop_presses_.load(std::memory_order_acquire) != presses_seen) {
+    // Pressed again after this reset was asked for: that press stands.
+    const OperatingState s = state_.load(std::memory_order_relaxed);
+    log(t, EventKind::kRefused, FaultCode::kEstop, -1, s, s,
+        "e-stop reset refused: the e-stop was pressed again after the reset was asked for");
+    return CommandResult::kRefusedEstopLatched;
+  }
   estop_latched_.store(false, std::memory_order_release);
   fault_cause_ = FaultInfo{};
   transition(t, OperatingState::kDisabled, EventKind::kEstopReset, FaultCode::kEstop, -1,

@@ -127,7 +127,7 @@ void RobotRuntime::Impl::apply_command(RobotUnit& r, const RobotCommand& c, doub
       s.estop_tick = ticks.load(std::memory_order_relaxed);
       break;
     case CommandKind::estop_reset:
-      sup.reset_estop(t);
+      sup.reset_estop(t, c.estop_presses);
       end_hold(r);
       break;
     case CommandKind::hold:

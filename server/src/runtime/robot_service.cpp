@@ -522,6 +522,8 @@ Status RobotRuntime::estop_reset(const std::string& actor) {
   for (auto& r : impl_->robots) {
     RobotCommand c;
     c.kind = CommandKind::estop_reset;
+    // A press after this moment (its command queued behind this reset) keeps the latch.
+    c.estop_presses = r->supervisor->estop_presses();
     c.received = std::chrono::steady_clock::now();
     if (!impl_->post(*r, c)) return busy_mailbox(r->config.name);
   }

@@ -60,7 +60,8 @@ struct RobotCommand {
   std::int32_t index = 0;  // mode or path step
   PluginCommand plugin{};
   std::chrono::steady_clock::time_point received{};
-  char actor[48] = {};  // who sent it, for the event log (e-stop); NUL-terminated
+  char actor[48] = {};              // who sent it, for the event log (e-stop); NUL-terminated
+  std::uint64_t estop_presses = 0;  // estop_reset: the supervisor's estop_presses() when it was asked for
   safety::FaultCode code = safety::FaultCode::kNone;  // warning
   char text[96] = {};                                 // warning; NUL-terminated
 };

@@ -140,6 +140,31 @@ TEST(SafetySupervisor, EstopRequestedFromAnotherThreadIsVisibleAtOnceAndLoggedBy
   EXPECT_DOUBLE_EQ(events[0].time, 0.5);
 }
 
+// The race the e-stop-under-load test found: a press while a reset waits in the mailbox was taken as
+// "already latched", then the reset cleared the latch, so a 200 e-stop was followed by a DISABLED,
+// unlatched robot until the press's own command came through (or never, had the mailbox been full).
+TEST(SafetySupervisor, APressAfterAResetWasAskedForKeepsTheLatch) {
+  auto s = make();
+  s->request(0.0, StateCommand::kEnable);
+  s->request_estop();
+  s->tick(0.1, kHome, kHome);
+  ASSERT_TRUE(s->estop_latched());
+  const std::uint64_t seen = s->estop_presses();  // the reset is asked for now
+  s->request_estop();                             // pressed again before the reset is carried out
+  s->tick(0.2, kHome, kHome);                     // the control thread takes the press: already latched
+  EXPECT_EQ(s->reset_estop(0.3, seen), CommandResult::kRefusedEstopLatched);
+  EXPECT_TRUE(s->estop_latched());
+  EXPECT_EQ(s->state(), OperatingState::kFault);
+  const auto events = drain(*s);
+  ASSERT_FALSE(events.empty());
+  EXPECT_EQ(events.back().kind, EventKind::kRefused);
+  EXPECT_NE(std::string(events.back().text).find("pressed again"), std::string::npos) << events.back().text;
+  // A reset asked for after every press clears the latch.
+  EXPECT_EQ(s->reset_estop(0.4, s->estop_presses()), CommandResult::kAccepted);
+  EXPECT_FALSE(s->estop_latched());
+  EXPECT_EQ(s->state(), OperatingState::kDisabled);
+}
+
 TEST(SafetySupervisor, GoalChecksNameTheJoint) {
   auto s = make();
   EXPECT_FALSE(s->check_goal(kHome));

@@ -102,7 +102,11 @@ class SafetySupervisor {
   // When the latch was already set by request_estop() for the same press, this names who pressed it;
   // when it was latched by an earlier press, the new press is logged as well.
   void estop(double t, const char* actor) noexcept;
-  CommandResult reset_estop(double t) noexcept;
+  // Clears the latch. presses_seen: estop_presses() when the reset was asked for (on another thread);
+  // a press after that (its command may still be queued behind this reset) keeps the latch, and the
+  // reset is refused (kRefusedEstopLatched) and logged. kAnyPress: whatever was pressed.
+  static constexpr std::uint64_t kAnyPress = ~std::uint64_t{0};
+  CommandResult reset_estop(double t, std::uint64_t presses_seen = kAnyPress) noexcept;
   // External fault (drive heartbeat lost, EMCY, bus-off, …). detail may be null.
   void fault(double t, FaultCode code, int joint, const char* detail) noexcept;
   // A limit that needs the robot to stop but not to lose power (spring deflection, a stale contact
@@ -117,7 +121,12 @@ class SafetySupervisor {
   // --- any thread ---
   // Latches the e-stop immediately as seen by state()/estop_latched(); the control thread logs it and
   // completes the transition at its next tick() or request().
-  void request_estop() noexcept { estop_requested_.store(true, std::memory_order_release); }
+  void request_estop() noexcept {
+    estop_presses_.fetch_add(1, std::memory_order_acq_rel);
+    estop_requested_.store(true, std::memory_order_release);
+  }
+  // How many times request_estop() was called: a reset asked for at count N clears only presses up to N.
+  std::uint64_t estop_presses() const noexcept { return estop_presses_.load(std::memory_order_acquire); }
   OperatingState state() const noexcept;
   bool estop_latched() const noexcept;
 
@@ -170,6 +179,7 @@ class SafetySupervisor {
   std::atomic<OperatingState> state_{OperatingState::kDisabled};
   std::atomic<bool> estop_latched_{false};
   std::atomic<bool> estop_requested_{false};
+  std::atomic<std::uint64_t> estop_presses_{0};
   bool estop_actor_known_ = false;  // the latched e-stop's event names who pressed it
   FaultInfo fault_cause_{};
   bool servo_live_ = false;
