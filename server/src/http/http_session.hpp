@@ -114,6 +114,9 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
     // that the answer reaches it and the connection stays usable; a larger one is not read at all.
     if (declared && *declared > body_limit_) return on_read(bhttp::error::body_limit);
     parser_->body_limit(body_limit_);
+    // 30 s for a body, plus a second for each MiB a large one may have (32 MiB: 62 s).
+    StreamSocket<Stream>::expires_after(stream_,
+                                        std::chrono::seconds(30 + static_cast<long>(body_limit_ >> 20)));
     bhttp::async_read(stream_, buffer_, *parser_,
                       [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
                         self->contain("read body", [&] { self->on_read(ec); });
@@ -209,6 +212,9 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   template <class Body>
   void send(bhttp::response<Body>&& response) {
     server_.count_status(response.result_int());
+    // The answer has its own time: the work before it (an upload waiting for its worker) may have
+    // taken longer than the time the request had to arrive.
+    StreamSocket<Stream>::expires_after(stream_, std::chrono::seconds(30));
     auto shared = std::make_shared<bhttp::response<Body>>(std::move(response));
     bhttp::async_write(stream_, *shared,
                        [self = this->shared_from_this(), shared](beast::error_code ec, std::size_t) {
