@@ -759,18 +759,23 @@ function takeOperatingState() {
 // less often, the plots redraw at 2 Hz, and the joint values no longer wait for a frame: they are
 // applied as they arrive (a few text nodes), so the data shown stays current.
 const SHED_GAP_MS = 60;
+const LONG_FRAME_MS = 150;
+const SHED_HOLD_MS = 5000;
 const LATE_FRAME_MS = 80;
 let lastFrameStart = 0;
 let frameGapAvg = 16;
 let shedding = false;
 let lateJointsAt = 0;
 
+let longFrameAt = -Infinity;
 function noteFrame(start) {
   const gap = lastFrameStart ? Math.min(2000, start - lastFrameStart) : 16;
   lastFrameStart = start;
   frameGapAvg = 0.85 * frameGapAvg + 0.15 * gap;
-  // Hysteresis: on above SHED_GAP_MS, off below half of it.
-  const shed = shedding ? frameGapAvg > SHED_GAP_MS / 2 : frameGapAvg > SHED_GAP_MS;
+  // A frame that took more than LONG_FRAME_MS (a software render of the 3D view now and then is enough
+  // to make the data old) sheds for SHED_HOLD_MS after it; so does an average gap over SHED_GAP_MS.
+  if (gap > LONG_FRAME_MS && !document.hidden) longFrameAt = start;
+  const shed = frameGapAvg > SHED_GAP_MS || start - longFrameAt < SHED_HOLD_MS;
   if (shed === shedding) return;
   shedding = shed;
   document.body.dataset.shedding = String(shed);

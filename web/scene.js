@@ -230,7 +230,10 @@ export class CatheterView {
     const loop = (now) => {
       if (rendered) {
         const frameMs = now - previous;
-        minFrameMs = frameMs > SLOW_FRAME_MS ? Math.min(1000, Math.max(baseFrameMs(), 3 * frameMs)) : baseFrameMs();
+        // A slow render waits 3 times its cost before the next one (6 times, up to 2 s, while shedding).
+        minFrameMs = frameMs > SLOW_FRAME_MS
+          ? (this.shedding ? Math.min(2000, Math.max(baseFrameMs(), 6 * frameMs)) : Math.min(1000, Math.max(baseFrameMs(), 3 * frameMs)))
+          : baseFrameMs();
       } else if (minFrameMs < baseFrameMs()) {
         minFrameMs = baseFrameMs();
       }
