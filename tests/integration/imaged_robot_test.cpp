@@ -7,6 +7,7 @@
 
 #include "json_api.hpp"
 #include "tendril/server/config.hpp"
+#include "tendril/server/image_feedback.hpp"
 #include "tendril/server/imaged_robot.hpp"
 #include "tendril/server/robot_runtime.hpp"
 
@@ -32,10 +33,10 @@ struct Runtime {
 
 TEST(ImagedRobot, WithAllFiveRobotsTheCatheterIsImagedNotTheFirstInTheList) {
   Runtime r({"mbcr_vd.json", "sdu_continuum.json", "ur5_arm.json", "us_arm.json", "srmc.json"});
-  ASSERT_EQ(r.names.front(), "mbcr_vd");
+  ASSERT_EQ(r.names.front(), "mbcr");
   EXPECT_EQ(choose_imaged_robot(*r.runtime, r.names, "", "", "server.json"), "srmc");
   // Named: that one, whatever it is; a name that is not a robot is a configuration error.
-  EXPECT_EQ(choose_imaged_robot(*r.runtime, r.names, "mbcr_vd", "", "server.json"), "mbcr_vd");
+  EXPECT_EQ(choose_imaged_robot(*r.runtime, r.names, "mbcr", "", "server.json"), "mbcr");
   try {
     choose_imaged_robot(*r.runtime, r.names, "catheter", "", "server.json");
     FAIL() << "an unknown imaging.robot was accepted";
@@ -53,12 +54,12 @@ TEST(ImagedRobot, SeveralRobotsNoneOfWhichUsesTheImagesIsAConfigurationError) {
     FAIL() << "no imaged robot, yet none refused";
   } catch (const ConfigError& e) {
     const std::string m = e.what();
-    EXPECT_NE(m.find("imaging.robot: 2 robots are configured (mbcr_vd, ur5_arm)"), std::string::npos) << m;
+    EXPECT_NE(m.find("imaging.robot: 2 robots are configured (mbcr, ur5)"), std::string::npos) << m;
     EXPECT_NE(m.find("name the imaged robot in imaging.robot"), std::string::npos) << m;
   }
   // One robot: that one, as before.
   Runtime one({"ur5_arm.json"});
-  EXPECT_EQ(choose_imaged_robot(*one.runtime, one.names, "", "", "server.json"), "ur5_arm");
+  EXPECT_EQ(choose_imaged_robot(*one.runtime, one.names, "", "", "server.json"), "ur5");
 }
 
 TEST(ImagedRobot, GetRobotsSaysWhetherTheCatheterIsImaged) {
