@@ -145,14 +145,13 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
       return send(api_response(request, *decision_.refusal));
     }
     if (boost::beast::websocket::is_upgrade(request)) return handle_upgrade(std::move(request));
-    switch (decision_.lane) {
-      case RequestLane::kInline:
-        return send(route_request(server_, request, connection_id_));
-      case RequestLane::kRequests:
-        return run_in_lane(*server_.request_lane, std::move(request));
-      case RequestLane::kUploads:
-        return run_in_lane(*server_.upload_lane, std::move(request));
-    }
+    // Without lanes (an Impl that was never started, as the framing fuzzer drives it) the work runs
+    // here, as it did on every request before there were lanes.
+    http::WorkLane* lane = decision_.lane == RequestLane::kRequests  ? server_.request_lane.get()
+                           : decision_.lane == RequestLane::kUploads ? server_.upload_lane.get()
+                                                                     : nullptr;
+    if (lane != nullptr) return run_in_lane(*lane, std::move(request));
+    send(route_request(server_, request, connection_id_));
   }
 
   // The request's work on a worker of `lane`; its answer is written from this connection's strand.
