@@ -14,6 +14,7 @@ import os from 'node:os';
 import path from 'node:path';
 import {chromium} from 'playwright-core';
 import {ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
+import {nearestStep} from '../../web/plan_verdict.js';
 
 const {BASE_URL, TOKEN} = serverUnderTest();
 
@@ -750,9 +751,15 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
   await page.waitForFunction(() => document.querySelector('[data-testid="mode-path_following"]').getAttribute('aria-pressed') === 'true',
                              null, WAIT);
   await page.waitForFunction(() => !document.querySelector('[data-testid="step-next-button"]').disabled, null, WAIT);
+  // Issue 31: Next on a plan not started goes to the step nearest the catheter's insertion (starting never
+  // withdraws it far), as the console's own rule computes it from the loaded plan and the measured insertion.
+  const loaded = await (await otherOperator('GET', '/robots/srmc/path_following')).json();
+  const planSteps = (await (await otherOperator('GET', `/jobs/${loaded.plan}`)).json()).result.steps;
+  const insertion = (await (await otherOperator('GET', '/robots/srmc/measured_js')).json()).position[0];
+  const firstStep = String(nearestStep(planSteps, insertion));
   await page.click(tid('step-next-button'));
   try {
-    await page.waitForFunction(() => document.querySelector('[data-testid="path-status"]').dataset.step === '0', null,
+    await page.waitForFunction((k) => document.querySelector('[data-testid="path-status"]').dataset.step === k, firstStep,
                                {timeout: 30000});
   } catch (err) {
     await page.screenshot({path: path.join(ARTIFACTS, 'fail-path-step.png')});
@@ -773,7 +780,7 @@ test('plan flow: load a vessel, compute a plan, see it in 3D with its error plot
   await page.waitForFunction(() => document.querySelector('[data-testid="path-stop-reason"]').dataset.stopped === 'true', null, WAIT);
   const why = await page.locator(tid('path-stop-reason')).textContent();
   // The reason names the operator's pause in the hold's words, which the operating_state stream carries.
-  assert.match(why, /Following stopped at step 0 .*paused by the operator.*Resume/i, why);
+  assert.match(why, new RegExp(`Following stopped at step ${firstStep} .*paused by the operator.*Resume`, 'i'), why);
   await page.screenshot({path: path.join(ARTIFACTS, '13b-path-stopped.png')});
   await page.click(tid('resume-button'));
   await page.waitForFunction(() => document.querySelector('[data-testid="path-stop-reason"]').dataset.stopped === 'false', null, WAIT);
