@@ -156,12 +156,14 @@ TEST_F(EstopPriorityTest, ACommandWithoutTheLeaseIsRefusedBeforeItsBodyIsParsed)
 TEST_F(EstopPriorityTest, AFullRequestQueueAnswersBusyAndTheEstopStillWorks) {
   options_.request_threads = 1;
   options_.request_queue = 1;
+  // Long enough that the waiting command is still queued when the probe comes, on a loaded machine too.
+  slow_api_.slow = std::chrono::milliseconds(4000);
   start_slow();
   ASSERT_EQ(lease_.take_lease(port_).status, 200);
   occupy(1, 1);  // the one worker is busy
   occupy(1, 1);  // and one request waits
-  // Give the waiting one time to be queued.
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  // Give the waiting one time to be queued (its worker stays busy for 4 s).
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
   const Reply busy = http_request(port_, bhttp::verb::get, "/api/v1/robots/srmc/measured_js", "", bearer());
   expect_error_shape(busy, 503, "server_busy");
   EXPECT_EQ(busy.raw[bhttp::field::retry_after], "1");
