@@ -362,6 +362,22 @@ ApiResult origin_error(const Request& header) {
       "Origin \"" + std::string(header[bhttp::field::origin]) + "\" is not in the allowlist");
 }
 
+// The caller a header names, or nullopt with out.refusal set (a foreign origin, no or a wrong token).
+std::optional<Identity> caller_from_header(HttpServer::Impl& server, const Request& header,
+                                           const RequestTarget& target, std::uint64_t connection_id,
+                                           HeaderDecision& out) {
+  if (origin_refused(server, header)) {
+    out.refusal = origin_error(header);
+    return std::nullopt;
+  }
+  auto auth = server.authenticate(header, target, connection_id, false, false, /*websocket=*/false);
+  if (auth.error) {
+    out.refusal = std::move(auth.error);
+    return std::nullopt;
+  }
+  return std::move(auth.identity);
+}
+
 // GET /api/v1/robots/{robot}/calibration/side_view renders a picture (about half a second).
 bool slow_picture(const std::vector<std::string>& route) {
   return route.size() == 4 && route[0] == "robots" && route[2] == "calibration" && route[3] == "side_view";
@@ -403,16 +419,8 @@ HeaderDecision decide_header(HttpServer::Impl& server, const Request& header, bo
   if (route == std::vector<std::string>{"estop"} && method == bhttp::verb::post) {
     // Safety first: the e-stop is latched now, before its body is read or any other request's work.
     out.lane = RequestLane::kInline;
-    if (origin_refused(server, header)) {
-      out.refusal = origin_error(header);
-      return out;
-    }
-    auto auth = server.authenticate(header, target, connection_id, false, false, /*websocket=*/false);
-    if (auth.error) {
-      out.refusal = std::move(auth.error);
-      return out;
-    }
-    out.estop = server.execute(Command::kEstop, {}, json::object(), auth.identity);
+    auto who = caller_from_header(server, header, target, connection_id, out);
+    if (who) out.estop = server.execute(Command::kEstop, {}, json::object(), *who);
     return out;
   }
   if (method == bhttp::verb::get || method == bhttp::verb::head) {
@@ -424,17 +432,10 @@ HeaderDecision decide_header(HttpServer::Impl& server, const Request& header, bo
   // Without a body there is nothing to hold back: the route answers as usual. With one, whoever may
   // not send it is refused now, before its bytes are read or parsed.
   if (!has_body) return out;
-  if (origin_refused(server, header)) {
-    out.refusal = origin_error(header);
-    return out;
-  }
-  auto auth = server.authenticate(header, target, connection_id, false, false, /*websocket=*/false);
-  if (auth.error) {
-    out.refusal = std::move(auth.error);
-    return out;
-  }
+  const auto caller = caller_from_header(server, header, target, connection_id, out);
+  if (!caller) return out;
   if (server.opts.replay) return out;  // every command answers 409 replay_mode, whoever sends it
-  const Identity& who = auth.identity;
+  const Identity& who = *caller;
   if (who.role != Role::kOperator) {
     out.refusal = ApiResult::error(403, "forbidden_role",
                                    "this session is a viewer (read-only): it reads and may press the "
