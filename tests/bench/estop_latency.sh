@@ -13,23 +13,14 @@ set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 # shellcheck source=tests/api/server.sh
 source "$here/../api/server.sh"
-trap stop_tendrild EXIT INT TERM  # (and the wrapper, below)
+trap stop_tendrild EXIT INT TERM  # (and the wrapper: start_limited_tendrild)
 binary="${TENDRILD:-$repo_root/build/server/tendrild}"
 if [ $# -gt 0 ] && [ "${1#--}" = "$1" ]; then binary="$1"; shift; fi
 [ -d "$repo_root/node_modules/@foxglove/ws-protocol" ] || { echo "run 'npm ci' in $repo_root first" >&2; exit 2; }
-# The server runs with RLIMIT_NOFILE 1024, soft and hard (the systemd default soft limit; hard too, so
-# that a server raising its soft limit cannot step out of the attack): started through a wrapper that
-# sets it. TENDRIL_ESTOP_NOFILE changes it. The client keeps this shell's limit (it holds 2,000).
-server_nofile="${TENDRIL_ESTOP_NOFILE:-1024}"
-wrapper_dir="$(mktemp -d /tmp/tendril-estop-load.XXXXXX)"
-trap 'stop_tendrild; rm -rf "$wrapper_dir"' EXIT INT TERM
-[ -x "$binary" ] || { echo "usage: $0 [path to tendrild]   ('$binary' is not an executable file)" >&2; exit 2; }
-binary="$(cd "$(dirname "$binary")" && pwd)/$(basename "$binary")"
-printf '#!/bin/sh\nulimit -n %s || exit 2\nexec "%s" "$@"\n' "$server_nofile" "$binary" > "$wrapper_dir/tendrild"
-chmod +x "$wrapper_dir/tendrild"
-start_tendrild "$wrapper_dir/tendrild" || exit 1
-ulimit -S -n "$(ulimit -H -n)"  # the client's own limit, as high as allowed
-echo "tendrild $binary; its descriptor limit $(awk '/Max open files/ {print $4}' /proc/"$tendrild_pid"/limits), the client's $(ulimit -S -n); $(nproc) cores, load average $(cut -d' ' -f1-3 /proc/loadavg)"
+# shellcheck source=tests/api/estop_under_load/limited_server.sh
+source "$here/../api/estop_under_load/limited_server.sh"
+start_limited_tendrild "$binary" || exit 1
+echo "$(nproc) cores, load average $(cut -d' ' -f1-3 /proc/loadavg)"
 node "$here/estop_latency.mjs" "$@"
 status=$?
 echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)"
