@@ -74,7 +74,10 @@ OperatingStateView state_view(const RobotUnit& r, const RobotSnapshot& s, double
   v.state = s.state;
   v.mode = r.mode_name(s.mode);
   v.busy = s.busy;
-  v.estop = s.estop;
+  // A press the control thread has not taken yet is shown at once: the snapshot is a control cycle old
+  // (more after a stall), and a 200 e-stop must read back as latched.
+  v.estop = s.estop || r.supervisor->estop_latched();
+  if (v.estop) v.state = OperatingState::kFault;
   v.drives_ready = s.drives_ready;
   v.timestamp = wall_offset + s.time;
   // The loop-timing policy's record (README, "Control-loop timing").
