@@ -23,6 +23,7 @@
 #include "tendril/server/config_schema.hpp"
 #include "tendril/server/http/control_json.hpp"
 #include "tendril/server/http/http_server.hpp"
+#include "tendril/server/imaged_robot.hpp"
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/planning_api.hpp"
 #include "tendril/server/replay_control_api.hpp"
@@ -346,12 +347,18 @@ int main(int argc, char** argv) {
       const auto geometry = ic.fluoroscope.geometry;  // a copy: ic is moved below
       const double fps = ic.fps;
       const std::string vessel_source = ic.vessel_source;
-      auto backbone = backbone_from(runtime, ic.robot);
-      const std::string imaged = ic.robot.empty() ? config.robots.front().name : ic.robot;
+      // The imaged robot: named in imaging.robot, else the only one (or the scene's) that enters a vessel
+      // or uses the images (imaged_robot.hpp); never merely the first in the list.
+      std::vector<std::string> robot_names;
+      for (const auto& rc : config.robots) robot_names.push_back(rc.name);
+      const std::string imaged =
+          choose_imaged_robot(runtime, robot_names, ic.robot, scene_robot, config.file.string());
+      auto backbone = backbone_from(runtime, imaged);
       ic.robot = imaged;  // whose lease the segmentation editor needs
       imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
       std::cerr << "tendrild: imaging: bi-plane (/imaging/ap, /imaging/lateral) " << geometry.width << "x"
-                << geometry.height << ", simulated planes at " << fps << " fps; "
+                << geometry.height << ", simulated planes at " << fps << " fps, imaging robot '" << imaged
+                << "'; "
                 << imaging->describe_sources() << "; vessel: " << vessel_source << std::endl;
       // Stale, dropped or ended images are the imaged robot's operator's concern: warnings in its log.
       imaging->set_warning_sink([&runtime, imaged](tendril::safety::FaultCode code, const std::string& text) {

@@ -1,7 +1,7 @@
-// One world (issue 14): the server's scene vessel (config/vessels/synthetic_ica.csv, as config/server.json
-// names it) placed at the catheter's insertion point is the vessel the SIMULATED catheter touches, the
-// vessel the fluoroscope images and the frame a plan is shown in. At its start pose the shipped catheter
-// lies inside it; pushed straight past the vessel's first bend, it meets the wall (stepped time).
+// One world (issue 14): the server's scene vessel (config/vessels/scene_vessel.csv since issue 31, as
+// config/server.json names it) placed at the catheter's insertion point is the vessel the SIMULATED catheter
+// touches, the vessel the fluoroscope images and the frame a plan is shown in. At its start pose the shipped
+// catheter lies inside it; pushed straight past the vessel's first bend, it meets the wall (stepped time).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -49,7 +49,7 @@ class OneWorldTest : public ::testing::Test {
 };
 
 TEST_F(OneWorldTest, TheShippedServerFileNamesTheSceneVesselAndTheCatheterUsesIt) {
-  EXPECT_NE(scene.source.find("synthetic_ica.csv"), std::string::npos) << scene.source;
+  EXPECT_NE(scene.source.find("scene_vessel.csv"), std::string::npos) << scene.source;
   // The insertion point: where the tip is at zero insertion, L1 + L2 = 22 + 18.8 mm up the axis.
   const auto entry = runtime->vessel_entry("srmc");
   ASSERT_TRUE(entry);

@@ -109,8 +109,18 @@ double CatheterVesselContact::distance_to_centerline(const Eigen::Vector3d& p) c
   return (nearest_point(p, segment) - p).norm();
 }
 
+std::size_t CatheterVesselContact::backbone(const Eigen::Vector4d& q,
+                                            std::span<Eigen::Vector3d> out) const noexcept {
+  if (!shaft_) return shape_.backbone(q, parameters_.points_per_segment, out);
+  // The steerable section drawn at the origin with its roll, then placed on the shaft's base.
+  const std::size_t n =
+      shape_.backbone(Eigen::Vector4d(0.0, q[1], q[2], q[3]), parameters_.points_per_segment, out);
+  shaft_->place(q[0], out.first(n));
+  return n;
+}
+
 double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* stats) noexcept {
-  const std::size_t n = shape_.backbone(q, parameters_.points_per_segment, backbone_);
+  const std::size_t n = backbone(q, backbone_);
   const double k = parameters_.wall_stiffness;
   double e = 0.0;
   for (std::size_t i = 1; i < n; ++i) {  // the base point sits on the insertion axis, outside the model
@@ -129,9 +139,14 @@ double CatheterVesselContact::energy(const Eigen::Vector4d& q, ContactForces* st
 
 ContactForces CatheterVesselContact::evaluate(const Eigen::Vector4d& q) noexcept {
   ContactForces out;
-  const std::size_t n = shape_.backbone(q, parameters_.points_per_segment, backbone_);
+  const std::size_t n = backbone(q, backbone_);
   const double k = parameters_.wall_stiffness;
   bool have_bend_rates = false;
+  // With a shaft: the base on the centerline and its tangent (the roll axis there).
+  Eigen::Matrix3d base_rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d base_position = Eigen::Vector3d::Zero();
+  if (shaft_) shaft_->section_base(q[0], base_rotation, base_position);
+  const Eigen::Vector3d roll_axis = base_rotation.col(2);
   for (std::size_t i = 1; i < n; ++i) {  // the base point sits on the insertion axis, outside the model
     const Eigen::Vector3d& p = backbone_[i];
     const Eigen::Vector3d nearest = nearest_point(p, nearest_[i]);
@@ -140,17 +155,24 @@ ContactForces CatheterVesselContact::evaluate(const Eigen::Vector4d& q) noexcept
     const double d = distance - free_at(nearest_[i], nearest);
     if (d <= 0) continue;    // distance > free > 0 from here on
     if (!have_bend_rates) {  // only in contact: four more backbones
-      for (std::size_t j = 0; j < 4; ++j) {
+      for (std::size_t j = 0; j < (shaft_ ? 6u : 4u); ++j) {
         Eigen::Vector4d qj = q;
-        qj[static_cast<Eigen::Index>(2 + j / 2)] += j % 2 == 0 ? kBendStep : -kBendStep;
-        (void)shape_.backbone(qj, parameters_.points_per_segment, perturbed_[j]);
+        // j = 0..3: the bends; 4, 5: the insertion (only on a shaft, where it is not a translation).
+        const auto axis = static_cast<Eigen::Index>(j < 4 ? 2 + j / 2 : 0);
+        qj[axis] += j % 2 == 0 ? kBendStep : -kBendStep;
+        (void)backbone(qj, perturbed_[j]);
       }
       have_bend_rates = true;
     }
     // E = Σ ½·k·d², ∂d/∂p = n: Q_j = −k·d·nᵀ·∂p/∂q_j.
     const Eigen::Vector3d push = -k * d / distance * outward;
-    out.generalised[0] += push.z();                                     // ∂p/∂q1 = ẑ
-    out.generalised[1] += push.dot(Eigen::Vector3d::UnitZ().cross(p));  // ∂p/∂q2 = ẑ × p
+    if (shaft_) {
+      out.generalised[0] += push.dot(perturbed_[4][i] - perturbed_[5][i]) / (2.0 * kBendStep);
+      out.generalised[1] += push.dot(roll_axis.cross(p - base_position));  // a turn about the base's tangent
+    } else {
+      out.generalised[0] += push.z();                                     // ∂p/∂q1 = ẑ
+      out.generalised[1] += push.dot(Eigen::Vector3d::UnitZ().cross(p));  // ∂p/∂q2 = ẑ × p
+    }
     out.generalised[2] += push.dot(perturbed_[0][i] - perturbed_[1][i]) / (2.0 * kBendStep);
     out.generalised[3] += push.dot(perturbed_[2][i] - perturbed_[3][i]) / (2.0 * kBendStep);
     out.total_force += k * d;

@@ -14,6 +14,7 @@
 #include "tendril/drivers/sim/simulation.hpp"
 #include "tendril/drivers/sim/srmc_plant.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
+#include "tendril/teleop/vessel_shaft.hpp"
 
 namespace tendril::sim {
 namespace {
@@ -123,6 +124,64 @@ TEST(CatheterVesselContact, GeneralisedForcesAreMinusTheEnergyGradient) {
       const double slope = -(contact.energy(plus) - contact.energy(minus)) / (2.0 * h);
       EXPECT_NEAR(f.generalised[static_cast<std::size_t>(j)], slope, 1e-6 + 1e-4 * std::abs(slope))
           << "joint " << j << " at " << q.transpose();
+    }
+  }
+}
+
+// Issue 31: the passive shaft along the vessel. An arc channel whose straight lead-in starts at the entry
+// (0, 0, L1 + L2): before the entry the base is (0, 0, q1) on the axis, as without a shaft; with the base
+// in the bend it sits on the arc, its axis the arc's tangent, and a catheter bent like the arc touches
+// nothing where the straight one of before presses on the wall.
+TEST(VesselShaft, TheSteerableBaseFollowsTheCenterlineAndItsTangent) {
+  const double L = 40.8, lead = 10.0, radius = 60.0;
+  auto channel = arc_channel(lead, radius, 1.2, 0.2);
+  for (auto& p : channel) p.z() += L;
+  teleop::CenterlinePolyline polyline{channel, {}};
+  const teleop::VesselShaft shaft(polyline, L);
+  Eigen::Matrix3d r;
+  Eigen::Vector3d p;
+  shaft.section_base(25.0, r, p);  // before the entry: the introducer
+  EXPECT_NEAR((p - Eigen::Vector3d(0.0, 0.0, 25.0)).norm(), 0.0, 1e-6);
+  EXPECT_NEAR((r - Eigen::Matrix3d::Identity()).norm(), 0.0, 1e-6);
+  const double s = 40.0;  // 30 mm into the arc
+  shaft.section_base(L + lead + s, r, p);
+  const double a = s / radius;
+  EXPECT_NEAR(
+      (p - Eigen::Vector3d(radius * (1.0 - std::cos(a)), 0.0, L + lead + radius * std::sin(a))).norm(), 0.0,
+      0.05);
+  EXPECT_NEAR((r.col(2) - Eigen::Vector3d(std::sin(a), 0.0, std::cos(a))).norm(), 0.0, 0.01);
+  EXPECT_NEAR(r.col(1).y(), 1.0, 1e-3);  // parallel transport in the bend's plane keeps ŷ
+
+  // In the channel (with the introducer before it), straight bends: with the shaft the section starts
+  // along the arc, without it the straight catheter leaves the arc and presses on the wall.
+  std::vector<Eigen::Vector3d> tube;
+  for (double z = -1.0; z < L; z += 0.5) tube.emplace_back(0.0, 0.0, z);
+  tube.insert(tube.end(), channel.begin(), channel.end());
+  CatheterVesselContactParameters cp;
+  cp.lumen_radius = 2.5;
+  CatheterVesselContact straight(tube, shape(), cp);
+  CatheterVesselContact on_shaft(tube, shape(), cp);
+  on_shaft.set_shaft(shaft);
+  const Eigen::Vector4d q(L + lead + s, 0.0, 0.0, 0.0);
+  EXPECT_GT(straight.evaluate(q).points_in_contact, 0);
+  const auto f = on_shaft.evaluate(q);
+  // A straight 40.8 mm section on a 60 mm arc: its tip is 40.8²/(2·60) ≈ 13.9 mm off — still touching,
+  // but far less than the straight shaft's whole 80 mm lever.
+  EXPECT_LT(f.max_force, straight.evaluate(q).max_force);
+
+  // And the generalised forces are still −∂E/∂q, insertion and roll now along the shaft.
+  for (const Eigen::Vector4d& qq :
+       {Eigen::Vector4d(L + lead + s, 0.3, 1.0, -1.0), Eigen::Vector4d(L + 20.0, -0.2, 2.0, 1.0)}) {
+    const auto g = on_shaft.evaluate(qq);
+    ASSERT_GT(g.points_in_contact, 0) << qq.transpose();
+    for (int j = 0; j < 4; ++j) {
+      constexpr double h = 1e-5;
+      Eigen::Vector4d plus = qq, minus = qq;
+      plus[j] += h;
+      minus[j] -= h;
+      const double slope = -(on_shaft.energy(plus) - on_shaft.energy(minus)) / (2.0 * h);
+      EXPECT_NEAR(g.generalised[static_cast<std::size_t>(j)], slope, 1e-5 + 1e-3 * std::abs(slope))
+          << "joint " << j << " at " << qq.transpose();
     }
   }
 }

@@ -20,6 +20,22 @@ using safety::OperatingState;
 
 constexpr const char* kConfigurationNames[4] = {"insertion", "roll", "theta_proximal", "theta_distal"};
 constexpr const char* kSpringNames[2] = {"proximal", "distal"};
+// The distance a hold's "withdraw N mm" offers (mm): about a third of the distal segment, enough to take
+// the tip back out of the bend that held it (chosen here; the seeds give none).
+constexpr double kSuggestedWithdrawMm = 5.0;
+
+// Why the last relax stopped, in words: "the distal bend drive at its upper limit (4.9 mm)".
+std::string relax_stop_words(const CatheterSnapshot& s) {
+  if (s.relax_outcome == RelaxOutcome::at_limit && s.relax_limit_joint >= 2) {
+    char text[96];
+    std::snprintf(text, sizeof text, "the %s bend drive at its %s limit (%.1f mm)",
+                  s.relax_limit_joint == 2 ? "proximal" : "distal", s.relax_limit_upper ? "upper" : "lower",
+                  s.relax_limit_mm);
+    return text;
+  }
+  if (s.relax_outcome == RelaxOutcome::timed_out) return "it timed out before the springs relaxed";
+  return std::string(to_string(s.relax_outcome)).insert(0, "outcome ");
+}
 
 json vec(const Eigen::Vector4d& v) { return {v[0], v[1], v[2], v[3]}; }
 
@@ -73,6 +89,21 @@ class CatheterApi final : public RobotApiExtension {
     if (robot_.has_evdev()) sources.push_back("evdev");
     if (robot_.has_analog_joystick()) sources.push_back("analog");
     out["joystick_sources"] = sources;
+    // Whether the bi-plane imaging images this catheter (tendrild picks the imaged robot; imaged_robot.hpp).
+    out["imaged"] = robot_.guidance().tracking();
+    // The mounted catheter's design, as the planner reads it from the robot file ("kinematics"): a plan
+    // carries the design it was made for, and one made for another catheter is not followable here.
+    try {
+      const auto& k = robot_.config().settings.at("kinematics");
+      out["design"] = {{"L1", k.at("segment_lengths_mm").at(0).get<double>()},
+                       {"L2", k.at("segment_lengths_mm").at(1).get<double>()},
+                       {"delta2", k.at("plane_offset_rad").get<double>()},
+                       {"flexure_rad", k.value("flexure_rad", 0.0)},
+                       {"k1", k.at("bend_gain_rad_per_mm").at(0).get<double>()},
+                       {"k2", k.at("bend_gain_rad_per_mm").at(1).get<double>()}};
+    } catch (const std::exception&) {
+      out["design"] = nullptr;  // no planning design in the file
+    }
   }
 
   void state(json& out) const override {
@@ -250,6 +281,10 @@ class CatheterApi final : public RobotApiExtension {
       next = "Relaxing: the bend drives follow their springs until both are within " + mm(0.5 * d.resume_mm) +
              " (now " + mm(value) + "). Pause stops it.";
     } else if (value > bound) {
+      char withdraw_text[64];
+      std::snprintf(withdraw_text, sizeof withdraw_text, "(insertion backwards, e.g. withdraw %.0f mm)",
+                    kSuggestedWithdrawMm);
+      const std::string withdraw_words = withdraw_text;
       const bool stuck =
           s.relax_outcome == RelaxOutcome::timed_out || s.relax_outcome == RelaxOutcome::at_limit;
       next =
@@ -257,8 +292,8 @@ class CatheterApi final : public RobotApiExtension {
                ? std::string()
                : "Resume would hold again at once: " + which + " is deflected " + mm(value) + ". ") +
           "Resume needs both springs within " + mm(bound) + ": " +
-          (stuck ? "the last relax stopped short (" + std::string(to_string(s.relax_outcome)) +
-                       "), so withdraw the catheter (insertion backwards) and Relax again; then Resume."
+          (stuck ? "the last relax stopped short (" + relax_stop_words(s) + "), so withdraw the catheter " +
+                       withdraw_words + " and Relax again; then Resume."
                  : relax_how + (s.retraction_only ? " or withdraw the catheter (insertion backwards)" : "") +
                        "; then Resume.");
     } else if (s.hold_code != safety::FaultCode::kNone) {
@@ -274,10 +309,18 @@ class CatheterApi final : public RobotApiExtension {
     hold["cleared"] = cleared;
     hold["allowed"] = allowed;
     hold["resume_bound_mm"] = bound;
-    hold["withdraw"] = {{"running", s.withdrawing}};
+    // "withdraw N mm": the command that withdraws a chosen distance, with the distance suggested.
+    hold["withdraw"] = {{"running", s.withdrawing},
+                        {"suggested_mm", kSuggestedWithdrawMm},
+                        {"command", {{"command", "withdraw"}, {"distance_mm", kSuggestedWithdrawMm}}}};
     hold["relax"] = {{"running", s.relaxing},
                      {"outcome", s.relax_outcome == RelaxOutcome::none ? json(nullptr)
                                                                        : json(to_string(s.relax_outcome))}};
+    if (s.relax_outcome == RelaxOutcome::at_limit && s.relax_limit_joint >= 2)
+      hold["relax"]["limit"] = {
+          {"joint", robot_.config().joints[static_cast<std::size_t>(s.relax_limit_joint)].name()},
+          {"side", s.relax_limit_upper ? "upper" : "lower"},
+          {"limit_mm", s.relax_limit_mm}};
   }
 
   ApiResult move_configuration(const json& body) {

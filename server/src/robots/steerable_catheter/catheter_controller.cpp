@@ -288,7 +288,7 @@ void CatheterController::start_relax(ControlContext& ctx) noexcept {
 void CatheterController::relax(ControlContext& ctx) noexcept {
   if (!relaxing_) return;
   const auto& d = robot_.settings_.deflection;
-  char text[96];
+  char text[192];
   auto end = [&](RelaxOutcome outcome) {
     relaxing_ = false;
     relax_outcome_ = outcome;
@@ -324,9 +324,15 @@ void CatheterController::relax(ControlContext& ctx) noexcept {
     const double hi = std::min(j.upper - j.soft_margin, ctx.limits->upper[i]);
     if ((ctx.q_des[i] < lo && ctx.q_des[i] < current[i]) ||
         (ctx.q_des[i] > hi && ctx.q_des[i] > current[i])) {
+      relax_limit_joint_ = static_cast<int>(i);
+      relax_limit_upper_ = ctx.q_des[i] > hi;
       ctx.q_des[i] = current[i];
-      std::snprintf(text, sizeof text, "relax stopped: drive '%s' at its limit with %.2f mm left; withdraw",
-                    j.name.c_str(), worst);
+      relax_limit_mm_ = relax_limit_upper_ ? hi : lo;
+      std::snprintf(text, sizeof text,
+                    "relax stopped: the %s drive at its %s limit (%.1f mm) with %.2f mm of spring deflection "
+                    "left; withdraw",
+                    i == 2 ? "proximal bend" : "distal bend", relax_limit_upper_ ? "upper" : "lower",
+                    relax_limit_mm_, worst);
       return end(RelaxOutcome::at_limit);
     }
     ctx.qd_des[i] = (ctx.q_des[i] - current[i]) / ctx.period;
@@ -479,6 +485,9 @@ void CatheterController::publish(const ControlContext& ctx) noexcept {
   s.joystick_axes = joystick_axes_;
   s.relaxing = relaxing_;
   s.relax_outcome = relax_outcome_;
+  s.relax_limit_joint = relax_limit_joint_;
+  s.relax_limit_upper = relax_limit_upper_;
+  s.relax_limit_mm = relax_limit_mm_;
   s.withdrawing = withdrawing_;
   s.guidance_lost = ctx.mode == kImageGuidedMode && guidance_lost_;
   s.guidance_age_s = ctx.mode == kImageGuidedMode ? ctx.t - guided_fix_t_ : -1.0;

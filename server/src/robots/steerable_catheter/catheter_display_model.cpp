@@ -1,6 +1,8 @@
 #include "steerable_catheter/catheter_robot.hpp"
 
 #include <algorithm>
+#include <array>
+#include <span>
 #include "tendril/server/config.hpp"
 
 #include "tendril/teleop/catheter_kinematics.hpp"
@@ -65,6 +67,45 @@ class ModalCatheterModel final : public RobotKinematics {
   std::size_t points_per_segment_;
 };
 
+// A display model on the passive shaft (issue 31): the inner model's steerable section drawn at zero
+// insertion, placed on the base the shaft lying along the vessel gives at insertion q1; the inner
+// model's straight shaft (its first point, when it draws one) becomes points along the vessel.
+class ShaftDisplayModel final : public RobotKinematics {
+ public:
+  ShaftDisplayModel(std::unique_ptr<RobotKinematics> inner, teleop::VesselShaft shaft, double shaft_length)
+      : inner_(std::move(inner)), shaft_(std::move(shaft)), shaft_length_(shaft_length) {}
+  std::string frame() const override { return inner_->frame(); }
+  std::vector<Eigen::Vector3d> shape(std::span<const double> q) const override {
+    std::array<double, 4> at_zero{0.0, q[1], q[2], q[3]};
+    auto local = inner_->shape(at_zero);
+    std::vector<Eigen::Vector3d> out;
+    std::size_t first = 0;
+    if (shaft_length_ > 0 && !local.empty() && local.front().head<2>().norm() < 1e-9 &&
+        local.front().z() < -1e-9) {
+      first = 1;  // the inner model's shaft start: replaced by the shaft along the vessel, a point a mm
+      for (double back = shaft_length_; back > 0.0; back -= 1.0)
+        out.push_back(shaft_.shaft_point(q[0], back));
+    }
+    const std::size_t drawn = out.size();
+    out.insert(out.end(), local.begin() + static_cast<std::ptrdiff_t>(first), local.end());
+    shaft_.place(q[0], std::span<Eigen::Vector3d>(out).subspan(drawn));
+    return out;
+  }
+  Pose tip(std::span<const double> q) const override {
+    std::array<double, 4> at_zero{0.0, q[1], q[2], q[3]};
+    const auto t = inner_->tip(at_zero);
+    Eigen::Matrix3d r;
+    Eigen::Vector3d p;
+    shaft_.section_base(q[0], r, p);
+    return Pose{p + r * t.position, Eigen::Quaterniond(r * t.orientation.toRotationMatrix())};
+  }
+
+ private:
+  std::unique_ptr<RobotKinematics> inner_;
+  teleop::VesselShaft shaft_;
+  double shaft_length_;
+};
+
 [[noreturn]] void fail(const std::string& file, const std::string& key, const std::string& expected,
                        const nlohmann::json& got) {
   throw ConfigError(file + ": kinematics." + key + ": expected " + expected + ", got " + got.dump());
@@ -86,6 +127,13 @@ std::array<double, 2> pair(const nlohmann::json& j, const std::string& key, cons
 }
 
 }  // namespace
+
+std::unique_ptr<RobotKinematics> make_shaft_display_model(std::unique_ptr<RobotKinematics> inner,
+                                                          teleop::VesselShaft shaft,
+                                                          const nlohmann::json& k) {
+  const double shaft_length = k.value("shaft_display_length_mm", 0.0);
+  return std::make_unique<ShaftDisplayModel>(std::move(inner), std::move(shaft), shaft_length);
+}
 
 std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(
     const teleop::ModalCatheterParameters& assembled, const nlohmann::json& kinematics) {

@@ -77,6 +77,21 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
     display_ = make_modal_catheter_display_model(assembled_shape(settings_),
                                                  rc.settings.value("kinematics", nlohmann::json::object()));
   }
+  // The passive shaft lies along the scene's vessel when the catheter is in it (issue 31; vessel_shaft.hpp):
+  // the scene has a vessel, and a simulated plant, if configured with a vessel, touches that one.
+  const auto& scene = assembly.scene_vessel();
+  const bool other_channel = settings_.simulation.vessel && !settings_.simulation.vessel->from_scene;
+  if (!scene.empty() && !other_channel) {
+    try {
+      const auto placed =
+          teleop::transformed(scene.front(), teleop::placement_at_entry(scene.front(), *vessel_entry()));
+      shaft_.emplace(placed, settings_.nominal.proximal.length + settings_.nominal.distal.length);
+    } catch (const std::exception& e) {
+      throw ConfigError(file + ": the scene vessel, along which the catheter's shaft lies: " + e.what());
+    }
+    display_ = make_shaft_display_model(std::move(display_), *shaft_,
+                                        rc.settings.value("kinematics", nlohmann::json::object()));
+  }
   try {
     map_ = std::make_unique<teleop::CatheterConfigurationMap>(settings_.nominal, settings_.rates);
   } catch (const std::invalid_argument& e) {

@@ -27,6 +27,7 @@
 #include "tendril/teleop/catheter_configuration.hpp"
 #include "tendril/teleop/modal_catheter_kinematics.hpp"
 #include "tendril/teleop/quintic_interpolator.hpp"
+#include "tendril/teleop/vessel_shaft.hpp"
 
 namespace tendril::sim {
 class SimulatedAnalogJoystick;
@@ -83,6 +84,11 @@ struct CatheterSnapshot {
   std::array<double, 4> joystick_axes{};
   bool relaxing = false;
   RelaxOutcome relax_outcome = RelaxOutcome::none;
+  // With relax_outcome at_limit: which bend drive (2 proximal, 3 distal), which side, and the limit the
+  // setpoint is held at (mm: the joint limit less its soft margin, or the operating limit).
+  int relax_limit_joint = -1;
+  bool relax_limit_upper = false;
+  double relax_limit_mm = 0.0;
   bool withdrawing = false;
   bool guidance_lost = false;    // image_guided: no replanned target for kTrackingLostS
   double guidance_age_s = -1.0;  // image_guided: control time since the last target taken (-1: none)
@@ -143,6 +149,9 @@ class CatheterController final : public RobotController {
   bool withdrawing_ = false;      // held: insertion moving back to withdraw_to_ (mm)
   double withdraw_to_ = 0.0;
   RelaxOutcome relax_outcome_ = RelaxOutcome::none;
+  int relax_limit_joint_ = -1;
+  bool relax_limit_upper_ = false;
+  double relax_limit_mm_ = 0.0;
   std::uint64_t guided_sequence_ = 0;  // the last replanned target taken
   double guided_fix_t_ = 0.0;          // control time it was taken (or the mode entered)
   bool guidance_lost_ = false;
@@ -177,6 +186,9 @@ class SteerableCatheter final : public RobotPlugin {
   // the arc length that reached the vessel; false / nullopt otherwise. Any thread.
   bool true_backbone(std::vector<Eigen::Vector3d>& out) const;
   std::optional<double> true_insertion_mm() const noexcept;
+  // The SIMULATED plant's backbone (world mm: the true catheter's with one, else the plant's own shape
+  // at its drives and carriages); false without a simulation. Any thread (tests, measurements).
+  bool simulated_backbone(std::vector<Eigen::Vector3d>& out) const;
 
   const RobotConfig& config() const noexcept { return config_; }
   const CatheterSettings& settings() const noexcept { return settings_; }
@@ -190,6 +202,10 @@ class SteerableCatheter final : public RobotPlugin {
   // +z — the origin of the path planner's insertion frame (shape_error_planner.hpp).
   std::optional<Eigen::Isometry3d> vessel_entry() const override;
   double lumen_radius_mm() const noexcept { return lumen_radius_mm_; }
+  // The passive shaft along the scene's vessel (issue 31), when the catheter is in it: the scene has a
+  // vessel and the simulation (if any) touches that one. Null: the shaft is straight (free space, or a
+  // robot file's own channel).
+  const teleop::VesselShaft* shaft() const noexcept { return shaft_ ? &*shaft_ : nullptr; }
   bool has_evdev() const noexcept { return evdev_ != nullptr; }
   bool has_analog_joystick() const noexcept { return joystick_receiver_ != nullptr; }
   // The SIMULATED ADC nodes on a virtual bus (for tests), else null.
@@ -221,6 +237,7 @@ class SteerableCatheter final : public RobotPlugin {
   std::array<int, 4> evdev_output_{-1, -1, -1, -1};  // joint → output index of the evdev mapping
   std::unique_ptr<CatheterSimulation> simulation_;
   std::vector<Eigen::Vector3d> vessel_;  // simulated vessel centerline (mm), empty without one
+  std::optional<teleop::VesselShaft> shaft_;
   double lumen_radius_mm_ = 0.0;
   std::unique_ptr<ImageGuidance> guidance_;
   RobotService* service_ = nullptr;  // for the loaded plan, when image_guided is entered (network threads)
@@ -235,6 +252,10 @@ std::unique_ptr<RobotKinematics> make_modal_catheter_display_model(
     const teleop::ModalCatheterParameters& assembled, const nlohmann::json& kinematics);
 std::unique_ptr<RobotKinematics> make_catheter_display_model(const nlohmann::json& kinematics,
                                                              std::size_t joints, const std::string& file);
+// `inner` drawn on the passive shaft along the vessel (its shaft_display_length_mm along the vessel).
+std::unique_ptr<RobotKinematics> make_shaft_display_model(std::unique_ptr<RobotKinematics> inner,
+                                                          teleop::VesselShaft shaft,
+                                                          const nlohmann::json& kinematics);
 
 // The type's part of the network API (catheter_api.cpp).
 std::unique_ptr<RobotApiExtension> make_catheter_api(SteerableCatheter& robot, RobotService& service,

@@ -52,6 +52,7 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
   const auto plant_shape = truth.enabled ? true_shape(assembled_shape(s), truth) : assembled_shape(s);
   p.shape = plant_shape;
   simulation->plant = std::make_unique<sim::SrmcPlant>(drives, p);
+  simulation->plant_kinematics.emplace(plant_shape);
   simulation->plant->set_potentiometer_node(simulation->sensor_node.get());
   // "centerline": "scene" in a server whose scene has no vessel ("vessel": false, or a runtime built
   // without a server file): the catheter moves in free space, as the world has no vessel to touch.
@@ -102,6 +103,9 @@ void SteerableCatheter::attach_simulation(RobotAssembly& assembly, RobotAssembly
     } catch (const std::invalid_argument& e) {
       throw ConfigError(key + ": " + e.what());
     }
+    // In the scene's vessel the passive shaft lies along it (issue 31): the plant's steerable section
+    // starts on the centerline, as the display, the imaged backbone and the planner put it.
+    if (shaft_) simulation->contact->set_shaft(*shaft_);
     simulation->plant->set_vessel(simulation->contact.get());
   }
   bus.add_plant(simulation->plant.get());
@@ -152,7 +156,27 @@ bool SteerableCatheter::true_backbone(std::vector<Eigen::Vector3d>& out) const {
   constexpr std::size_t kPointsPerSegment = 20;
   const auto& kinematics = *simulation_->true_kinematics;
   out.resize(kinematics.backbone_point_count(kPointsPerSegment));
+  if (shaft_) {
+    const teleop::ModalCatheterKinematics::JointVector at_zero(0.0, q[1], q[2], q[3]);
+    out.resize(kinematics.backbone(at_zero, kPointsPerSegment, out));
+    shaft_->place(q[0], out);
+    return !out.empty();
+  }
   out.resize(kinematics.backbone(q, kPointsPerSegment, out));
+  return !out.empty();
+}
+
+bool SteerableCatheter::simulated_backbone(std::vector<Eigen::Vector3d>& out) const {
+  if (true_backbone(out)) return true;
+  if (!simulation_ || !simulation_->plant_kinematics) return false;
+  const auto st = simulation_->plant->state();
+  constexpr std::size_t kPointsPerSegment = 20;
+  const auto& kinematics = *simulation_->plant_kinematics;
+  out.resize(kinematics.backbone_point_count(kPointsPerSegment));
+  const teleop::ModalCatheterKinematics::JointVector q(shaft_ ? 0.0 : st.q[0], st.q[1], st.carriage[0],
+                                                       st.distal_actuation);
+  out.resize(kinematics.backbone(q, kPointsPerSegment, out));
+  if (shaft_) shaft_->place(st.q[0], out);
   return !out.empty();
 }
 

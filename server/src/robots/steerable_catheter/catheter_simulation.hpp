@@ -44,6 +44,8 @@ struct CatheterSimulation {
   // With a true_catheter: its insertion and its shape (read-only after set-up).
   std::unique_ptr<TrueInsertion> insertion;
   std::optional<teleop::ModalCatheterKinematics> true_kinematics;
+  // The plant's shape (the true catheter's with one), for simulated_backbone().
+  std::optional<teleop::ModalCatheterKinematics> plant_kinematics;
 };
 
 }  // namespace tendril::server

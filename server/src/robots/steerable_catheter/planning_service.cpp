@@ -18,6 +18,7 @@
 #include "tendril/drivers/sim/simulated_side_view_camera.hpp"
 #include "tendril/server/imaging_worker.hpp"
 #include "tendril/server/job_queue.hpp"
+#include "tendril/teleop/catheter_configuration.hpp"
 #include "tendril/teleop/catheter_kinematics.hpp"
 #include "tendril/teleop/design_optimiser.hpp"
 #include "tendril/teleop/shape_error_planner.hpp"
@@ -301,24 +302,36 @@ json plan_json(const teleop::PathPlan& plan, const RobotConfig& rc, const PlanRe
                const std::string& vessel_id, const teleop::VesselCenterline& aligned, double vessel_length,
                bool was_truncated, double compute_s) {
   auto steps = json::array();
+  // Each step's configuration ψ is what the configuration mode commands to reach its joint values: through
+  // the robot's configuration map (loss lines and coupling, eq. 4.21), so move_configuration with it lands
+  // on the step (issue 31: the planning model's bends, without the loss offsets, asked for a proximal
+  // drive past its limit). Without catheter settings, the planning model's bends.
+  std::optional<teleop::CatheterConfigurationMap> map;
+  try {
+    const auto settings = parse_catheter_settings(rc);
+    map.emplace(settings.nominal, settings.rates);
+  } catch (const std::exception&) {
+    map.reset();
+  }
   for (const auto& st : plan.steps) {
     const teleop::ConstantCurvatureCatheter model(st.design);
+    const Eigen::Vector4d psi =
+        map ? map->configuration(Eigen::Vector4d(st.q[0], st.q[1], st.q[2], st.q[3]))
+            : Eigen::Vector4d(st.q[0], st.q[1], model.proximal_bend(st.q), model.distal_bend(st.q));
     auto backbone = json::array();
     for (const auto& b : teleop::planned_backbone(st, kBackboneSpacing)) backbone.push_back(point_json(b));
-    steps.push_back({{"q", {st.q[0], st.q[1], st.q[2], st.q[3]}},
-                     {"configuration",
-                      {{"insertion", st.q[0]},
-                       {"roll", st.q[1]},
-                       {"theta_proximal", model.proximal_bend(st.q)},
-                       {"theta_distal", model.distal_bend(st.q)}}},
-                     {"flexure_rad", st.flexure},
-                     {"points", st.points},
-                     {"position_error_mm", st.position_error_mean},
-                     {"position_error_max_mm", st.position_error_max},
-                     {"orientation_error_deg", st.tangent_error_mean},
-                     {"orientation_error_max_deg", st.tangent_error_max},
-                     {"iterations", st.iterations},
-                     {"backbone", std::move(backbone)}});
+    steps.push_back(
+        {{"q", {st.q[0], st.q[1], st.q[2], st.q[3]}},
+         {"configuration",
+          {{"insertion", psi[0]}, {"roll", psi[1]}, {"theta_proximal", psi[2]}, {"theta_distal", psi[3]}}},
+         {"flexure_rad", st.flexure},
+         {"points", st.points},
+         {"position_error_mm", st.position_error_mean},
+         {"position_error_max_mm", st.position_error_max},
+         {"orientation_error_deg", st.tangent_error_mean},
+         {"orientation_error_max_deg", st.tangent_error_max},
+         {"iterations", st.iterations},
+         {"backbone", std::move(backbone)}});
   }
   auto path = json::array();
   const auto& pts = aligned.points();

@@ -11,15 +11,22 @@
 // groups of consecutive segments whose bounding sphere lies farther away are skipped, so a point
 // costs a few segment projections instead of the whole centerline (it runs 1000 times a second).
 // Allocation-free after construction; one instance per plant (it keeps scratch buffers).
+// With a shaft (set_shaft, issue 31) the steerable section starts where the passive shaft lying along
+// the vessel puts it (teleop::VesselShaft: on the centerline at q1 − (L1 + L2), the vessel's local
+// tangent) instead of at (0, 0, q1) on a straight axis; ∂p/∂q1 is then a central difference too and
+// ∂p/∂q2 a rotation about the base's tangent. The shaft itself lies on the centerline: no wall force.
 #pragma once
 
 #include <array>
 #include <cstddef>
+#include <span>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include <optional>
 #include "tendril/teleop/modal_catheter_kinematics.hpp"
+#include "tendril/teleop/vessel_shaft.hpp"
 
 namespace tendril::sim {
 
@@ -54,6 +61,12 @@ class CatheterVesselContact {
   // Wall energy at q (N·mm); also used by evaluate() for the differences.
   double energy(const Eigen::Vector4d& q, ContactForces* stats = nullptr) noexcept;
 
+  // Set-up, before evaluating: the passive shaft follows this vessel (see above).
+  void set_shaft(teleop::VesselShaft shaft) { shaft_.emplace(std::move(shaft)); }
+  const std::optional<teleop::VesselShaft>& shaft() const noexcept { return shaft_; }
+  // The backbone the contact uses at q (straight axis or on the shaft); returns the points written.
+  std::size_t backbone(const Eigen::Vector4d& q, std::span<Eigen::Vector3d> out) const noexcept;
+
   const teleop::ModalCatheterKinematics& shape() const noexcept { return shape_; }
   const std::vector<Eigen::Vector3d>& centerline() const noexcept { return centerline_; }
   const CatheterVesselContactParameters& parameters() const noexcept { return parameters_; }
@@ -80,7 +93,9 @@ class CatheterVesselContact {
   CatheterVesselContactParameters parameters_;
   std::vector<Eigen::Vector3d> backbone_;  // scratch, sized at construction
   // Backbones at q3 + h, q3 − h, q4 + h, q4 − h: ∂p/∂q of the bends by central differences.
-  std::array<std::vector<Eigen::Vector3d>, 4> perturbed_;
+  // With a shaft also at q1 + h, q1 − h.
+  std::array<std::vector<Eigen::Vector3d>, 6> perturbed_;
+  std::optional<teleop::VesselShaft> shaft_;
   std::vector<std::size_t> nearest_;  // per backbone point: last nearest segment (warm start)
 };
 
