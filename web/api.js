@@ -1,4 +1,4 @@
-// REST client for tendril's /api/v1 (see API.md). Same-origin fetch: the session cookie set by the
+// REST client for tendril's /api/v1 (server/openapi/openapi.json). Same-origin fetch: the session cookie set by the
 // server when the page was opened with ?token= goes along, and the lease belongs to that session.
 // If the server answers 401 (session lost, e.g. after a restart) and the page still holds the token
 // from its URL, the client first opens a new cookie session with it; only if that fails does it switch

@@ -1,7 +1,7 @@
 // tendril console: wires the REST API (commands, fallback polling) and the Foxglove WebSocket stream
 // (live joint states, operating state, scene, safety events) to the page. The joint panel is built
 // from GET /api/v1/robots, so any robot the server describes gets its own rows and limits.
-// Terms: CRTK measured_js / setpoint_js / move_jp (see API.md); lease = the right to command.
+// Terms: CRTK measured_js / setpoint_js / move_jp (CRTK's names); lease = the right to command.
 import {panelFor} from './robot_panels.js';
 import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';

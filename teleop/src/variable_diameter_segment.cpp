@@ -105,7 +105,7 @@ SegmentTwistJacobian segment_twist_jacobian(const SegmentConfiguration& psi, dou
   j(0, 1) = -length * sd * f.c2;
   j(1, 1) = -length * cd * f.c2;
   j(2, 1) = 0.0;
-  // Angular part (seed-000.md §2.7 [EXT], with cos θ_L = −sin Θ and sin θ_L = cos Θ).
+  // Angular part (seed 000 §2.7 extended, with cos θ_L = −sin Θ and sin θ_L = cos Θ).
   j(3, 0) = -sd;
   j(4, 0) = -cd;
   j(5, 0) = 0.0;

@@ -82,7 +82,7 @@ export function script(name) {
   return s;
 }
 
-// API.md error shape: {"error":{"code":"snake_case","message":"for a person"}}.
+// The API's error shape: {"error":{"code":"snake_case","message":"for a person"}}.
 export function assertErrorShape(res, status, code) {
   assert.equal(res.status, status, `expected HTTP ${status}, got ${res.status}: ${res.text}`);
   assert.ok(res.json && typeof res.json.error === 'object', `error body missing: ${res.text}`);

@@ -1,4 +1,4 @@
-// Planning and path following over REST (API.md "Planning"): vessel upload, plan jobs with
+// Planning and path following over REST: vessel upload, plan jobs with
 // progress, cancellation, bad input, loading a plan into path following, mode switches and steps.
 // Runs in order against the shared server; leaves the robot disabled, in joint mode, lease released.
 import {test, after} from 'node:test';

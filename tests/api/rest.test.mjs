@@ -1,4 +1,4 @@
-// REST contract tests (API.md) against a running tendrild with simulated drives. The tests run in
+// REST contract tests (server/openapi/openapi.json) against a running tendrild with simulated drives. The tests run in
 // order: lease -> enable -> move -> bad input -> e-stop -> reset, as an operator would.
 import {test, after, beforeEach} from 'node:test';
 import assert from 'node:assert/strict';

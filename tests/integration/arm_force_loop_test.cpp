@@ -1,4 +1,4 @@
-// The seed-002 probe controller (HybridPositionForceController on the UR5's SerialArmKinematics) closed
+// The ultrasound probe's controller (HybridPositionForceController on the UR5's SerialArmKinematics) closed
 // around the SIMULATED arm and force sensor through the hardware seam only, as a robot plug-in runs it
 // against a real UR5 over RTDE: the control cycle knows a hardware::JointInterface in velocity mode and a
 // hardware::ForceSensor, and the runtime steps every hardware::HardwareComponent before and after it.
@@ -6,7 +6,7 @@
 // within 8 rad/s²), the force sensor (1 kHz, 2 ms latency, 0.02 N noise) and tissue as a 0.5 N/mm spring.
 // Stepped simulated time only: nothing here reads a clock.
 //
-// The seed's numbers (spec/seed-002.md §7.3 and REQ-CTRL-3, its check simulation: 1-D spring tissue,
+// The seed's numbers (seed 002 §7.3 and REQ-CTRL-3, its check simulation: 1-D spring tissue,
 // start 5 mm above, dt 6–8 ms): monotone convergence on 0.8 N with no overshoot, contact after ≈ 3.8 s,
 // within 2 % of 0.8 N after 8.4 s at 0.5 N/mm.
 #include <gtest/gtest.h>

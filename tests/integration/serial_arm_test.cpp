@@ -1,7 +1,7 @@
 // The serial_arm robot type (server/src/robots/serial_arm) end to end through the runtime and the JSON
 // API, with config/robots/ur5_arm.json: the SIMULATED UR5 at the joint interface, its force sensor and
 // tissue, stepped simulated time at 1 kHz (nothing here reads a clock). Joint mode (move_jp), the
-// Cartesian mode (servo_cv, move_cp, servo_cp), measured_cf on the simulated contact, the seed-002 hard
+// Cartesian mode (servo_cv, move_cp, servo_cp), measured_cf on the simulated contact, the arm's hard
 // limits (F_max with retraction, a silent force sensor, the workspace box), the e-stop, refused goals,
 // and the catheter and the arm in one runtime.
 #include <gtest/gtest.h>

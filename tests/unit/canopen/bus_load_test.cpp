@@ -22,7 +22,7 @@ TEST(BusLoad, WorstCaseFrameBits) {
 }
 
 TEST(BusLoad, OneAxisCostsAbout345MicrosecondsPerCycleAtOneMegabit) {
-  // RPDO1 + TPDO1 + TPDO2, 6 bytes each: 3 x 115 bit = 345 us at 1 Mbit/s (DESIGN.md's ~210 us
+  // RPDO1 + TPDO1 + TPDO2, 6 bytes each: 3 x 115 bit = 345 us at 1 Mbit/s (a ~210 us estimate
   // counts RPDO + TPDO only, without worst-case stuffing).
   const auto load = estimate_bus_load(1'000'000, 1000us, axes(1), 0ms);
   EXPECT_DOUBLE_EQ(load.bits_per_cycle, 55.0 + 345.0);

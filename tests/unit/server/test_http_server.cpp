@@ -152,7 +152,7 @@ TEST_F(HttpServerTest, LeaseOwnershipCannotBeCopiedFromAName) {
 }
 
 TEST_F(HttpServerTest, PlainBearerScriptKeepsTheLeaseAcrossConnections) {
-  // Issue 14: a script following API.md with plain curl (bearer token only, one connection per call)
+  // Issue 14: a script using plain curl (bearer token only, one connection per call)
   // took the lease and was then refused by "connection:1", a connection that had already closed.
   start();
   const Reply taken = http_request(port_, bhttp::verb::post, "/api/v1/lease", "", bearer());

@@ -1,4 +1,4 @@
-// Seed 002 Appendix A with Table 1's numbers (spec/seed-002.md §7, REQ-CTRL-1..6).
+// Seed 002 Appendix A with Table 1's numbers (REQ-CTRL-1..6).
 #include "tendril/teleop/hybrid_force_controller.hpp"
 
 #include <gtest/gtest.h>

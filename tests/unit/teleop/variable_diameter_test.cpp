@@ -67,7 +67,7 @@ TEST(ScissorLinkage, RangeOfMotionT23) {
   EXPECT_NEAR(linkage.inner_radius_min(), 2.0 / (2.0 * std::sin(kPi / 8)), 1e-9);
   const double r_max = linkage.configuration_radius_max();
   EXPECT_NEAR(linkage.outer_radius(r_max) - linkage.inner_radius(r_max), 2.0, 1e-9);
-  // The seed's "26 % change of the outer diameter" for n = 8, with our d = 2 mm (seed-000.md §2.5).
+  // The seed's "26 % change of the outer diameter" for n = 8, with our d = 2 mm (seed 000 §2.5).
   const double change =
       (linkage.outer_radius_max() - linkage.outer_radius_min()) / linkage.outer_radius_max();
   EXPECT_NEAR(change, 0.26, 0.005);
@@ -255,7 +255,7 @@ TEST(VariableDiameterSegment, TwistJacobianMatchesFiniteDifferencesIncludingStra
 TEST(VariableDiameterSegment, EnergyGradientsMatchFiniteDifferencesWithTheCorrectedSquare) {
   std::mt19937 rng(5);
   const double ei = backbone_bending_stiffness(74000.0, 1.0);
-  EXPECT_NEAR(ei, 74000.0 * kPi / 64.0, 1e-9);  // ≈ 3.6e3 N·mm², seed-000.md §9
+  EXPECT_NEAR(ei, 74000.0 * kPi / 64.0, 1e-9);  // ≈ 3.6e3 N·mm² (E = 74 GPa)
   for (int trial = 0; trial < 30; ++trial) {
     const SegmentConfiguration psi = random_configuration(rng);
     const double r = 25.0 + trial, h = 1e-5;

@@ -1,4 +1,4 @@
-// SafetySupervisor: the per-robot safety state machine every command passes through (DESIGN §5).
+// SafetySupervisor: the per-robot safety state machine every command passes through.
 // States DISABLED → ENABLED ⇄ PAUSED, any → FAULT, plus an e-stop latch that only reset_estop()
 // clears. It checks goals and velocities against the robot's LimitSet, clamps each tick's setpoint
 // into the soft limits, holds the robot when the servo stream stops, and faults on tracking error,

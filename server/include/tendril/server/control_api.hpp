@@ -14,7 +14,7 @@
 
 namespace tendril::server {
 
-// Mirrors the API.md error shape: {"error":{"code":..., "message":...}} with an HTTP status.
+// The API's error shape: {"error":{"code":..., "message":...}} with an HTTP status.
 struct ApiResult {
   int status = 200;     // 200, 202, 400, 404, 409, 422, ...
   std::string code;     // snake_case error code; empty on success
@@ -78,7 +78,7 @@ class ControlApi {
 
   // Commands. The caller has already checked the token, the role and the lease.
   // `body` is the parsed JSON request body; the implementation checks shape, sizes, finiteness
-  // and limits and answers 400/422/409 with API.md error codes.
+  // and limits and answers 400/422/409 with the API's snake_case error codes.
   virtual ApiResult state_command(const std::string& robot, const nlohmann::json& body) = 0;
   virtual ApiResult mode(const std::string& robot, const nlohmann::json& body) = 0;
   virtual ApiResult move_jp(const std::string& robot, const nlohmann::json& body) = 0;

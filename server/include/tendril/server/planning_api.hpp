@@ -1,4 +1,4 @@
-// PlanningApi: long computations a robot type offers over REST as jobs (DESIGN.md §3: never on the
+// PlanningApi: long computations a robot type offers over REST as jobs (never on the
 // control thread) — vessel uploads, plans, designs, calibrations and the jobs that run them. The
 // HTTP front end routes /vessels, /plans, /designs, /jobs and /robots/{robot}/calibrations to it
 // (planning_routes.hpp); the steerable catheter's type provides the implementation.

@@ -1,5 +1,5 @@
 // RobotApiExtension: a robot type's part of the network API, at the edge (JSON in, JSON out, with the
-// API.md error shape). The JSON layer over RobotService (http/control_json.hpp) asks each robot's
+// API's error shape). The JSON layer over RobotService (http/control_json.hpp) asks each robot's
 // extension for the fields, commands, topics and routes its type adds; the core API knows none of them.
 #pragma once
 

@@ -22,7 +22,7 @@
 namespace tendril::server {
 
 // Why a command or a read-out was refused. The edge maps the kind onto its protocol (HTTP: 400, 404,
-// 409, 422, 503); `code` is the API.md snake_case code and `message` is written for a person.
+// 409, 422, 503); `code` is the API's snake_case code and `message` is written for a person.
 enum class ErrorKind : std::uint8_t {
   malformed,      // the request does not have the expected shape
   not_found,      // no such robot, plan, step or parameter

@@ -1,4 +1,4 @@
-// The robot seam: how a kind of robot plugs into the server (DESIGN.md §10).
+// The robot seam: how a kind of robot plugs into the server; the core names no robot.
 //
 //   robot file "kind" ──► RobotType (registered under that name) ──► RobotPlugin per robot:
 //     its settings (checked against its JSON Schema), kinematic model, modes and their controllers

@@ -12,7 +12,7 @@
 // (sim::ContactSurface) in its "arm.simulation" section; without it the file is refused.
 //
 // Units: joints in rad (rad/s, rad/s²) as the file's joints say; Cartesian positions in mm, twists in
-// mm/s and rad/s, forces in N — the units of tendril's Cartesian API (API.md measured_cp) and of the
+// mm/s and rad/s, forces in N — the units of tendril's Cartesian API (measured_cp, move_cp) and of the
 // teleop arm libraries. Nothing here is converted by the core.
 //
 // How the Cartesian modes move the arm: the controller integrates the joint setpoint q_des through the

@@ -1,7 +1,7 @@
 // Cartesian commands for a velocity-commanded serial arm, in CRTK's names:
 //   measured_cp / measured_cv — the tool pose and twist from the measured joints;
 //   servo_cv — a streamed twist, resolved to joint velocities every cycle;
-//   servo_cp — a streamed pose setpoint, tracked directly by the seed-002 pose law (A9 + A2–A8), whose
+//   servo_cp — a streamed pose setpoint, tracked directly by the Appendix A pose law (A9 + A2–A8), whose
 //              saturating speed profile keeps a jumpy stream smooth and within the caps;
 //   move_cp  — a pose goal, planned as a CartesianTrajectory (quintic time scaling, a straight line in
 //              position and a slerp in orientation on one clock) and tracked with the trajectory's twist
@@ -19,7 +19,7 @@
 
 namespace tendril::teleop {
 
-// Defaults: the seed-002 caps (Table 1's V_d and ω_d), since the arm that uses these is the ultrasound
+// Defaults: Appendix A's caps (Table 1's V_d and ω_d), since the arm that uses these is the ultrasound
 // arm. The accelerations are our choice: gentle enough for a probe on tissue (50 mm/s reached in 0.5 s).
 struct CartesianLimits {
   double max_linear_speed = 50.0;          // mm/s

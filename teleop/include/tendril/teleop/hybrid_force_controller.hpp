@@ -1,5 +1,5 @@
 // HybridPositionForceController: the ultrasound probe's task-space velocity controller of seed 002
-// Appendix A (spec/seed-002.md §7, REQ-CTRL-1..7), with the spec's errata fixed (E8–E15).
+// Appendix A (eqs. A1–A14, REQ-CTRL-1..7), with its errata fixed (E8–E15).
 //
 // A pure function of (arm model, arm data, controller state, inputs, dt): step() reads the measured
 // joints, the target probe pose and the force sensor, and returns joint velocities through the damped

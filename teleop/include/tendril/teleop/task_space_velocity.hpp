@@ -1,4 +1,4 @@
-// The task-space velocity laws of seed 002 Appendix A (spec/seed-002.md §7), shared by the ultrasound
+// The task-space velocity laws of seed 002 Appendix A, shared by the ultrasound
 // probe's hybrid position/force controller (hybrid_force_controller.hpp) and the plain Cartesian
 // commands (cartesian_control.hpp), and the step from a twist to joint velocities (A13–A14) with the
 // joint limits applied. Pure functions; noexcept and allocation-free.

@@ -21,7 +21,7 @@ struct ScissorLinkageParameters {
   double inner_arm_length = 20.0;  // l₁ (mm), Table 2.3
   double outer_arm_length = 20.0;  // l₂ (mm); l₂ = l₁ is the seed's design rule for a constant elbow angle
   // d (mm). The seed gives no value; 2 mm reproduces its "26 % change of the outer diameter" for
-  // n = 8, l₁ = 20 mm (25.8 %, seed-000.md §2.5), so it is our default.
+  // n = 8, l₁ = 20 mm (25.8 %, seed 000 §2.5), so it is our default.
   double hinge_diameter = 2.0;
 };
 

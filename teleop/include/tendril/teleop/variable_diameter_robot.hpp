@@ -25,7 +25,7 @@
 //   single direction n = [c_s; 1]/‖·‖ (a changes, the backbones follow, ψ stays), so the projected
 //   finite-difference gradient is n·n_a·∂‖τ̃_s‖/∂a at fixed ψ: two statics evaluations (central
 //   difference, step `force_difference_step`) instead of fourteen, and well defined when a segment is
-//   straight, where ψ(q̃) is not differentiable. ∇H is analytic (seed-000.md §2.10 [DERIVED]).
+//   straight, where ψ(q̃) is not differentiable. ∇H is analytic (derived here from H).
 // - Units of the objective. The model works in mm, N, s, but the seed's λ = 0.05 carries no unit, and
 //   g mixes newtons (‖τ̃_s‖) with an inverse length (H), so the units of g decide both how fast a moves
 //   and where the force and limit terms balance. Read in mm (λ in mm²/(N·s)) the gradient moves a by
@@ -89,7 +89,7 @@ struct VariableDiameterRobotParameters {
   DiskInterferenceParameters disks{};  // L = 200 mm, n_d = 8, h_d = 10 mm (PF 0.4), per segment
   double backbone_diameter = 1.0;      // mm (Table 2.3)
   // N/mm². The seed prints 74 MPa; as a backbone modulus that is a units slip for 74 GPa (nitinol is
-  // 40–75 GPa; seed-000.md §9 erratum 1), so 74 GPa is the default and tests run both.
+  // 40–75 GPa), so 74 GPa is the default and tests run both.
   double youngs_modulus = 74000.0;
   double backbone_lower = -200.0;  // q_min (mm), §2.11
   double backbone_upper = 200.0;   // q_max (mm)

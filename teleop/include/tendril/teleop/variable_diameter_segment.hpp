@@ -11,7 +11,7 @@
 //   its joint value (push–pull displacement) is q_i = L_i − L. The segment bends towards the base-frame
 //   direction (cos δ, −sin δ, 0), where the shortened backbones are.
 //   The end disk's frame is R = Rz(−δ)·Ry(−Θ)·Rz(δ) at p = (L/Θ)·[cos δ(cos Θ − 1), −sin δ(cos Θ − 1),
-//   sin Θ] (seed-000.md §2.7 [EXT]); its backbone holes line up with the next segment's backbones.
+//   sin Θ] (seed 000 §2.7, extended); its backbone holes line up with the next segment's backbones.
 //   A twist is [v (mm/s); ω (rad/s)] of the end disk's centre, in the segment's base frame.
 // Lengths in mm, forces in N, moments in N·mm, Young's modulus in N/mm² (MPa).
 #pragma once

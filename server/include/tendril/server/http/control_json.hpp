@@ -1,5 +1,5 @@
 // JsonControlApi: the JSON face of RobotService for the HTTP/WebSocket front end. Requests are parsed
-// and checked for shape here and become typed calls; typed results and errors become the API.md JSON
+// and checked for shape here and become typed calls; typed results and errors become the API's JSON
 // bodies and status codes. Each robot type's RobotApiExtension adds its fields, commands and topics.
 // The topics' messages (joint states, operating state, scene, diagnostics, safety events) are built
 // here too, with change detection so the publisher sends only what changed.

@@ -1,9 +1,9 @@
 // HttpServer: the REST + WebSocket front end of tendrild (Boost.Beast), on one port.
 //
-// - REST under /api/v1 (API.md) mapped onto ControlApi; GET /metrics at the root; static console files.
+// - REST under /api/v1 mapped onto ControlApi; GET /metrics at the root; static console files.
 // - WebSocket /ws speaking Foxglove WebSocket protocol v1 (subprotocol "foxglove.websocket.v1").
 //
-// Access (API.md "Start-up and access"):
+// Access:
 // - Every call but GET /api/v1/health and static files needs the token: `Authorization: Bearer <token>`,
 //   the session cookie `tendril_session` (set when a page is requested with `?token=`; it holds a random
 //   session id, never the token), or `?token=` on the WebSocket URL.

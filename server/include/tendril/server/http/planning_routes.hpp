@@ -1,4 +1,4 @@
-// REST routes of planning and path following (API.md "Planning"): /vessels, /plans, /designs,
+// REST routes of planning and path following: /vessels, /plans, /designs,
 // /jobs and /robots/{robot}/path_following. HttpServer::Impl::handle_api hands every request it does
 // not route itself to route_planning(); this file owns the paths, methods and roles of these routes.
 #pragma once

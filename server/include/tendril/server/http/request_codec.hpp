@@ -20,7 +20,7 @@ namespace tendril::server::http {
 // Deeper JSON nesting than this is refused (keeps parser and printer stacks small).
 inline constexpr int kMaxJsonDepth = 32;
 
-// Parses a REST request body. An empty body counts as `{}`. Answers in the API.md error shape:
+// Parses a REST request body. An empty body counts as `{}`. Answers in the API's error shape:
 // 413 `body_too_large` when over `max_bytes`, 400 `malformed_json` for bad JSON, too deep nesting or a
 // body that is not a JSON object, 400 `duplicate_key` for an object with the same key twice. On
 // success `body` holds the object. Linear in the body's size (teleop::parse_strict_json). Never throws

@@ -9,7 +9,7 @@
 // latency (a reading becomes visible `latency` after it was sampled, stamped with its sampling time).
 //
 // Defaults (the seed names the K3D40 but no range or rate): ±10 N range, 0.02 N noise (1σ, the
-// force-sensor noise of the spec's digital-twin scenario, seed-002.md §16 step 4), zero bias (settable:
+// force-sensor noise of the spec's digital-twin scenario, seed 002 §16 step 4), zero bias (settable:
 // real sensors are tared), 1 kHz sampling and 2 ms latency (amplifier filter and transport), so the
 // 500 Hz arm controller and a 1 kHz control loop always see a reading under 3 ms old. In stepped
 // simulation every sample due within a step sees the arm's state at the end of that step (the arm and
