@@ -112,7 +112,7 @@ else
 fi
 export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:detect_stack_use_after_return=0
 export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
-# Machine state the tests make (the arm's calibration store: README, "Calibrations (us_arm)") goes to a
+# Machine state the tests make (the arm's calibration store: teleop/ultrasound_arm/README.md) goes to a
 # folder of this run's own, never the user's ~/.local/state.
 TENDRIL_STATE_DIR="$(mktemp -d /tmp/tendril-test-state.XXXXXX)"
 export TENDRIL_STATE_DIR

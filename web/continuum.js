@@ -43,7 +43,7 @@ function rotY(t) { return [[Math.cos(t), 0, Math.sin(t)], [0, 1, 0], [-Math.sin(
 
 // The axes u (x, towards slot 0) and v (y) of a disk's plane, in {0}. In order of preference:
 // the disk's own orientation when the server sends it ([qx,qy,qz,qw]); the constant-curvature model
-// from the measured joints, ⁰R_d = Rz(roll)·Rz(δ)·Ry(θ·s/L)·Rz(−δ) (the README's frames: {d} with z
+// from the measured joints, ⁰R_d = Rz(roll)·Rz(δ)·Ry(θ·s/L)·Rz(−δ) (teleop/sdu_continuum/README.md's frames: {d} with z
 // along the tangent and x towards slot 0°); else the tangent estimated from the neighbouring disks and
 // x the base's +x projected into the disk's plane (slot 0 then only approximately placed).
 function diskAxes(disks, i, model) {

@@ -424,7 +424,7 @@ struct DdsBridge::Impl {
     }
     Bucket& b = it->second;
     // A gap up to a million; a larger jump or a step back is a writer that started counting anew.
-    // A writer numbers its samples from 0 (README, DDS), so the first one taken counts those before it
+    // A writer numbers its samples from 0 (dds/README.md), so the first one taken counts those before it
     // too: a flood overwrites the oldest in the reader's history before the bridge's first take, and
     // counted only between taken samples, those were missing from the total (a test run: 57).
     if (b.has_id && request_id > b.last_id && request_id - b.last_id <= 1'000'000)

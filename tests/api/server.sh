@@ -87,7 +87,7 @@ JSON
   export CYCLONEDDS_URI="${CYCLONEDDS_URI:-file://$repo_root/tests/dds/loopback.xml}"
   # TENDRIL_TOKEN in the environment would override the config's token (tendrild --help): a second
   # server started from this shell must not inherit the first one's.
-  # Calibrations and other machine state (README, "Calibrations (us_arm)"): each test server starts
+  # Calibrations and other machine state (teleop/ultrasound_arm/README.md): each test server starts
   # with an empty store in its own work folder, never the user's ~/.local/state nor another server's.
   (cd "$repo_root" && TENDRIL_TOKEN="$token" TENDRIL_STATE_DIR="$tendrild_workdir/state" \
      exec "$binary" "${args[@]}") > "$TENDRIL_LOG" 2>&1 &

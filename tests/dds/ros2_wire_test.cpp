@@ -1,4 +1,4 @@
-// tendril's DDS face as ROS 2 sees it (README, "DDS", ROS 2 compatibility). No ROS 2 installation is
+// tendril's DDS face as ROS 2 sees it (dds/README.md, ROS 2 compatibility). No ROS 2 installation is
 // at hand, so what ROS 2's rmw_cyclonedds would require is asserted from its definitions:
 //   - the topics and DDS type names tendrild's bridge registers, read back from DDS discovery (the
 //     DCPSPublication and DCPSSubscription built-in topics), with the QoS of each, so that a renamed
@@ -391,7 +391,7 @@ TEST_F(Ros2WireTest, StateTopicsNeedRos2sSensorDataQos) {
   // rclcpp::SensorDataQoS(): best effort, keep last 5, volatile — matches.
   EXPECT_TRUE(matches(participant, "rt/qos_test/sensor_data", DDS_RELIABILITY_BEST_EFFORT, 5));
   // rclcpp's default subscription QoS: reliable, keep last 10 — a reliable reader is refused by a
-  // best-effort writer (README: ROS 2 subscribers of tendril's state use the sensor-data profile).
+  // best-effort writer (dds/README.md: ROS 2 subscribers of tendril's state use the sensor-data profile).
   EXPECT_FALSE(matches(participant, "rt/qos_test/default", DDS_RELIABILITY_RELIABLE, 10));
 }
 

@@ -42,7 +42,7 @@ struct World {
 
 bool within_limits(World& w, bool fail);
 
-// The arm's calibrate command writes calibration files (README, "Calibrations (us_arm)"): into a folder
+// The arm's calibrate command writes calibration files (teleop/ultrasound_arm/README.md): into a folder
 // of this run's own, removed at exit, unless the caller chose TENDRIL_STATE_DIR; never ~/.local/state.
 void use_own_state_dir() {
   const char* chosen = std::getenv("TENDRIL_STATE_DIR");

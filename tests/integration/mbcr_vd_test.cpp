@@ -144,7 +144,7 @@ TEST_F(MbcrTest, SeedCircleVariableDiameterLowersTheActuationForces) {
   ASSERT_EQ(op()["state"], "ENABLED") << op().dump();
   ASSERT_EQ(fixed.force.size(), 20001u);
   ASSERT_EQ(variable.force.size(), 20001u);
-  // The library's numbers (README, hook, 74 GPa): RMS 203.2 N fixed, 177.7 N varying.
+  // The library's numbers (teleop/mbcr_vd/README.md, hook, 74 GPa): RMS 203.2 N fixed, 177.7 N varying.
   EXPECT_NEAR(fixed.rms, 203.2, 0.3);
   EXPECT_NEAR(variable.rms, 177.7, 0.3);
   double sum_sq = 0.0, min_reduction = 1e9;

@@ -3,7 +3,7 @@
 // towards it at 50 mm/s. The disks' samples travel as CAN frames through the assembler into the
 // supervisor; the commanded speed scales down with the distance and the contact stops the segment in
 // the cycle it is felt. Run with the disks at 100 Hz (tendril's CAN layout) and at the seed's 4.26 Hz;
-// the stopping distance and time are printed (README, issue 16).
+// the stopping distance and time are printed (teleop/sdu_continuum/README.md).
 #include <gtest/gtest.h>
 
 #include <algorithm>

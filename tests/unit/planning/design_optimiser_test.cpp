@@ -16,7 +16,7 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 
 // Small budgets, ds = 2 mm and dq1 = 6 mm keep these runs to seconds under the sanitizers; the
-// defaults at the seed's ds 0.5 / dq1 3 (README, "Design optimisation") are what the benchmark times.
+// defaults at the seed's ds 0.5 / dq1 3 (teleop/steerable_catheter/README.md) are what the benchmark times.
 DesignOptimiserOptions test_budget() {
   DesignOptimiserOptions o;
   o.exploration_samples = 6;

@@ -8,9 +8,9 @@
 // motion (VS: two-term Fourier, 30 s period, y/z ±5 mm, x rotation ±3°, compensated by the target
 // update H_i^G(t) = H_P^G(t)·H_i^P of spec §6.2).
 //
-// What the twin leaves out (it says so in README): the arm's joints and the force loop — the probe is a
-// Cartesian integrator of the A8/A9 twist, held on the skin by position control, so the gate checks
-// the position and orientation conditions only.
+// What the twin leaves out (teleop/ultrasound_arm/README.md): the arm's joints and the force loop —
+// the probe is a Cartesian integrator of the A8/A9 twist, held on the skin by position control, so
+// the gate checks the position and orientation conditions only.
 #include <gtest/gtest.h>
 
 #include <algorithm>

@@ -1,7 +1,7 @@
 // DdsBridge: tendrild's DDS participant (Cyclone DDS C API). It publishes every robot's joint states,
 // operating state, tip pose and backbone shape, the safety events and the maps it is given, and takes
 // servo_jv, move_jp and state_command
-// samples as commands. README, "DDS", lists the topics, types and QoS.
+// samples as commands. dds/README.md lists the topics, types and QoS.
 //
 // Threads: one publisher thread reads the runtime's snapshots (the RobotService read-outs the
 // WebSocket's messages are made from) at publish_rate_hz; one command thread waits on the command

@@ -18,7 +18,7 @@
 
 namespace tendril::dds {
 
-// What a topic carries, which decides its QoS (README, "DDS"):
+// What a topic carries, which decides its QoS (dds/README.md):
 //   kState:   best-effort, keep-last 1, volatile: a lost sample is replaced by the next one.
 //   kEvent:   reliable, keep-last 64, transient-local: a late subscriber gets the recent events.
 //   kCommand: reliable, keep-last 64: a command is not lost on the way, a flood is cut by the rate

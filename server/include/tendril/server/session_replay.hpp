@@ -44,8 +44,8 @@ struct ReplayOptions {
   // After a seek each topic's last message within this much log time before the new position is
   // published at once (the state there); 0: nothing until the replay plays on.
   std::uint64_t seek_lookback_ns = 5'000'000'000;
-  // The data-section CRC is not checked at open (about 2 s per 270 MB, README): every chunk's own CRC
-  // is checked as it is played, and the summary's at open.
+  // The data-section CRC is not checked at open (about 2 s per 270 MB, record/README.md): every
+  // chunk's own CRC is checked as it is played, and the summary's at open.
   record::McapReaderOptions reader{.check_data_crc = false};
 };
 

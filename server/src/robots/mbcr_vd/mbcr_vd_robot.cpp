@@ -237,7 +237,8 @@ MbcrRobot::MbcrRobot(const RobotConfig& rc, RobotAssembly& assembly)
   if (!(settings_.parameters.backbone_lower < 0.0 && settings_.parameters.backbone_upper > 0.0))
     throw ConfigError(file +
                       ": joints: expected the backbones' soft limits to contain 0 (the straight robot)");
-  // The seed's circle starts on the hook branch (README: the branch whose diameter history is the seed's).
+  // The seed's circle starts on the hook branch (teleop/mbcr_vd/README.md: the branch whose diameter
+  // history is the seed's).
   circle_start_ = teleop::circle_start_configuration(model_, settings_.circle, teleop::CircleBranch::kHook);
   auto data = model_.make_data();
   const double miss = (model_.tip_pose(circle_start_, data).translation() -

@@ -70,7 +70,7 @@ struct UltrasoundSettings {
   // (a difference over one 8.3 ms tracker period: σ·√2·120 ≈ 50 mm/s from 0.3 mm, the speed cap). The
   // tracker's reports go through a critically damped alpha-beta filter (LimbPoseFilter) of this natural
   // frequency: both the targets and the feed-forward use its pose and velocity. 0: off (raw reports,
-  // the velocity from the last two). README ("The ultrasound arm") has the measurements behind 0.5 Hz.
+  // the velocity from the last two). teleop/ultrasound_arm/README.md has the measurements behind 0.5 Hz.
   double tracker_filter_hz = 0.5;
 };
 

@@ -12,7 +12,7 @@
 //   /tf                              foxglove.FrameTransforms: world→{robot}_base,
 //   {robot}_base→{robot}_probe,
 //                                    world→tissue, {robot}_probe→{robot}_image, world→fbg.
-// Message layouts are in README ("Ultrasound imaging and reconstruction topics (us_arm)").
+// Message layouts are in teleop/ultrasound_arm/README.md ("Imaging and reconstruction topics").
 //
 // Acquisitions are never missed: a light poller thread reads the probe state every 10 ms and latches
 // the first state of each acquisition (gate open at a via-point), which the worker then images and

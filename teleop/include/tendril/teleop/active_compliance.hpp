@@ -7,7 +7,7 @@
 // deflection inside the deadband gives no motion (otherwise v_min would make the drive creep on
 // sensor noise). Insertion and roll are left to the operator.
 //
-// Chosen values (the seed gives none), see README "Active compliance":
+// Chosen values (the seed gives none), see teleop/steerable_catheter/README.md:
 //   deadband 0.05 mm: the seed's trigger force ≈ 0.01 N over the 0.2 N/mm spring;
 //   v_min 0.2 mm/s, v_max 2 mm/s (the bend drives' speed limit), K_a = 1;
 //   q_s,max 1.0 mm (0.2 N on the tube); the safety bound that holds the robot is larger (1.5 mm).

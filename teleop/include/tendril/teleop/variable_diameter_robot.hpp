@@ -15,8 +15,8 @@
 // The base frame has z along the straight robot; the tip is segment 3's end disk. A task twist is
 // [v (mm/s); ω (rad/s)] of the tip in the base frame; a wrench [f (N); m (N·mm)] acts at the tip.
 //
-// Choices where the seed is silent (each one also in README, "Continuum robots: the variable-diameter
-// robot"):
+// Choices where the seed is silent (each one also in
+// teleop/mbcr_vd/README.md):
 // - Statics of the stack (2.30 "with twist transformations"): the twelve backbones and a form one
 //   augmented joint vector with A₁₂ = [I₁₂ | −c], c the ∂q/∂a column of (2.22) for every backbone;
 //   J_q̃ψ = A₁₂⁺·blkdiag(J_qψ,k) (13×6); J_rψ = (dr/da)·(row 13); ∇U_r and ∇U_ψ are the segments'

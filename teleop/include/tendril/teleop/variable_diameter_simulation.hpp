@@ -5,7 +5,7 @@
 //
 // Set-up from the seed: circle in the x-z plane centred at [0, 150, 435] mm, radius 70 mm; end disk
 // kept parallel to the x-z plane; 2 kg payload, W_e = [0, 0, −19.62, 0, 0, 0]; dt = 1 ms. Where the
-// seed is silent (README, "Continuum robots: the variable-diameter robot"):
+// seed is silent (teleop/mbcr_vd/README.md):
 // - the end disk's normal points along +y and its x axis along +x (R = Rx(−90°), the orientation of
 //   a robot bent in its y-z plane);
 // - the circle starts at its top, [0, 150, 505] mm, and runs once towards −x (counter-clockwise seen
