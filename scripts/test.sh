@@ -2,7 +2,7 @@
 # Sets up and runs tendril's tests. Installs what is missing (apt, npm), builds, runs, and ends with
 # the line "tests: N passed, M failed". Every stage prints its duration; the total comes last.
 #
-#   scripts/test.sh           the blocking run (what CI runs, budget 30 minutes cold on 2 cores):
+#   scripts/test.sh           the blocking run (what CI runs, budget 25 minutes (1,500 s) cold on 2 cores):
 #     1. one build: clang, AddressSanitizer + UndefinedBehaviorSanitizer, the real-time and numeric
 #        libraries at -O1 and the rest at -O0, the libFuzzer targets in the same tree (build/)
 #     2. ctest against that build: unit, integration, server and seed-corpus tests, and the SocketCAN
