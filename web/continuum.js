@@ -1,4 +1,4 @@
-// Panel of the sdu_continuum robot (seed 000 ch. 3): a continuum segment carrying sensing disk units
+// Panel of the sdu_continuum robot (Abah 2022, ch. 3): a continuum segment carrying sensing disk units
 // with ToF range and Hall sensors. Shows, from the live state topic /{robot}/continuum:
 // - the supervisor's state and its reason (the safety path's verdict: normal, slowed, stopped on
 //   contact, holding on a fault …), in words a person can act on;
@@ -13,7 +13,7 @@
 import {el, group, fmt, describe, robotCommand, rampColor} from './panel_kit.js';
 
 const SLOTS_DEFAULT = 8;
-// The disks' rim radius when GET /robots does not state it: seed 000 §3's SDU (OD 158 mm).
+// The disks' rim radius when GET /robots does not state it: the SDU of Abah 2022, ch. 3 (OD 158 mm).
 const DISK_RING_MM = 79;
 const ENTITY_PREFIX = 'continuum-panel/';
 const PLANE_OPACITY = 0.3;
