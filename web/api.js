@@ -113,6 +113,10 @@ export class Api {
     return this.post(`/robots/${encodeURIComponent(robot)}/state_command`, {command, ...extra});
   }
   moveJp(robot, goal) { return this.post(`/robots/${encodeURIComponent(robot)}/move_jp`, {goal}); }
+  // The tip or tool in a Cartesian mode: a goal pose {position (mm), orientation [qx, qy, qz, qw]}, or a
+  // velocity (linear mm/s, angular rad/s) that the robot holds for its command timeout.
+  moveCp(robot, goal) { return this.post(`/robots/${encodeURIComponent(robot)}/move_cp`, {goal}); }
+  servoCv(robot, linear, angular = [0, 0, 0]) { return this.post(`/robots/${encodeURIComponent(robot)}/servo_cv`, {linear, angular}); }
   estop() { return this.post('/estop', {}); }
   estopReset() { return this.post('/estop/reset', {}); }
   // Each robot has its own operator lease (/robots/{r}/lease); without a robot, every robot's (/lease).

@@ -7,6 +7,7 @@ import {Api, ApiError} from './api.js';
 import {FoxgloveConnection} from './foxglove.js';
 import {CatheterPanel} from './catheter.js';
 import {MbcrPanel} from './mbcr.js';
+import {TipPanel, cartesianModeOf} from './tip_control.js';
 import {buildJointPanel, displayUnit} from './joints.js';
 import {ImagePanel} from './images.js';
 import {decodeCompressedImage} from './protobuf.js';
@@ -131,6 +132,7 @@ let view = null;        // CatheterView, loaded lazily so a WebGL/three failure 
 let plan = null;        // PlanPanel
 let catheter = null;    // CatheterPanel, for robots with a configuration space
 let mbcr = null;        // MbcrPanel, for the variable-diameter robot (mbcr_vd)
+let tipPanel = null;    // TipPanel: the tip or tool of a robot with a Cartesian mode (web/tip_control.js)
 let trackingPlot = null;  // setpoint against measured, one joint
 let timingPlot = null;    // control loop timing
 let tipTracking = null;   // TrackingPanel: the imaged tip and the segmentation editor
@@ -416,6 +418,7 @@ function updateControls() {
       : state.offline ? 'No connection.' : stale ? 'Stale data: commands wait for fresh data.'
       : !state.leaseHeld ? 'Take the lease to command.' : '';
   kindPanel?.setCommandable?.(!panelHint, panelHint, {enabled, estop, mode: os?.mode ?? ''});
+  tipPanel?.setCommandable(!panelHint, panelHint, {enabled, estop, mode: os?.mode ?? '', drivesReady: os?.drives_ready !== false});
 }
 
 // The session's role as the server states it (serverInfo metadata): a viewer may watch and subscribe
@@ -1586,6 +1589,16 @@ function selectRobot(name) {
   if (isMbcr) mbcr ??= new MbcrPanel($('#panel-mbcr'), api, {status: showStatus});
   mbcr?.setRobot(isMbcr ? robot : null);
   if (!isMbcr && ui.mbcrTab.getAttribute('aria-selected') === 'true') selectTab(ui.tabs[0]);
+  // The Tip tab: the tip's position, jog and goal in the robot's Cartesian mode, the arm's force.
+  const tipTab = $('#tab-tip');
+  const cartesianMode = cartesianModeOf(robot);
+  tipTab.hidden = !cartesianMode;
+  tipTab.textContent = robot.kind === 'serial_arm' ? 'Tool' : 'Tip';
+  if (cartesianMode) {
+    tipPanel ??= new TipPanel($('#panel-tip'), {api, status: showStatus});
+  }
+  tipPanel?.setRobot(cartesianMode ? robot : null);
+  if (!cartesianMode && tipTab.getAttribute('aria-selected') === 'true') selectTab(ui.tabs[0]);
   ui.plotJoint.replaceChildren(...robot.joints.map((j) => new Option(`${j.name.replace(/_/g, ' ')} (${displayUnit(j.unit).symbol})`, j.name)));
   const first = robot.joints[0];
   trackingPlot?.configure({unit: displayUnit(first?.unit).symbol || '', minSpan: 0.1});

@@ -10,7 +10,7 @@
 //   nothing in range), the slot in contact drawn large and red;
 // - the HRI mode (off / contactless / contact guidance), the map (/sdu/map point cloud and the
 //   extracted planes with the bracing verdict from /sdu/planes) and the SIMULATED human arm's buttons.
-import {el, group, fmt, describe, robotCommand, rampColor} from './panel_kit.js';
+import {el, group, fmt, describe, robotCommand, rampColor, holdToRun} from './panel_kit.js';
 
 const SLOTS_DEFAULT = 8;
 // The disks' rim radius when GET /robots does not state it: the SDU of Abah 2022, ch. 3 (OD 158 mm).
@@ -147,23 +147,8 @@ class ContinuumPanel {
     const rollButton = (sign, label) => {
       const b = el('button', {type: 'button', className: 'btn', 'data-testid': `continuum-roll-${sign > 0 ? 'plus' : 'minus'}`,
                               text: label, title: ROLL_TITLE});
-      b.setAttribute('aria-keyshortcuts', 'Enter Space');
-      b.addEventListener('pointerdown', () => this.startRoll(sign * ROLL_RATE_RAD_S));
-      for (const ev of ['pointerup', 'pointerleave', 'pointercancel', 'blur']) b.addEventListener(ev, () => this.stopRoll());
-      // From the keyboard too: Enter or Space held on the focused button rolls, its release stops (the
-      // buttons were pointer-only). The key is the button's own here (not the catheter's deadman).
-      b.addEventListener('keydown', (ev) => {
-        if (ev.key !== 'Enter' && ev.code !== 'Space') return;
-        ev.preventDefault();
-        ev.stopPropagation();
-        if (!ev.repeat) this.startRoll(sign * ROLL_RATE_RAD_S);
-      });
-      b.addEventListener('keyup', (ev) => {
-        if (ev.key !== 'Enter' && ev.code !== 'Space') return;
-        ev.preventDefault();
-        ev.stopPropagation();
-        this.stopRoll();
-      });
+      // Held (pointer, or Enter / Space on the focused button) it rolls; let go it stops (panel_kit.js).
+      holdToRun(b, {start: () => this.startRoll(sign * ROLL_RATE_RAD_S), stop: () => this.stopRoll()});
       return b;
     };
     u.rollButtons = [rollButton(-1, '◀ Roll'), rollButton(1, 'Roll ▶')];

@@ -1,4 +1,4 @@
-// Small DOM helpers shared by the kind-specific panels (continuum.js, ultrasound.js).
+// Small DOM helpers shared by the kind-specific panels (continuum.js, ultrasound.js, tip_control.js).
 
 // el('div', {className: 'x', 'data-testid': 'y'}, child, 'text', …)
 export function el(tag, attrs = {}, ...children) {
@@ -38,4 +38,40 @@ export function robotCommand(api, robot, name, body) {
 export function rampColor(t) {
   const x = Math.min(1, Math.max(0, t));
   return x < 0.5 ? {r: 0.97, g: 0.32 + 0.9 * x, b: 0.29, a: 1} : {r: 0.97 - 1.6 * (x - 0.5), g: 0.77 - 0.1 * (x - 0.5), b: 0.29, a: 1};
+}
+
+// Press and hold (the continuum robot's Roll, the Tip tab's jog): start() on a pointer press or on
+// Enter / Space held on the focused button, stop() on release, on leaving the button, when it loses
+// focus, and when the page loses focus or is hidden (a release the page never sees must not leave a
+// motion streaming). The key is the button's own: it does not reach the catheter's Space deadman.
+const heldStops = new Set();
+const stopAllHeld = () => { for (const stop of [...heldStops]) stop(); };
+window.addEventListener('blur', stopAllHeld);
+document.addEventListener('visibilitychange', () => { if (document.hidden) stopAllHeld(); });
+
+export function holdToRun(button, {start, stop}) {
+  const end = () => {
+    if (!heldStops.delete(end)) return;
+    stop();
+  };
+  const begin = () => {
+    end();
+    heldStops.add(end);
+    start();
+  };
+  button.setAttribute('aria-keyshortcuts', 'Enter Space');
+  button.addEventListener('pointerdown', begin);
+  for (const ev of ['pointerup', 'pointerleave', 'pointercancel', 'blur']) button.addEventListener(ev, end);
+  button.addEventListener('keydown', (ev) => {
+    if (ev.key !== 'Enter' && ev.code !== 'Space') return;
+    ev.preventDefault();
+    ev.stopPropagation();
+    if (!ev.repeat) begin();
+  });
+  button.addEventListener('keyup', (ev) => {
+    if (ev.key !== 'Enter' && ev.code !== 'Space') return;
+    ev.preventDefault();
+    ev.stopPropagation();
+    end();
+  });
 }

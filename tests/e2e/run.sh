@@ -100,6 +100,13 @@ TENDRIL_TEST_SIMULATED_TIME=1 TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robot
 run_file "$here/arm_calibrate.e2e.mjs"
 stop_tendrild
 
+# Issue 31 item 7 (tip_control.e2e.mjs): the Tip tab of the arm, the variable-diameter and the continuum
+# robot (position, jog, Go, the arm's force), in simulated time as for the arm's other tests.
+TENDRIL_TEST_SIMULATED_TIME=1 TENDRIL_TEST_EXTRA_ROBOTS="$repo_root/config/robots/ur5_arm.json $repo_root/config/robots/mbcr_vd.json $repo_root/config/robots/sdu_continuum.json" \
+  start_tendrild "$binary" || exit 1
+run_file "$here/tip_control.e2e.mjs"
+stop_tendrild
+
 TENDRIL_TEST_VESSEL=1 start_tendrild "$binary" || exit 1
 export TENDRIL_VESSEL_URL="$TENDRIL_URL" TENDRIL_VESSEL_TOKEN="$TENDRIL_TOKEN" TENDRIL_VESSEL_LOG="$TENDRIL_LOG"
 run_file "$here/holds.e2e.mjs"
