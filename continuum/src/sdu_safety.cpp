@@ -313,7 +313,8 @@ const SduSafetyDecision& SduSupervisor::step(std::int64_t now_ns, std::span<cons
         }
         double d_e = r;
         if (plane_count_ > 0 && i < poses.size()) {
-          // The seed's (3.5): the sensor's angle to the normal of the mapped surface its range lands on.
+          // The dissertation's (3.5): the sensor's angle to the normal of the mapped surface its range lands
+          // on.
           const Eigen::Isometry3d sensor = poses[i] * tof_sensor_in_disk(model_, j);
           const Eigen::Vector3d axis = sensor.linear().col(2);
           const Eigen::Vector3d hit = sensor.translation() + r * axis;

@@ -1,4 +1,4 @@
-// Angulated scissor linkage and disk interference (seed 000 §2.3–2.6); see the header.
+// Angulated scissor linkage and disk interference (Abah 2022, §2.3–2.4); see the header.
 #include "tendril/teleop/variable_diameter_linkage.hpp"
 
 #include <algorithm>

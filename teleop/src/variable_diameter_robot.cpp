@@ -1,5 +1,5 @@
-// Three-segment variable-diameter MBCR and its gradient-projection redundancy resolution (seed 000
-// §2.10–2.11); see the header for the conventions and the choices where the seed is silent.
+// Three-segment variable-diameter MBCR and its gradient-projection redundancy resolution (Abah 2022,
+// §2.7); see the header for the conventions and the choices where the dissertation is silent.
 #include "tendril/teleop/variable_diameter_robot.hpp"
 
 #include <algorithm>

@@ -1,4 +1,4 @@
-// One variable-diameter MBCR segment: kinematics (seed 000 §2.7) and statics (§2.8); see the header.
+// One variable-diameter MBCR segment: kinematics (Abah 2022, §2.5) and statics (§2.6.1); see the header.
 #include "tendril/teleop/variable_diameter_segment.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -105,7 +105,7 @@ SegmentTwistJacobian segment_twist_jacobian(const SegmentConfiguration& psi, dou
   j(0, 1) = -length * sd * f.c2;
   j(1, 1) = -length * cd * f.c2;
   j(2, 1) = 0.0;
-  // Angular part (seed 000 §2.7 extended, with cos θ_L = −sin Θ and sin θ_L = cos Θ).
+  // Angular part (Abah 2022, §2.5, extended, with cos θ_L = −sin Θ and sin θ_L = cos Θ).
   j(3, 0) = -sd;
   j(4, 0) = -cd;
   j(5, 0) = 0.0;

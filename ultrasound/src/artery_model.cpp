@@ -1,4 +1,4 @@
-// Artery model from ultrasound slices and catheter contacts (seed 002 §3.3, §10); see the header.
+// Artery model from ultrasound slices and catheter contacts (Heunis et al. 2021, §3.3); see the header.
 #include "tendril/ultrasound/artery_model.hpp"
 
 #include <cmath>

@@ -1,4 +1,4 @@
-// B-mode image geometry checks and the Dice coefficient (seed 002 §13.2).
+// B-mode image geometry checks and the Dice coefficient (Heunis et al. 2021, §4.2).
 #include "tendril/ultrasound/bmode_image.hpp"
 
 #include <cmath>

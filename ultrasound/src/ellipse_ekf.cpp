@@ -1,4 +1,5 @@
-// Ellipse EKF + star algorithm (seed 002 Appendix B); see the header for the algorithm and choices.
+// Ellipse EKF + star algorithm (Heunis et al. 2021, Appendix B); see the header for the algorithm and
+// choices.
 #include "tendril/ultrasound/ellipse_ekf.hpp"
 
 #include <Eigen/Dense>
@@ -143,7 +144,7 @@ void EllipseSliceSegmenter::run_contour(const Eigen::Vector2d& centre, Eigen::Ve
                           sample(centre.x() + (r - p.edge_step) * cy, centre.y() + (r - p.edge_step) * cz);
       const double edge = std::clamp(rise, 0.0, p.edge_threshold) / p.edge_threshold;  // F_e
       const double d = r - predicted;
-      const double likelihood = edge * edge * std::exp(-d * d / (2.0 * S));  // A21 (E17)
+      const double likelihood = edge * edge * std::exp(-d * d / (2.0 * S));  // A21 (exponent squared)
       weight_sum += likelihood;
       weighted_radius += likelihood * r;  // A19–A20
     }

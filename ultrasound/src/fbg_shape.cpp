@@ -1,4 +1,5 @@
-// FBG catheter shape: frame codec, reconstruction, Eq. 2 and the SIMULATED interrogator (seed 002 §9).
+// FBG catheter shape: frame codec, reconstruction, Eq. 2 and the SIMULATED interrogator (Heunis et al. 2021,
+// §2.2 and §3.3).
 #include "tendril/ultrasound/fbg_shape.hpp"
 
 #include "tendril/ultrasound/preoperative_plan.hpp"

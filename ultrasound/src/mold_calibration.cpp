@@ -1,4 +1,4 @@
-// The catheter's mold calibration with a SIMULATED mold (seed 002 §4.1, REQ-TF-3); see the header.
+// The catheter's mold calibration with a SIMULATED mold (Heunis et al. 2021, §2.2–2.3); see the header.
 #include "tendril/ultrasound/mold_calibration.hpp"
 
 #include <algorithm>

@@ -1,4 +1,4 @@
-// Pre-operative planning: ICP, Algorithm 1, Algorithm 2 (seed 002 §4.4, §5); see the header.
+// Pre-operative planning: ICP, Algorithm 1, Algorithm 2 (Heunis et al. 2021, §2.4); see the header.
 #include "tendril/ultrasound/preoperative_plan.hpp"
 
 #include <Eigen/Dense>
@@ -109,7 +109,7 @@ std::vector<Eigen::Vector3d> arterial_centroids(const std::vector<Eigen::Vector3
     throw PlanningInputError("Algorithm 1: the endpoint p_d must be finite");
   }
   require_finite(wall_ct, "Algorithm 1 vessel cloud B");
-  // Lines 3–4 (E2): into {P}, rows sorted by x, truncated to the span the user chose.
+  // Lines 3–4: into {P}, rows sorted by x, truncated to the span the user chose.
   std::vector<Eigen::Vector3d> kept;
   kept.reserve(wall_ct.size());
   for (const auto& b : wall_ct) {
@@ -127,7 +127,7 @@ std::vector<Eigen::Vector3d> arterial_centroids(const std::vector<Eigen::Vector3
     throw PlanningInputError("Algorithm 1: the vessel points span " + std::to_string(length) +
                              " mm in x; at least 1 mm is needed (is the cloud in millimetres?)");
   }
-  // Lines 5–8 (E3): v = (x − x_min)/L, S_a = [1 v v² v³ v⁴].
+  // Lines 5–8 : v = (x − x_min)/L, S_a = [1 v v² v³ v⁴].
   Eigen::MatrixXd sa(static_cast<Eigen::Index>(kept.size()), 5);
   Eigen::MatrixXd rhs(static_cast<Eigen::Index>(kept.size()), 3);
   for (std::size_t j = 0; j < kept.size(); ++j) {
@@ -173,7 +173,7 @@ std::vector<ProbeViaPoint> probe_via_points(const std::vector<Eigen::Vector3d>& 
   const std::size_t k = static_cast<std::size_t>(options.nearest);
   std::vector<ProbeViaPoint> plan(centroids.size());
   std::vector<std::pair<double, std::size_t>> candidates;
-  // Line 2 (with §5.2 notes 5 and 7): ‖(C_j − c_i) × ŷ‖ is the distance to the vertical through c_i.
+  // Line 2 (with our reading of it): ‖(C_j − c_i) × ŷ‖ is the distance to the vertical through c_i.
   for (std::size_t i = 0; i < centroids.size(); ++i) {
     candidates.clear();
     for (std::size_t j = 0; j < surface.size(); ++j) {
@@ -191,7 +191,7 @@ std::vector<ProbeViaPoint> probe_via_points(const std::vector<Eigen::Vector3d>& 
     for (std::size_t t = 0; t < take; ++t) mean += surface[candidates[t].second];
     plan[i].surface_point = mean / static_cast<double>(take);
   }
-  // Lines 3–7 (E5: axes as columns; E6: the last point reuses the previous direction).
+  // Lines 3–7 (axes as columns; the last point reuses the previous direction).
   Eigen::Vector3d previous_y = Eigen::Vector3d::Zero();
   for (std::size_t i = 0; i < centroids.size(); ++i) {
     const Eigen::Vector3d z = (centroids[i] - plan[i].surface_point).normalized();
@@ -203,7 +203,7 @@ std::vector<ProbeViaPoint> probe_via_points(const std::vector<Eigen::Vector3d>& 
         throw PlanningInputError("Algorithm 2: the sweep direction at via-point " + std::to_string(i) +
                                  " is parallel to the probe axis (coincident surface points?)");
       }
-      y = previous_y - previous_y.dot(z) * z;  // §5.2 note 6: reuse the previous y axis
+      y = previous_y - previous_y.dot(z) * z;  // Reuse the previous y axis
     }
     y.normalize();
     const Eigen::Vector3d x = y.cross(z).normalized();

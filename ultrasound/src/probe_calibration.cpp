@@ -1,4 +1,4 @@
-// Image-to-probe calibration with an N-wire phantom (seed 002 §4.3, REQ-TF-5); see the header.
+// Image-to-probe calibration with an N-wire phantom (Heunis et al. 2021, §2.3); see the header.
 #include "tendril/ultrasound/probe_calibration.hpp"
 
 #include <Eigen/Cholesky>

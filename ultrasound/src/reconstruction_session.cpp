@@ -1,4 +1,4 @@
-// One ultrasound reconstruction session (seed 002, issue 17); see the header.
+// One ultrasound reconstruction session (Heunis et al. 2021, issue 17); see the header.
 #include "tendril/ultrasound/reconstruction_session.hpp"
 
 #include <algorithm>
@@ -203,7 +203,8 @@ Eigen::Vector2d UltrasoundReconstructionSession::seed_for(const ProbeSample& sam
   auto inside = [&](const Eigen::Vector2d& yz) {
     return std::abs(yz.x()) < 0.5 * g.width() && yz.y() > 0.0 && yz.y() < g.depth();
   };
-  // Spec §8.5: the planned centroid of this via-point projected into the image through the measured chain.
+  // The EKF starts from the planned centroid of this via-point projected into the image through the measured
+  // chain.
   const auto i = static_cast<std::size_t>(sample.via_point);
   if (sample.via_point >= 0 && i < plan_.centroids.size()) {
     const Eigen::Vector3d p = tissue_T_image.inverse() * plan_.centroids[i];

@@ -136,7 +136,7 @@ DriveParameters DriveParameters::srmc_insertion(std::string name) {
   DriveParameters p;
   p.name = std::move(name);
   p.gear_ratio = 1.0;
-  p.units_per_output_rev = 2.0;  // 2 mm lead linear stage (not given by the seed: assumed)
+  p.units_per_output_rev = 2.0;  // 2 mm lead linear stage (not given by the dissertation: assumed)
   p.encoder_counts_per_motor_rev = 8192;
   p.load_inertia = 2.0e-6;
   p.hard_stop_min = -5.0;

@@ -1,6 +1,7 @@
-// SDU samples and their CAN frames. The seed read its disks over I²C multiplexers into a Teensy and sent
-// them over UDP at 4.26 Hz for 5 disks; tendril gives each disk its own CAN node (one microcontroller per
-// SDU, the seed's own proposed speed-up) on classic CAN 2.0A at 1 Mbit/s, and reads all five at 100 Hz.
+// SDU samples and their CAN frames. The dissertation read its disks over I²C multiplexers into a Teensy and
+// sent them over UDP at 4.26 Hz for 5 disks; tendril gives each disk its own CAN node (one microcontroller
+// per SDU, the dissertation's own proposed speed-up) on classic CAN 2.0A at 1 Mbit/s, and reads all five at
+// 100 Hz.
 //
 // Frame layout (11-bit ids, 8 data bytes each, little-endian), per disk i (0-based), 7 frames a sample:
 //   id 0x680 + 8·i + 0   ToF: byte j = range of ToF slot j in mm (0–253); 254 = sensor error,

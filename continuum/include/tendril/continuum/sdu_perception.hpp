@@ -1,8 +1,8 @@
-// Perception from sensing disk units (seed 000 §3.7–3.10): ToF ranges to points in the base frame {0}
+// Perception from sensing disk units (Abah 2022, §3.3–3.5): ToF ranges to points in the base frame {0}
 // through the disk poses, an accumulated point map with voxel down-sampling, RANSAC plane extraction
 // (40 mm inlier distance, optional reference normal), the bracing check (an admissible planar patch of
 // at least 150 × 150 mm), and the Hall path: start-up unbiasing, force F = ΔB_z / 0.26 mT/N, contact
-// detection and localisation by disk and angular slot, and the slope calibration of §3.7.
+// detection and localisation by disk and angular slot, and the slope calibration of §3.3.1.
 //
 // Real-time contract: sample_points(), VoxelMap::insert(), hall_forces() and locate_contact() never
 // allocate (the map's storage is reserved at construction). Plane fitting and bracing run on a worker.
@@ -85,7 +85,7 @@ struct Plane {
 };
 
 struct RansacParameters {
-  double inlier_distance_mm = 40.0;                 // seed §3.10
+  double inlier_distance_mm = 40.0;                 // Abah 2022, §3.5
   std::optional<Eigen::Vector3d> reference_normal;  // MATLAB pcfitplane's referenceVector
   double max_angle_rad = 0.2617993877991494;        // 15° from the reference (sign ignored)
   std::size_t iterations = 500;
@@ -103,13 +103,13 @@ struct PlaneFit {
 // the reference normal when one is given).
 std::variant<PlaneFit, MapError> fit_plane_ransac(std::span<const Eigen::Vector3d> points,
                                                   const RansacParameters& p);
-// The seed's bracing procedure (§3.9): fit, remove the inliers, fit again, up to max_planes.
+// The dissertation's bracing procedure (§3.4): fit, remove the inliers, fit again, up to max_planes.
 std::variant<std::vector<PlaneFit>, MapError> extract_planes(std::span<const Eigen::Vector3d> points,
                                                              const RansacParameters& p,
                                                              std::size_t max_planes);
 
 struct BracingParameters {
-  double patch_side_mm = 150.0;  // seed §3.9
+  double patch_side_mm = 150.0;  // Abah 2022, §3.4
   // The map is sparse; a patch counts as continuous when every cell of this size under it holds a point.
   double cell_mm = 25.0;
   double max_residual_mm = 40.0;  // inliers only
@@ -129,7 +129,7 @@ std::variant<BracingResult, MapError> check_bracing_in_map(const VoxelMap& map,
                                                            const RansacParameters& ransac,
                                                            const BracingParameters& bracing);
 
-// RMS of each point's orthogonal distance to its nearest plane (the seed's mapping error, §3.10).
+// RMS of each point's orthogonal distance to its nearest plane (the dissertation's mapping error, §3.5).
 double rms_to_nearest_plane(std::span<const Eigen::Vector3d> points, std::span<const Plane> planes) noexcept;
 
 // --- Hall: unbiasing, force, contact -------------------------------------------------------------------
@@ -154,7 +154,7 @@ class HallUnbiaser {
   std::size_t n_ = 0;
 };
 
-inline constexpr double kHallSlopeMilliTeslaPerNewton = 0.26;  // ᾱ (seed §3.7)
+inline constexpr double kHallSlopeMilliTeslaPerNewton = 0.26;  // ᾱ (Abah 2022, §3.3.1)
 
 // F_j = (B_z,j − B0_z,j) / slope; NaN for an invalid or non-finite reading.
 std::array<double, kHallPerSdu> hall_forces(const SduSample& sample, const HallBias& bias,
@@ -175,7 +175,7 @@ ContactLocation locate_contact(const SduSegmentModel& model, std::span<const Eig
                                std::span<const std::array<double, kHallPerSdu>> forces,
                                double threshold_n) noexcept;
 
-// --- slope calibration (§3.7) -------------------------------------------------------------------------
+// --- slope calibration (§3.3.1) -------------------------------------------------------------------------
 
 struct HallCalibration {
   double slope_mT_per_N = 0.0;   // α of B* = α·F + B0

@@ -1,4 +1,4 @@
-// The SDU safety laws (seed 000 §3.9, §3.11, §11.4) as the control thread applies them: pure functions
+// The SDU safety laws (Abah 2022, §3.4 and §3.6) as the control thread applies them: pure functions
 // and one small supervisor, all noexcept and allocation-free. They sit in the safety path: a robot
 // type built on them passes every commanded velocity through apply_sdu_safety(), whatever its mode, so
 // no mode can bypass proximity scaling, stop on contact or the sensor fault states.
@@ -19,10 +19,10 @@ namespace tendril::continuum {
 // --- laws ---------------------------------------------------------------------------------------------
 
 struct ProximityParameters {
-  double v_max_mm_s = 50.0;  // seed §3.9
-  double v_min_mm_s = 0.25;  // seed §3.9
-  // The seed leaves d_max open between the nominal 100 mm and the measured usable 130 mm; tendril takes
-  // 130 mm: the robot starts slowing at the first reading it can trust, which is the safer side.
+  double v_max_mm_s = 50.0;  // Abah 2022, §3.4
+  double v_min_mm_s = 0.25;  // Abah 2022, §3.4
+  // The dissertation leaves d_max open between the nominal 100 mm and the measured usable 130 mm; tendril
+  // takes 130 mm: the robot starts slowing at the first reading it can trust, which is the safer side.
   double d_max_mm = 130.0;
 };
 
@@ -37,16 +37,16 @@ Eigen::Vector3d cap_speed(const Eigen::Vector3d& v, double limit_mm_s) noexcept;
 
 // (3.6) The twist [v; ω] of the disk frame for a no-slip roll about the contact: ω = ẑ·ω_z and
 // v = [r_c]×ẑ·ω_z, so the contact point (disk centre + r_c) does not move. The plug-in maps it to
-// joint rates with its Jacobian's (pseudo-)inverse (the seed prints J where J⁻¹ is meant, §9 item 8).
+// joint rates with its Jacobian's (pseudo-)inverse (the dissertation prints J where J⁻¹ is meant).
 Eigen::Matrix<double, 6, 1> no_slip_roll_twist(const Eigen::Vector3d& r_c, const Eigen::Vector3d& z_hat,
                                                double omega_z_rad_s) noexcept;
 
-// Operator-selectable guidance (HRI) modes of the top SDU (seed §3.11).
+// Operator-selectable guidance (HRI) modes of the top SDU (Abah 2022, §3.6.2).
 enum class GuidanceMode : std::uint8_t { kOff, kContactless, kContactBased };
 const char* to_string(GuidanceMode mode) noexcept;
 
 struct GuidanceParameters {
-  double gain = 0.5;           // γ: mm/s per mm (contactless) — the seed tuned it by hand
+  double gain = 0.5;           // γ: mm/s per mm (contactless) — the dissertation tuned it by hand
   double contact_gain = 20.0;  // γ: mm/s per mT (contact-based)
   double deadband_mm = 2.0;    // |d_r − d_l| below this commands nothing
   double contact_deadband_mT = 0.05;
@@ -57,7 +57,7 @@ struct GuidanceParameters {
 // robot right, away from it. A side that sees nothing reads as the farthest usable range.
 double contactless_guidance(const GuidanceParameters& p, double d_right_mm, double d_left_mm) noexcept;
 // (3.9) v = γ(ΔB_z,r − ΔB_z,l), here returned positive towards the right as well, i.e. −γ(ΔB_z,r − ΔB_z,l):
-// a push on the right sensor moves the robot left, yielding to it. (The seed's two laws differ in
+// a push on the right sensor moves the robot left, yielding to it. (The dissertation's two laws differ in
 // the sign of γ, which it leaves to tuning; tendril fixes one direction for both.)
 double contact_guidance(const GuidanceParameters& p, double dBz_right_mT, double dBz_left_mT) noexcept;
 
@@ -177,7 +177,7 @@ Eigen::Vector3d apply_sdu_safety(const SduSafetyDecision& d, const SduSupervisor
 double apply_sdu_roll(const SduSafetyDecision& d, const SduSupervisorParameters& p,
                       double omega_z_rad_s) noexcept;
 
-// Which windows of the top SDU are the operator's right and left (seed §3.11 leaves the choice open):
+// Which windows of the top SDU are the operator's right and left (Abah 2022, §3.6.2 leaves the choice open):
 // tendril's default looks across the bending plane's y axis, ToF slots 6 (270°) and 2 (90°) and the
 // Hall windows beside them, 5 (247.5°) and 1 (67.5°).
 struct GuidancePair {

@@ -1,4 +1,4 @@
-// The SDU continuum segment (seed 000 §3.10): one constant-curvature continuum segment (CS) on a
+// The SDU continuum segment (Abah 2022, §3.5): one constant-curvature continuum segment (CS) on a
 // rotary stage coaxial with its backbone, carrying sensing disk units (SDU) — each a spacer disk with 8
 // time-of-flight (ToF) range sensors and 8 three-axis Hall sensors under a silicone sleeve.
 //
@@ -10,10 +10,10 @@
 //        Ry(θ·s/L)·Rz(−δ), so a straight segment's disks all share {0}'s orientation (after the roll).
 //   {s}  a ToF sensor's top surface: origin on the disk rim at its slot angle, z its line of sight
 //        (radially outward), x along the disk's z. A range d is the point ⁰H_s·[0, 0, d, 1]ᵀ — the
-//        seed's chain (3.7) with the axis it leaves unstated.
+//        the dissertation's chain (3.7) with the axis it leaves unstated.
 // Angles: θ bending angle (0 = straight; the tip tangent turns by θ), δ bending-plane angle about z
 // from x of the rolled base, roll the stage angle. Slots: ToF j at tof_slot0 + j·45°, Hall j at
-// hall_slot0 + j·45° (interleaved; a half-disk carries 4 of each as in the seed).
+// hall_slot0 + j·45° (interleaved; a half-disk carries 4 of each as in the dissertation).
 #pragma once
 
 #include <Eigen/Geometry>
@@ -28,9 +28,9 @@ inline constexpr std::size_t kTofPerSdu = 8;
 inline constexpr std::size_t kHallPerSdu = 8;
 
 struct SduSegmentModel {
-  double length_mm = 370.0;      // seed §3.10
+  double length_mm = 370.0;      // Abah 2022, §3.5
   double disk_radius_mm = 79.0;  // OD 158 mm, the sleeve's outer surface
-  // Arc length of each disk along the backbone. The seed gives only 5 SDUs on a 370 mm segment
+  // Arc length of each disk along the backbone. The dissertation gives only 5 SDUs on a 370 mm segment
   // "separated by metallic bellows"; tendril spaces them evenly with the last one at the tip.
   std::array<double, kSdusPerSegment> disk_arc_mm{74.0, 148.0, 222.0, 296.0, 370.0};
   double tof_slot0_rad = 0.0;
@@ -61,13 +61,13 @@ std::array<Eigen::Isometry3d, kSdusPerSegment> disk_poses(const SduSegmentModel&
 
 double tof_slot_angle(const SduSegmentModel& model, std::size_t slot) noexcept;
 double hall_slot_angle(const SduSegmentModel& model, std::size_t slot) noexcept;
-// ᵈH_s of ToF slot j (constant, the CAD transform of the seed's chain).
+// ᵈH_s of ToF slot j (constant, the CAD transform of the dissertation's chain).
 Eigen::Isometry3d tof_sensor_in_disk(const SduSegmentModel& model, std::size_t slot) noexcept;
 // Outward unit normal of Hall slot j and its point on the sleeve's surface, in the disk frame.
 Eigen::Vector3d hall_normal_in_disk(const SduSegmentModel& model, std::size_t slot) noexcept;
 Eigen::Vector3d hall_point_in_disk(const SduSegmentModel& model, std::size_t slot) noexcept;
 
-// The seed's optical-tracker chain (3.7) up to the disk: ⁰H_d = (ᶜH₀)⁻¹·ᶜH_m·ᵐH_d, with ᶜH₀ the base
+// The dissertation's optical-tracker chain (3.7) up to the disk: ⁰H_d = (ᶜH₀)⁻¹·ᶜH_m·ᵐH_d, with ᶜH₀ the base
 // marker and ᶜH_m the disk's marker as the tracker sees them, ᵐH_d from CAD. Use it in place of the
 // kinematic disk pose when a tracker is fitted.
 Eigen::Isometry3d disk_pose_from_tracker(const Eigen::Isometry3d& camera_T_base,

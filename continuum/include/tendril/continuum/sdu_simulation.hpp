@@ -1,8 +1,8 @@
 // SIMULATED sensing disk units: a scene of planes, boxes and cylinders (a cylinder stands for a human
-// arm), ray-cast time-of-flight sensors with the seed's error characteristics (§3.8) and Hall sensors
-// under a compliant sleeve with the seed's response (§3.7). A SimulatedSduNode produces what one disk's
-// microcontroller would put on the bus. Nothing here is a model of real hardware timing beyond what is
-// stated; it is a simulation for tests, scenarios and the plug-in's simulated robot.
+// arm), ray-cast time-of-flight sensors with the dissertation's error characteristics (§3.3.2) and Hall
+// sensors under a compliant sleeve with the dissertation's response (§3.3.1). A SimulatedSduNode produces
+// what one disk's microcontroller would put on the bus. Nothing here is a model of real hardware timing
+// beyond what is stated; it is a simulation for tests, scenarios and the plug-in's simulated robot.
 #pragma once
 
 #include <Eigen/Geometry>
@@ -17,8 +17,8 @@
 
 namespace tendril::continuum {
 
-// ToF error depends on the target's finish (seed §3.8): matte objects are seen within ±16.5° with up to
-// 12.5 mm error at the cone's edge, glossy ones within ±11.9° with up to 15.6 mm.
+// ToF error depends on the target's finish (Abah 2022, §3.3.2): matte objects are seen within ±16.5° with up
+// to 12.5 mm error at the cone's edge, glossy ones within ±11.9° with up to 15.6 mm.
 enum class SurfaceFinish : std::uint8_t { kMatte, kGlossy };
 
 struct ScenePlane {  // an infinite plane; the half-space behind the normal is solid
@@ -34,7 +34,7 @@ struct SceneBox {  // a solid box: pose of its centre, half extents along its ow
 struct SceneCylinder {  // a solid finite cylinder (its end caps are not hit by rays)
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
   Eigen::Vector3d axis = Eigen::Vector3d::UnitX();  // unit
-  double radius_mm = 25.4;                          // the seed's 50.8 mm wrist rod
+  double radius_mm = 25.4;                          // the dissertation's 50.8 mm wrist rod
   double half_length_mm = 300.0;
   SurfaceFinish finish = SurfaceFinish::kMatte;
 };
@@ -70,33 +70,33 @@ class Scene {
 };
 
 struct TofModel {
-  double max_range_mm = 130.0;  // detected accurately up to 130 mm (seed §3.8); beyond: no target
+  double max_range_mm = 130.0;  // detected accurately up to 130 mm (Abah 2022, §3.3.2); beyond: no target
   double matte_half_angle_rad = 0.28797932657906439;   // 16.5°
   double glossy_half_angle_rad = 0.20769418099607317;  // 11.9°
   double matte_on_axis_error_mm = 0.01;
   double matte_edge_error_mm = 12.5;
   double glossy_on_axis_error_mm = 0.019;
   double glossy_edge_error_mm = 15.6;
-  // The seed gives mean errors, no spread; tendril's choice: 0.5 mm standard deviation.
+  // The dissertation gives mean errors, no spread; tendril's choice: 0.5 mm standard deviation.
   double noise_sd_mm = 0.5;
   int rings = 3;  // rays on cones at 1/3, 2/3 and 3/3 of the matte half angle, plus the axis
   int rays_per_ring = 8;
 };
 
-// A sensor reads the nearest surface inside its cone. Where the seed gives only the error on the axis
+// A sensor reads the nearest surface inside its cone. Where the dissertation gives only the error on the axis
 // and at the edge, the error grows with the square of the off-axis angle, and the sensor reads long
 // (a weak return from the cone's edge crosses the detector's threshold late) — the side that makes an
 // object look farther, so the safety tests see the pessimistic case.
 double tof_error_mm(const TofModel& model, SurfaceFinish finish, double off_axis_rad) noexcept;
 
 struct HallModel {
-  double slope_mT_per_N = 0.26;  // ᾱ (seed §3.7)
+  double slope_mT_per_N = 0.26;  // ᾱ (Abah 2022, §3.3.1)
   double f_linearity = 0.0452;   // 4.52 %: a smooth bow over the calibration range
   double calibration_range_N = 10.0;
-  // Not in the seed: 5 µT, so that the bow and the noise together give the seed's F-linearity over a
-  // 0–10 N calibration (4.8 % measured, tests/unit/continuum).
+  // Not in the dissertation: 5 µT, so that the bow and the noise together give the dissertation's F-linearity
+  // over a 0–10 N calibration (4.8 % measured, tests/unit/continuum).
   double noise_sd_mT = 0.005;
-  // Not in the seed: the Shore 2A sleeve's stiffness over a Hall window (how far a probe sinks per
+  // Not in the dissertation: the Shore 2A sleeve's stiffness over a Hall window (how far a probe sinks per
   // newton) and the sector a magnet feels (half the slot pitch each side, linearly weaker off-centre).
   double sleeve_stiffness_N_per_mm = 5.0;
   double footprint_half_angle_rad = 0.39269908169872414;  // 22.5°
@@ -105,7 +105,7 @@ struct HallModel {
 
 // B_z change (mT) for a normal force F (N) under the model's bow: F + 6·lin·F_cal·x(1 − x), x = F/F_cal
 // in [0, 1], times the slope. The 6 makes the least-squares line's largest deviation lin·F_cal, i.e. the
-// seed's F-linearity (3.2).
+// the dissertation's F-linearity (3.2).
 double hall_field_change_mT(const HallModel& model, double force_n) noexcept;
 
 // One SIMULATED disk node: what its sensors read at a disk pose in a scene.

@@ -1,4 +1,4 @@
-// BiplaneTipTracker: the catheter tip seen in the images, per plane and in 3D (seed 000 §4.8–4.9).
+// BiplaneTipTracker: the catheter tip seen in the images, per plane and in 3D (Abah 2022, §4.8–4.9).
 //
 // Per plane and frame (on that plane's imaging thread): the catheter is segmented against the plane's
 // empty-vessel roadmap (perception::FluoroscopySegmenter), and its tip pose [x, y, θ] — in mm at the
@@ -6,7 +6,7 @@
 // EKF (perception::TipEkf). The EKF's process needs the insertion increment ds and the curvature κ
 // over it: here both come from the imaged robot's model backbone projected onto the plane (its tip's
 // displacement along its tangent since the plane's last frame, and the turn of its tangent over the
-// last 3 mm) — the seed drives the same filter with the planned ds and the vessel's κ(s); the model's
+// last 3 mm) — the dissertation drives the same filter with the planned ds and the vessel's κ(s); the model's
 // projection is that prior where no plan runs. With both planes' tips from frames at most 1.5 frame
 // periods apart, the two X-rays through them are intersected (closest point) into a 3D tip.
 //
@@ -110,7 +110,7 @@ class BiplaneTipTracker {
   // A simulated plane's roadmap is its exposure rendered without the instrument (noiseless, as an
   // averaged acquisition would be): in a lab the catheter is pulled back out of the field first. A
   // plane fed by a source takes `frame`, the frame it is about to track, as its roadmap (the operator
-  // pulls the catheter back out of the field, as for the seed's roadmap, and then asks for it).
+  // pulls the catheter back out of the field, as for the dissertation's roadmap, and then asks for it).
   void apply_requests(int plane, std::uint64_t now_ns,
                       const teleop::perception::GreyImageView* frame = nullptr);
   // Per plane: the parameters asked for, whether the plane applies them yet, its roadmap.

@@ -1,5 +1,5 @@
 // The mbcr_vd's part of the control cycle (control thread): the task mode's servo_cv and move_cp, the
-// approach to the seed circle's start and the circle itself, each one step of the library's resolved
+// approach to the reference circle's start and the circle itself, each one step of the library's resolved
 // rates plus gradient projection per tick (or the fixed-diameter baseline), and the published actuation.
 // No allocation, no locks, no exceptions: the library's workspaces are preallocated.
 #include <algorithm>
@@ -197,7 +197,7 @@ void MbcrController::control(ControlContext& ctx) noexcept {
       if (report_.status == teleop::VariableDiameterStatus::kInterferenceUnavoidable) ++circle_unavoidable_;
       ++circle_index_;
       if (circle_index_ > static_cast<std::uint32_t>(std::llround(c.period / ctx.period))) {
-        // Only a whole circle is comparable with the seed's (and with the other diameter's) RMS.
+        // Only a whole circle is comparable with the dissertation's (and with the other diameter's) RMS.
         (motion_variable_ ? last_rms_variable_ : last_rms_fixed_) =
             std::sqrt(circle_sum_sq_ / circle_samples_);
         stop(ctx);

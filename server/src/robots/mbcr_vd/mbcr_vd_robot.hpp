@@ -1,4 +1,4 @@
-// The variable-diameter multi-backbone continuum robot (MBCR, seed 000 ch. 2) as a robot type
+// The variable-diameter multi-backbone continuum robot (MBCR, Abah 2022, ch. 2) as a robot type
 // ("mbcr_vd"): three segments on twelve push-pull backbones, spacer disks that are angulated scissor
 // linkages (ASL), so the robot's diameter is a seventh joint. The kinematics, statics and redundancy
 // resolution are the library's (teleop/variable_diameter_*.hpp); this plug-in puts them on the control
@@ -12,8 +12,8 @@
 // Modes: the core's joint mode, and "task": CRTK servo_cv and move_cp of the tip, resolved on the
 // control thread by the library's closed-loop resolved rates plus gradient projection — the diameter
 // moves in the null space of the task to lower ‖τ̃_s‖ within the joint limits and the disk-interference
-// limit (variable diameter), or is held (fixed diameter, the seed's baseline). The command
-// `trajectory` runs the seed's circle (§2.11) as the task reference, so its result shows live.
+// limit (variable diameter), or is held (fixed diameter, the dissertation's baseline). The command
+// `trajectory` runs the dissertation's circle (§2.7.2) as the task reference, so its result shows live.
 //
 // How the task mode moves the robot: the controller keeps the configuration ψ_s and a of the setpoint
 // (a kinematic reference), steps it with the library and writes q_des = q̃(ψ_s, a); the core's joint
@@ -95,7 +95,7 @@ struct MbcrSnapshot {
   bool diameter_at_limit = false;     // a within 0.01 mm of a limit
   bool backbone_limited = false;      // the last task step stopped at a backbone limit
   bool interference_limited = false;  // the last task step stopped before unavoidable interference
-  // The seed circle: progress, and the RMS of ‖τ̃_s‖ over its samples so far and of the last runs.
+  // The reference circle: progress, and the RMS of ‖τ̃_s‖ over its samples so far and of the last runs.
   std::uint32_t circle_index = 0;  // samples taken in the current run
   std::uint32_t circle_samples = 0;
   double circle_sample_force = 0.0;  // ‖τ̃_s‖ of the sample circle_index − 1 (as the library records it)
@@ -191,7 +191,8 @@ class MbcrRobot final : public RobotPlugin {
   const MbcrSettings& settings() const noexcept { return settings_; }
   const teleop::VariableDiameterRobot& model() const noexcept { return model_; }
   MbcrSnapshot snapshot() const noexcept { return published_.load(); }
-  // The circle's start configuration (hook branch, seed §2.11) and its approach time from the setpoint.
+  // The circle's start configuration (hook branch, Abah 2022, §2.7.2) and its approach time from the
+  // setpoint.
   const teleop::StackConfiguration& circle_start() const noexcept { return circle_start_; }
   double approach_duration(const MbcrSnapshot& from, double a_to) const noexcept;
 

@@ -1,5 +1,5 @@
 // The sdu_continuum's mapping thread (never the control thread): every new disk sample's valid ranges
-// become points in {0} through the disk poses at the measured joints (seed (3.7)), the voxel map
+// become points in {0} through the disk poses at the measured joints (Abah 2022, eq. 3.7), the voxel map
 // accumulates them, RANSAC extracts planes and the bracing check judges them (periodically and on the
 // `map extract` command), and the results go out as /sdu/map (foxglove.PointCloud) and /sdu/planes
 // (foxglove.SceneUpdate). The planes also go to the control thread for the supervisor's d_e = d·cos θ.

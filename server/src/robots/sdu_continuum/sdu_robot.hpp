@@ -1,16 +1,16 @@
-// The sensing-disk continuum robot (seed 000 ch. 3) as a robot type ("sdu_continuum"): one
+// The sensing-disk continuum robot (Abah 2022, ch. 3) as a robot type ("sdu_continuum"): one
 // constant-curvature continuum segment on a rotary stage (three joints: stage roll, bending angle θ,
 // bending plane δ) carrying five sensing disk units (SDU) with 8 ToF range sensors and 8 Hall sensors
 // each, read over CAN at 100 Hz (tendril::continuum).
 //
 // Safety path: every motion of every mode (the core's move_jp and servo_jv included) passes the type's
 // RobotController::limit_step, which caps the speed of the segment's sensor windows at the proximity
-// law's limit (seed (3.4): 50 mm/s to 0.25 mm/s over d_max); the SduSupervisor's hold causes (contact,
-// a silent disk, an unusable Hall reading, a drifting Hall baseline, unbiasing) hold the robot in the
-// same control cycle, an unusable ToF reading slows it to the safe speed. Ways out of a contact hold:
-// the contact-based guidance yielding to the push and the 1-DoF no-slip roll (seed (3.6)).
+// law's limit (Abah 2022, eq. 3.4: 50 mm/s to 0.25 mm/s over d_max); the SduSupervisor's hold causes
+// (contact, a silent disk, an unusable Hall reading, a drifting Hall baseline, unbiasing) hold the robot in
+// the same control cycle, an unusable ToF reading slows it to the safe speed. Ways out of a contact hold: the
+// contact-based guidance yielding to the push and the 1-DoF no-slip roll (eq. 3.6).
 //
-// Modes: the core's joint mode, guidance (the HRI laws of seed (3.8)/(3.9) on the top disk) and tip (CRTK
+// Modes: the core's joint mode, guidance (the HRI laws of eqs. 3.8–3.9 on the top disk) and tip (CRTK
 // servo_cv of the top disk's position).
 //
 // Hardware: the joints are CiA 402 drives on the robot file's bus; the disks are CAN nodes on the same

@@ -47,7 +47,7 @@ SimulatedOpticalTracker::SimulatedOpticalTracker(const OpticalTrackerSettings& s
 
 Eigen::Vector3d SimulatedOpticalTracker::robot_error(const teleop::ArmVector& q) const noexcept {
   // Fixed geometric errors of the arm against its model show as an error that depends smoothly on the
-  // joints: a direction and a magnitude (0.3 ± 0.1 mm, the seed's budget) that turn with them.
+  // joints: a direction and a magnitude (0.3 ± 0.1 mm, the article's budget) that turn with them.
   const Eigen::Vector3d direction(std::sin(q[0] + 0.7 * q[1] + 0.3), std::cos(1.3 * q[2] - q[3] + 0.2),
                                   std::sin(q[4] - 0.6 * q[5] + 1.1 * q[1]));
   const double magnitude = settings_.robot_error_mean_mm +

@@ -1,4 +1,4 @@
-// The robot–world calibration's motion (seed 002 §4.2) and the SIMULATED optical tracker it reads.
+// The robot–world calibration's motion (Heunis et al. 2021, §2.3) and the SIMULATED optical tracker it reads.
 //
 // CalibrationMotion is a phase machine on the control thread, like the sweep: the network thread
 // chooses K tool poses near the current one (calibration_poses(), checked against the workspace box and
@@ -14,12 +14,12 @@
 // SimulatedOpticalTracker: the SIMULATED motion-capture system that defines the global frame {G}. The
 // arm's base sits at a true H_B^G and a marker rigid body on the probe at a true X = H_U^M (both from
 // the robot file's ultrasound.simulation.tracker). At 120 Hz it samples where the probe really is — the
-// forward kinematics of the measured joints plus the arm's own positioning error (seed §4.6: 0.3 ± 0.1
-// mm; modelled as a smooth function of the joints, i.e. fixed geometric errors of the arm against its
-// model: the same pose gives the same error) — and reports the marker in {G} with the triangulation
-// error (0.56 ± 0.08 mm in a random direction, plus 0.02° per axis of rotation noise), and the limb in
-// {G} (H_B^G times the limb tracker's pose in the base frame). It runs where the control thread asks
-// it (stepped with the measured joints), since the truth it needs is the simulated arm's.
+// forward kinematics of the measured joints plus the arm's own positioning error (Heunis et al. 2021, §4.3:
+// 0.3 ± 0.1 mm; modelled as a smooth function of the joints, i.e. fixed geometric errors of the arm against
+// its model: the same pose gives the same error) — and reports the marker in {G} with the triangulation error
+// (0.56 ± 0.08 mm in a random direction, plus 0.02° per axis of rotation noise), and the limb in {G} (H_B^G
+// times the limb tracker's pose in the base frame). It runs where the control thread asks it (stepped with
+// the measured joints), since the truth it needs is the simulated arm's.
 #pragma once
 
 #include <array>

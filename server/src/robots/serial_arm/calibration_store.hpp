@@ -1,4 +1,4 @@
-// The calibration store of a robot (seed 002 REQ-TF-7: calibrations persisted and versioned): one JSON
+// The calibration store of a robot (calibrations are persisted and versioned): one JSON
 // file per kind and version in one directory, `<kind>-v<version>.json` (version 1, 2, …; zero-padded
 // to six digits so that a directory listing sorts them). Each file holds the kind, the version, when it
 // was taken (UTC), the robot's name, the method, the transform(s) as 4×4 homogeneous matrices in row

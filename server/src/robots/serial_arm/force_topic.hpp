@@ -1,4 +1,4 @@
-// The serial arm's force topic /{robot}/force (issue 17, seed 002 REQ-VIS-4: "the current contact force
+// The serial arm's force topic /{robot}/force (issue 17; the sweep shows "the current contact force
 // versus 0.8 N, and the controller mode"): a TopicSource with its own light thread that reads, at 100 Hz,
 // what the control thread already publishes every tick through seqlocks (ArmSnapshot, SweepSnapshot and
 // the probe state's tick) and serialises one small JSON message per new control tick:

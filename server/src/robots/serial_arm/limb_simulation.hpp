@@ -1,7 +1,7 @@
-// The SIMULATED limb under the ultrasound arm (seed 002 §6.1 and the digital twin of §16): a tissue
-// surface with bumps, an artery inside it, periodic limb movements (PLMs) and the 120 Hz tracker that
-// reports the limb's pose; plus the pre-operative data a plan is made from (a CT of the artery wall and
-// of the skin, in a CT frame that is deliberately misregistered, and a depth scan of the skin).
+// The SIMULATED limb under the ultrasound arm (Heunis et al. 2021, §3.1; the simulated set-up follows its
+// §4): a tissue surface with bumps, an artery inside it, periodic limb movements (PLMs) and the 120 Hz
+// tracker that reports the limb's pose; plus the pre-operative data a plan is made from (a CT of the artery
+// wall and of the skin, in a CT frame that is deliberately misregistered, and a depth scan of the skin).
 //
 // Frames (mm, rad): the limb frame {P} ("tissue") has z out of the skin (up) and x along the limb; its
 // rest pose in the arm's base frame is `rest_pose`. The skin is a half-cylinder of radius
@@ -9,9 +9,9 @@
 // surface (sim::ContactSurface, a spring and a damper) presses against. The artery is a tube of
 // `artery_radius` whose centerline is a quartic in x at `artery_depth` below the top.
 //
-// PLM (§6.1 [SUPPLEMENT], MATLAB fourier2): for each of y, z (mm) and the rotation about x (rad),
-// q(t) = a0 + a1·cos ωt + b1·sin ωt + a2·cos 2ωt + b2·sin 2ωt, ω = 2π/T; the limb's pose at t is
-// rest_pose · Trans(0, q_y, q_z) · Rot_x(q_rx). The tracker samples that pose at 120 Hz and reports the
+// PLM (Heunis et al. 2021, §3.1; our model, a MATLAB fourier2 form): for each of y, z (mm) and the rotation
+// about x (rad), q(t) = a0 + a1·cos ωt + b1·sin ωt + a2·cos 2ωt + b2·sin 2ωt, ω = 2π/T; the limb's pose at t
+// is rest_pose · Trans(0, q_y, q_z) · Rot_x(q_rx). The tracker samples that pose at 120 Hz and reports the
 // sample taken `tracker_latency` ago (sample-and-hold): the motion compensation sees the limb up to
 // one tracker period plus the latency late, as with a real motion-capture stream.
 //
@@ -58,7 +58,7 @@ struct LimbParameters {
   // The artery: centerline z = −artery_depth + quartic, y = quartic, over x in [x_start, x_end].
   double artery_x_start = -62.5, artery_x_end = 62.5;
   double artery_depth = 30.0;   // mm below the top at the middle
-  double artery_radius = 5.0;   // mm (10 mm inner diameter, the seed's silicone tube)
+  double artery_radius = 5.0;   // mm (10 mm inner diameter, the article's silicone tube)
   double artery_lateral = 3.0;  // mm: the y bow of the centerline
   double artery_dip = 3.0;      // mm: the z sag of the centerline
   // PLM.
@@ -67,14 +67,14 @@ struct LimbParameters {
   // Tracker.
   double tracker_rate = 120.0;   // Hz
   double tracker_latency = 0.0;  // s, on top of the sample-and-hold
-  // Measurement noise of each report (§16 step 5: "0.3 mm-equivalent"): Gaussian, σ = tracker_noise (mm)
+  // Measurement noise of each report (our choice: "0.3 mm-equivalent"): Gaussian, σ = tracker_noise (mm)
   // on each axis of the position and σ = tracker_noise / cylinder_radius (rad) about each axis of the
   // orientation — a rotation that moves a point on the skin's far side by the same amount. 0: exact.
   double tracker_noise = 0.0;
   // Pre-operative data (SIMULATED).
   Eigen::Isometry3d ct_T_limb = Eigen::Isometry3d::Identity();  // the CT frame's misregistration
-  double ct_noise = 0.2;                                        // mm (§16 step 2)
-  double scan_noise = 0.5;                                      // mm, the skin depth scan (§16 step 3)
+  double ct_noise = 0.2;                                        // mm (our choice)
+  double scan_noise = 0.5;                                      // mm, the skin depth scan (our choice)
   std::uint64_t seed = 17;
 };
 
@@ -115,8 +115,8 @@ class LimbSimulation final : public sim::SurfaceHeightMap {
   // (grid spacing in mm).
   std::vector<Eigen::Vector3d> ct_wall_cloud() const;
   std::vector<Eigen::Vector3d> skin_scan(double spacing = 1.5) const;
-  // The calibration stick fixed to the limb (§4.4, §16 step 2): three rods of 40, 25 and 15 mm (radius
-  // 3 mm) along x, y and z from a corner beside the skin — asymmetric, so one pose fits. Its model in
+  // The calibration stick fixed to the limb (Heunis et al. 2021, §2.4): three rods of 40, 25 and 15 mm
+  // (radius 3 mm) along x, y and z from a corner beside the skin — asymmetric, so one pose fits. Its model in
   // the limb frame (exact, every 1 mm: the tracker's rigid body defines {P}) and its CT image (CT frame,
   // CT noise, every 2 mm). ICP of the one onto the other gives the CT → {P} registration.
   std::vector<Eigen::Vector3d> stick_model() const;

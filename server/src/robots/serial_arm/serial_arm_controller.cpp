@@ -1,6 +1,6 @@
 // The serial arm's part of the control cycle (control thread): the force sensor's watchdog and F_max
-// (seed 002 REQ-SAFE-1), the Cartesian mode's move_cp / servo_cp / servo_cv on the joint setpoint, and
-// the way out of a force hold (REQ-SAFE-2: retract along the contact force at ≤ 10 mm/s). No
+// (hard limits), the Cartesian mode's move_cp / servo_cp / servo_cv on the joint setpoint, and
+// the way out of a force hold (retraction at ≤ 10 mm/s: retract along the contact force at ≤ 10 mm/s). No
 // allocation, no locks, no exceptions: the kinematic workspaces are preallocated.
 #include <algorithm>
 #include <cmath>
@@ -86,7 +86,7 @@ void SerialArmController::integrate(ControlContext& ctx,
     return;
   }
   teleop::ArmVector next = q_ + result.joints.joint_velocity * ctx.period;
-  // The workspace box (REQ-SAFE-1): a setpoint whose tool would leave it does not move.
+  // The workspace box: a setpoint whose tool would leave it does not move.
   const auto& s = robot_.settings_;
   workspace_limited_ = false;
   if (robot_.model().forward_kinematics(next, probe_)) {
@@ -208,8 +208,9 @@ void SerialArmController::control(ControlContext& ctx) noexcept {
 bool SerialArmController::while_held(ControlContext& ctx) noexcept {
   if (robot_.sweep_) robot_.sweep_->interrupt("the robot is held (see its hold); resume it first");
   if (robot_.calibration_motion_) robot_.calibration_motion_->fail("the robot was held (see its hold)");
-  // REQ-SAFE-2: out of a force hold, back away along the contact force (the push the tissue gives the
-  // tool) at the retract speed until the force is under the resume bound, for at most retract_max_mm.
+  // Retraction at ≤ 10 mm/s: out of a force hold, back away along the contact force (the push the tissue
+  // gives the tool) at the retract speed until the force is under the resume bound, for at most
+  // retract_max_mm.
   if (!retracting_) return false;
   const auto& s = robot_.settings_;
   const Eigen::Vector3d f = force_base(ctx);

@@ -1,8 +1,9 @@
-// A six-joint serial arm (UR5 geometry, seed 002's ultrasound arm) as a robot type ("serial_arm"):
-// joint mode from the core (move_jp, servo_jv in rad), a "cartesian" mode with CRTK move_cp, servo_cp
-// and servo_cv resolved through the damped inverse of seed 002 App. A (teleop::CartesianControl), the
-// tool's measured_cp / measured_cv from the kinematics and measured_cf from a 3-axis force sensor, with
-// the seed's hard limits: contact force ≤ F_max, force data stale > 20 ms, a workspace box.
+// A six-joint serial arm (UR5 geometry, the ultrasound arm of Heunis et al. 2021) as a robot type
+// ("serial_arm"): joint mode from the core (move_jp, servo_jv in rad), a "cartesian" mode with CRTK move_cp,
+// servo_cp and servo_cv resolved through the damped inverse of Heunis et al. 2021, Appendix A
+// (teleop::CartesianControl), the tool's measured_cp / measured_cv from the kinematics and measured_cf from a
+// 3-axis force sensor, with the article's hard limits: contact force ≤ F_max, force data stale > 20 ms, a
+// workspace box.
 //
 // Hardware: the joints are velocity-commanded through a hardware::JointInterface the type provides
 // (RobotAssembly::provide_joints), the force sensor is a hardware::ForceSensor. A real UR5 is commanded
@@ -84,16 +85,16 @@ const char* to_string(ArmMotion motion) noexcept;
 struct ArmSettings {
   std::string model = "ur5";
   teleop::SerialArmParameters parameters;  // DH and tool from the model, limits from the file's joints
-  teleop::CartesianLimits cartesian;       // seed 002 Table 1's V_d, ω_d; move_cp accelerations
-  teleop::TaskSpaceGains gains;            // the pose law of servo_cp and move_cp (A2–A9)
-  double servo_cp_max_step_mm = 20.0;      // a servo_cp goal farther from the setpoint is refused
+  teleop::CartesianLimits cartesian;   // the V_d of Heunis et al. 2021, Table 1, ω_d; move_cp accelerations
+  teleop::TaskSpaceGains gains;        // the pose law of servo_cp and move_cp (A2–A9)
+  double servo_cp_max_step_mm = 20.0;  // a servo_cp goal farther from the setpoint is refused
   double servo_cp_max_step_rad = 0.2;
   double goal_tolerance_mm = 1.0;  // move_cp: a dry run must end this close to the goal
   double goal_tolerance_rad = 0.01;
   Eigen::Vector3d workspace_min = Eigen::Vector3d::Constant(-1e9);  // mm, base frame
   Eigen::Vector3d workspace_max = Eigen::Vector3d::Constant(1e9);
-  // REQ-SAFE-1: force data stale > 20 ms, contact force > F_max (3 N) hold the arm; REQ-SAFE-2: the way
-  // out of a force hold retracts along the contact force at ≤ 10 mm/s.
+  // Hard limits: force data stale > 20 ms, contact force > F_max (3 N) hold the arm; retraction at ≤ 10 mm/s:
+  // the way out of a force hold retracts along the contact force at ≤ 10 mm/s.
   double force_stale_s = 0.020;
   double max_contact_force_n = 3.0;
   double resume_contact_force_n = 1.5;  // resume is allowed below this

@@ -1,20 +1,20 @@
-// The us_arm's image-to-probe ("us", seed 002 §4.3, REQ-TF-5) and catheter mold ("catheter", §4.1,
-// REQ-TF-3) calibrations as routines of the robot's CalibrationRunner (calibration_runner.hpp): POST
-// …/calibrate {"kind": "us" | "catheter"} runs them, each result is saved as a new version in the
-// robot's CalibrationStore and, when valid, becomes the one the ultrasound topics' reconstruction maps
-// with (UltrasoundTopics reads image_in_use() / fiber_in_use() at each worker step).
+// The us_arm's image-to-probe ("us", Heunis et al. 2021, §2.3) and catheter mold ("catheter", §2.2–2.3)
+// calibrations as routines of the robot's CalibrationRunner (calibration_runner.hpp): POST …/calibrate
+// {"kind": "us" | "catheter"} runs them, each result is saved as a new version in the robot's
+// CalibrationStore and, when valid, becomes the one the ultrasound topics' reconstruction maps with
+// (UltrasoundTopics reads image_in_use() / fiber_in_use() at each worker step).
 //
 // "us": the SIMULATED N-wire phantom (ultrasound/probe_calibration.hpp) at a fixed pose in the arm's
 // base frame; the probe held over it at 24 poses; at each the SIMULATED scanner images through its TRUE
 // H_I^U and pixel scales (0.8 mm and 1° off the nominal plane, s_u 0.127 and s_v 0.123 mm against the
 // nominal 0.125 — our SIMULATED error, chosen about a speed-of-sound mismatch and a mounting tolerance)
-// at the true probe pose (where the arm says it is ⊕ its positioning error, 0.3 ± 0.1 mm, §4.6); echoes
-// detected, each layer's M placed by the N-wire ratio, least squares over 18 images, the point
-// reconstruction error on the other 6 the validation (valid below 0.5 mm, REQ-TF-5). The arm does not
+// at the true probe pose (where the arm says it is ⊕ its positioning error, 0.3 ± 0.1 mm, Heunis et al. 2021,
+// §4.3); echoes detected, each layer's M placed by the N-wire ratio, least squares over 18 images, the point
+// reconstruction error on the other 6 the validation (valid below 0.5 mm). The arm does not
 // move there yet: the poses are where it would hold the probe (a routine of the robot's motion, like
 // the robot calibration's, is what is left).
 // "catheter": the SIMULATED mold (ultrasound/mold_calibration.hpp): channel I the reference, channel II
-// the fit, channel III the validation (valid within the seed's 0.82 mm mean and 1.52 mm max); no arm
+// the fit, channel III the validation (valid within the article's 0.82 mm mean and 1.52 mm max); no arm
 // motion. The fibre's true H_F^C is the simulation's; the reconstruction's catheter is imaged through it
 // and mapped through the calibrated one.
 //
@@ -46,7 +46,7 @@ struct UltrasoundCalibrationSimulation {
   ultrasound::NWirePhantom phantom{};       // its wires
   Eigen::Isometry3d phantom_in_base = Eigen::Isometry3d::Identity();  // {N} in the arm's base frame
   int poses = 24;
-  double robot_error_mm = 0.3, robot_error_sd_mm = 0.1;  // seed §4.6, per pose
+  double robot_error_mm = 0.3, robot_error_sd_mm = 0.1;  // Heunis et al. 2021, §4.3, per pose
   double robot_angle_sd_rad = 0.02 * 3.14159265358979323846 / 180.0;
   ultrasound::SimulatedMold mold;  // its pose, the fibre's true H_F^C, the tracker and interrogator noise
   std::uint64_t seed = 17;

@@ -1,6 +1,7 @@
-// The ultrasound sweep of the serial arm (robot "us_arm", issue 17, seed 002 §5–7): a robot file's
-// optional "ultrasound" section adds the SIMULATED limb (limb_simulation.hpp), the plan (Algorithms 1–2
-// and ICP, made on a network thread) and the mode "sweep", whose controller runs on the control thread:
+// The ultrasound sweep of the serial arm (robot "us_arm", issue 17, Heunis et al. 2021, §2.4, §3.1 and
+// Appendix A): a robot file's optional "ultrasound" section adds the SIMULATED limb (limb_simulation.hpp),
+// the plan (Algorithms 1–2 and ICP, made on a network thread) and the mode "sweep", whose controller runs on
+// the control thread:
 //
 //   idle → planned → pre_positioning → ready → approaching → acquiring → moving → acquiring … → done
 //                       (pause: paused, start continues; abort: aborted, after a retraction)
@@ -12,18 +13,18 @@
 //  * acquiring: the acquisition gate is open (|E_∥| < 0.5 mm, E_θ < 0.01 rad, |F_n − d_f| ≤ 0.1 N for
 //    100 ms); the gate must stay open for `acquire_time` (the slice is taken then), after which the sweep
 //    moves on;
-//  * moving: to the next via-point, in the force phase (the probe slides on the skin, REQ-CTRL-7);
+//  * moving: to the next via-point, in the force phase (the probe slides on the skin);
 //  * paused: the probe stays in contact on the current via-point at the force target, following the
 //    limb, and acquires nothing (our choice: lifting off and landing again would cost the approach
 //    time and the images' continuity; abort is the way off the skin); start continues;
 //  * done / aborted: the probe retracts along the via-point's normal (out of the skin) at
-//    `retract_speed` (≤ 10 mm/s, REQ-SAFE-2) for `retract_distance`, then holds still.
+//    `retract_speed` (≤ 10 mm/s) for `retract_distance`, then holds still.
 // A hold of the robot (force sensor lost, F_max, a limit) or a mode switch turns a running sweep into
 // paused: after resume, start continues it.
 //
 // Motion compensation: every cycle each target is re-expressed from the limb's tracked pose,
-// H_i^B(t) = H_P^B(t) · H_i^P (§6.2's recommended form; world = the arm's base frame), with the pose
-// the SIMULATED 120 Hz tracker reported last.
+// H_i^B(t) = H_P^B(t) · H_i^P (the form of Heunis et al. 2021, §3.1; world = the arm's base frame), with the
+// pose the SIMULATED 120 Hz tracker reported last.
 #pragma once
 
 #include <array>
@@ -53,20 +54,20 @@ struct UltrasoundSettings {
   // Planning (Algorithms 1–2): n via-points between start_x and end_x of the limb frame.
   int via_points = 16;
   double start_x = -55.0, end_x = 55.0;  // mm, limb frame
-  int nearest = 5;                       // surface points averaged per via-point (§5.2 note 7)
+  int nearest = 5;                       // surface points averaged per via-point (our choice for Algorithm 2)
   // Control.
   teleop::ForceControlParameters force{};
   teleop::AcquisitionGateParameters gate{};
   double approach_height = 20.0;        // mm above via-point 0 where pre-positioning ends
   double pre_position_tolerance = 1.0;  // mm (and gate.orientation_setpoint) for "ready"
   double acquire_time = 0.25;           // s the gate stays open per slice
-  double retract_speed = 10.0;          // mm/s (REQ-SAFE-2: ≤ 10)
+  double retract_speed = 10.0;          // mm/s (retraction at ≤ 10 mm/s: ≤ 10)
   double retract_distance = 20.0;       // mm
   // Motion compensation's velocity feed-forward: the via-point's velocity, from the last two tracker
   // samples, added to the hybrid controller's twist (without it only the force law follows the limb
   // along the normal, and lags it by v / 1.67 (mm/s)/N).
   bool velocity_feed_forward = true;
-  // The tracked limb pose is noisy (§16 step 5: 0.3 mm); the feed-forward's velocity would amplify it
+  // The tracked limb pose is noisy (0.3 mm); the feed-forward's velocity would amplify it
   // (a difference over one 8.3 ms tracker period: σ·√2·120 ≈ 50 mm/s from 0.3 mm, the speed cap). The
   // tracker's reports go through a critically damped alpha-beta filter (LimbPoseFilter) of this natural
   // frequency: both the targets and the feed-forward use its pose and velocity. 0: off (raw reports,

@@ -1,6 +1,6 @@
-// The us_arm's ultrasound imaging and reconstruction topics (issue 17, seed 002 Fig. 7): a TopicSource
-// with its own worker thread (never the control thread) that reads the probe state the sweep publishes
-// (ultrasound_probe_state.hpp, SerialArm::probe_state()), feeds an
+// The us_arm's ultrasound imaging and reconstruction topics (issue 17, Heunis et al. 2021, Fig. 7): a
+// TopicSource with its own worker thread (never the control thread) that reads the probe state the sweep
+// publishes (ultrasound_probe_state.hpp, SerialArm::probe_state()), feeds an
 // ultrasound::UltrasoundReconstructionSession and publishes
 //   /{robot}/ultrasound/image        foxglove.CompressedImage, PNG, base64 in JSON; the SIMULATED B-mode
 //                                    slice while the probe is in contact, only while someone watches;

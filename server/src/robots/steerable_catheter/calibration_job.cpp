@@ -19,7 +19,7 @@ namespace {
 
 using nlohmann::json;
 
-// The seed's mean fit errors (§4.5.2), reported next to ours.
+// The dissertation's mean fit errors (§4.5.2), reported next to ours.
 constexpr std::array<double, 2> kSeedMeanFitErrorDeg{0.021, 0.057};
 
 json matrix_json(const Eigen::MatrixXd& A) {

@@ -1,4 +1,4 @@
-// Shape calibration jobs (seed 000 §4.5.2, eqs. 4.10–4.12) behind POST /api/v1/robots/{r}/calibrations:
+// Shape calibration jobs (Abah 2022, §4.5.2, eqs. 4.10–4.12) behind POST /api/v1/robots/{r}/calibrations:
 // the request is read and checked at once (400/422 with the key at fault), then the fit runs on the
 // planning worker pool. Data come in one of four forms:
 //   "samples":  [[s_mm, q_mm, theta_rad], …]                       scattered tangent data
@@ -8,7 +8,7 @@
 //               "mm_per_pixel" and optionally "entry", "mirror", "dark_catheter", "threshold"
 // Outlines and images go through teleop::extract_tangent_angles ("straight_mm": the visible straight
 // tube before the segment when the rig fixes it, "smoothing_mm"). The result holds the shape matrix
-// A (n×m, rows powers of s, columns powers of q, mm), the mean/max/RMS fit error against the seed's
+// A (n×m, rows powers of s, columns powers of q, mm), the mean/max/RMS fit error against the dissertation's
 // 0.021° / 0.057°, and per picture what was extracted. With "save_as": "<name>.json" the robot file
 // is written anew next to the old one with catheter.model.<segment>_shape_matrix set; an existing
 // file is never replaced (409 at once, or the job fails if one appears meanwhile).

@@ -1,6 +1,6 @@
 // The steerable catheter's part of the control cycle (real-time thread: no allocation, locks or
 // blocking): spring-deflection supervision, the configuration, active-compliance and telemanipulation
-// modes of the mid-level controller (seed 000 §4.7), and the ways out of a hold: retraction, relaxing
+// modes of the mid-level controller (Abah 2022, §4.7), and the ways out of a hold: retraction, relaxing
 // the springs, and resume only once the cause has cleared.
 #include <algorithm>
 #include <cmath>

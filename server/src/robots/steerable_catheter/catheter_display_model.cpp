@@ -11,8 +11,9 @@
 namespace tendril::server {
 namespace {
 
-// The SRMC drawn with constant curvature (seed 000 §4.6 gap note) while its shape is the nominal
-// tip-only model; a calibrated shape matrix is drawn by ModalCatheterModel below.
+// The SRMC drawn with constant curvature (Abah 2022, §4.5.2, gives the modal shape only after calibration)
+// while its shape is the nominal tip-only model; a calibrated shape matrix is drawn by ModalCatheterModel
+// below.
 class ConstantCurvatureCatheterModel final : public RobotKinematics {
  public:
   ConstantCurvatureCatheterModel(const teleop::CatheterParameters& p, std::size_t points)

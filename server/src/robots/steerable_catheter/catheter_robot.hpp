@@ -1,4 +1,4 @@
-// The steerable robotic microcatheter (SRMC, seed 000 ch. 4) as a robot type ("steerable_catheter"):
+// The steerable robotic microcatheter (SRMC, Abah 2022, ch. 4) as a robot type ("steerable_catheter"):
 // its configuration-space model and controller, the spring-deflection and joystick inputs (CAN ADC
 // nodes, evdev), its modes (configuration, active compliance, telemanipulation), the ways out of its
 // holds, and on a virtual bus the SIMULATED series-elastic plant in its vessel with simulated ADC nodes.

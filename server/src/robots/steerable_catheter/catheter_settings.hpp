@@ -1,4 +1,4 @@
-// Settings of a steerable catheter robot (the "catheter" object of its robot file, seed 000 ch. 4):
+// Settings of a steerable catheter robot (the "catheter" object of its robot file, Abah 2022, ch. 4):
 // the nominal shape model with losses and coupling for configuration control, the spring-deflection
 // sensors and their bound, active compliance, telemanipulation speeds and joystick inputs, and the
 // simulated plant (springs, vessel, ADC nodes) used when its bus is virtual.
@@ -43,11 +43,11 @@ struct VesselTubeSettings {
   double lead_in_mm = 20.0;  // arc channel: straight part along +z from z = 0
   double bend_radius_mm = 25.0;
   double turn_deg = 90.0;
-  double lumen_radius_mm = 1.5875;  // the seed's phantom tubing, ID 3.175 mm
+  double lumen_radius_mm = 1.5875;  // the dissertation's phantom tubing, ID 3.175 mm
 };
 
 // catheter.simulation.true_catheter: a SIMULATED plant that differs from the model the robot plans and
-// controls with (off by default: the plant is the model). The seed gives no values; these are the
+// controls with (off by default: the plant is the model). The dissertation gives no values; these are the
 // mismatches its §4.11 high-level controller is there to absorb.
 struct TrueCatheterSettings {
   bool enabled = false;

@@ -1,4 +1,4 @@
-// The imaging half of the catheter's image_guided mode (seed 000 §4.11, the high-level controller):
+// The imaging half of the catheter's image_guided mode (Abah 2022, §4.11, the high-level controller):
 // on every bi-plane evaluation of the tracked tip (an imaging thread, never the control thread) the
 // measured tip and the measured insertion go to teleop::ImageGuidedReplanner, and its configuration
 // target goes to the control thread through a lock-free latest-value slot. The control thread

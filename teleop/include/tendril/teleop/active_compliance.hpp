@@ -1,14 +1,14 @@
-// Active compliance (admittance) of the series-elastic bend drives, seed 000 §4.7.3, eqs. 4.24–4.26:
+// Active compliance (admittance) of the series-elastic bend drives, Abah 2022, §4.7.3, eqs. 4.24–4.26:
 //   q_des = q_cur + [0, 0, dq_a1, dq_a2]ᵀ,  dq_ai = K_a·((1 − t_i)·v_min + t_i·v_max)·dt,
 //   t_i = q_si / q_si,max  (q_si: spring deflection from the linear potentiometer).
-// The seed prints no sign (erratum 14): the correction moves the bend drive the way that relaxes its
+// The dissertation prints no sign: the correction moves the bend drive the way that relaxes its
 // spring, i.e. against the deflection (deflection = drive − carriage, so a wall that pushes the
 // carriage up gives a negative deflection and the drive follows it up). |t_i| saturates at 1, and a
 // deflection inside the deadband gives no motion (otherwise v_min would make the drive creep on
 // sensor noise). Insertion and roll are left to the operator.
 //
-// Chosen values (the seed gives none), see teleop/steerable_catheter/README.md:
-//   deadband 0.05 mm: the seed's trigger force ≈ 0.01 N over the 0.2 N/mm spring;
+// Chosen values (the dissertation gives none), see teleop/steerable_catheter/README.md:
+//   deadband 0.05 mm: the dissertation's trigger force ≈ 0.01 N over the 0.2 N/mm spring;
 //   v_min 0.2 mm/s, v_max 2 mm/s (the bend drives' speed limit), K_a = 1;
 //   q_s,max 1.0 mm (0.2 N on the tube); the safety bound that holds the robot is larger (1.5 mm).
 #pragma once

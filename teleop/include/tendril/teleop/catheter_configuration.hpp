@@ -1,5 +1,5 @@
-// Configuration-space control of the steerable microcatheter (seed 000 §4.7.2 / notes §4.11.2,
-// errata 11–13).
+// Configuration-space control of the steerable microcatheter (Abah 2022, §4.7.2,
+// with three misprints corrected).
 //
 // Configuration ψ = [q1 insertion (mm), q2 roll (rad), θ_L1, θ_L2], θ_Li the ASSEMBLED tip bend angle
 // of segment i (rad, 0 = straight). From the tip-only modal model (ModalCatheterKinematics):
@@ -39,7 +39,7 @@ class CatheterConfigurationMap {
   Vector4 configuration(const Vector4& q) const noexcept;
 
   // Inverse of configuration(): q1, q2 pass through; each bend solves θ̃*_i(q) = (θ_Li − b_i)/a_i for
-  // the root closest to q = 0 (the tip angle is a polynomial in q; for the seed's m = 2 it is linear
+  // the root closest to q = 0 (the tip angle is a polynomial in q; for the dissertation's m = 2 it is linear
   // and the root is unique). Returns false (q untouched) when ψ is not finite or a bend has no root
   // in the search range. Two roots closer together than the scan step (range/200) can be missed.
   bool joints(const Vector4& psi, Vector4& q) const noexcept;
@@ -66,7 +66,7 @@ class CatheterConfigurationMap {
 };
 
 // Data flow per tick: a quintic in ψ (4 dims) gives ψ_des(t) and ψ̇_des(t); (4.21) maps ψ̇_des to q̇_des
-// at the current q_des; q_des = ∫ q̇_des dt (erratum 13). Real-time safe: fixed storage, no
+// at the current q_des; q_des = ∫ q̇_des dt. Real-time safe: fixed storage, no
 // allocation, every per-tick call noexcept. Not thread-safe (one control thread owns it).
 class ConfigurationSpaceController {
  public:
@@ -93,7 +93,7 @@ class ConfigurationSpaceController {
   // Advances q_des over the tick (t − dt, t]: on return q_des is the command for time t and qd_des
   // the joint rate used over the tick. Integrator: explicit midpoint rule (RK2), q_des += q̇·dt with
   // q̇ = (4.21) applied to the ψ̇_des sampled at the tick's middle, evaluated at the q_des predicted
-  // for the tick's middle (an Euler half step). With the seed's m = 2 model ψ(q) is affine and the
+  // for the tick's middle (an Euler half step). With the dissertation's m = 2 model ψ(q) is affine and the
   // map constant, so only the time quadrature errs (O(dt³) per tick).
   // Drift correction: the ψ error the step would leave at t, ψ_des(t) − ψ(q_des) − ψ̇_des·dt, is added
   // as a rate kDriftCorrectionRate·error (at most error/dt) through the same map, i.e. a gradual

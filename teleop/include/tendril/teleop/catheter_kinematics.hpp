@@ -1,10 +1,10 @@
 // ConstantCurvatureCatheter: forward kinematics of the two-segment steerable robotic microcatheter
-// (SRMC, seed 000 §4.5, eq. 4.4–4.6) with the constant-curvature placeholder shape of §4.6:
+// (SRMC, Abah 2022, §4.5.1, eqs. 4.4–4.6) with the constant-curvature placeholder shape of §4.5.2:
 //   θ_i(s, q) = π/2 − k_i·q_{i+2}·s/L_i   (tangent angle from x̂ in the bending plane).
 // Chain: ⁰H₁ (insert q1 along ẑ) · roll e^{q2[ẑ×]} · proximal CS [e^{θ̃_L1[ŷ×]}, d1] · e^{δ2[ẑ×]} ·
 // flexure e^{γ[x̂×]} · distal CS [e^{θ̃_L2[ŷ×]}, d2], with θ̃ = π/2 − θ_L = k·q (the bend angle).
 //
-// Frame convention (chosen here, the seed leaves it open): frame {0} is the insertion frame; its z
+// Frame convention (chosen here, the dissertation leaves it open): frame {0} is the insertion frame; its z
 // axis is the insertion axis. The base of the proximal segment sits at (0, 0, q1), so a straight
 // catheter (q3 = q4 = 0) points along +z with its tip at z = q1 + L1 + L2. A positive push-pull q3
 // bends the proximal segment towards +x (before roll). Lengths in mm, angles in rad, q1/q3/q4 in mm.

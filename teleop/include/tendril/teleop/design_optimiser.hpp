@@ -1,4 +1,4 @@
-// Catheter design optimisation (seed 000 §4.9, diss. §4.6.2) and the r_tp/r_seg weight sweep
+// Catheter design optimisation (Abah 2022, §4.6.2) and the r_tp/r_seg weight sweep
 // (§4.6.1): outer loops that run the shape-error planner (shape_error_planner.hpp) once per design or
 // weight pair and score each plan with the design penalty g(χ).
 #pragma once
@@ -12,7 +12,7 @@
 
 namespace tendril::teleop {
 
-// The design optimiser (§4.9). The seed minimises g(χ), χ = [L1, L2, δ2], with Nelder–Mead; on
+// The design optimiser (§4.6.2). The dissertation minimises g(χ), χ = [L1, L2, δ2], with Nelder–Mead; on
 // tortuous vessels g is rugged (every evaluation is a full nested plan whose per-step LM solutions jump
 // between local minima), and an unbounded simplex from one start stalled on plateaus of long designs
 // (issue 15). tendril searches in three stages, every evaluation a full plan:
@@ -83,7 +83,7 @@ struct DesignConvergence {
 struct DesignResult {
   CatheterParameters design;     // χ* in proximal_length, distal_length, plane_offset (wrapped to ±π)
   bool flexure = false;          // optimised with γ free allowed (planner_options.free_flexure)
-  double penalty = 0.0;          // g(χ*) of §4.9, at the vessel's spacing
+  double penalty = 0.0;          // g(χ*) of §4.6.2, at the vessel's spacing
   double initial_penalty = 0.0;  // g at the starting design, at the vessel's spacing
   int evaluations = 0;           // planner runs in total (all stages)
   // Tip error of the plan: distance from each step's planned tip to the vessel centerline at the
@@ -117,7 +117,7 @@ WeightSweepResult sweep_weights(const CatheterParameters& design, const VesselCe
                                 const std::vector<double>& proximal_to_distal_ratios,
                                 const JobControl& job = {});
 
-// g(χ) = (max δp + mean δp)/δ_p,range + (max δt + mean δt)/δ_t,range over the whole plan (§4.9).
+// g(χ) = (max δp + mean δp)/δ_p,range + (max δt + mean δt)/δ_t,range over the whole plan (§4.6.2).
 double design_penalty(const PathPlan& plan, const ShapeErrorPlannerOptions& options);
 
 // Optimises χ = [L1, L2, δ2] from `start` (its other parameters, gains and γ, are kept) as described

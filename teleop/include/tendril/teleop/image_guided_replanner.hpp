@@ -1,6 +1,6 @@
-// Live replanning from image feedback: the high-level controller of seed 000 §4.11 (HLC, [L1696]:
+// Live replanning from image feedback: the high-level controller of Abah 2022, §4.11 (HLC:
 // "position feedback from real-time bi-plane segmentation, plus path-plan predictions based on the
-// measured insertion depth"). The seed gives no algorithm; this one is chosen here:
+// measured insertion depth"). The dissertation gives no algorithm; this one is chosen here:
 //
 //  1. From the measured insertion s (arc length of the tip inside the vessel) and the configuration
 //     ψ the robot was last sent, the planner's model predicts where the tip should be. The measured
@@ -8,7 +8,7 @@
 //     at the tip (unmodelled losses, stiffness, lengths). It is low-pass filtered (gain
 //     `tip_error_gain` per measurement) and capped at `max_tip_correction`.
 //  2. The next target is one insertion step ahead of where the tip is: s + dq1 (the vessel end at
-//     most). The shape-error step of §4.8 (eqs. 4.16–4.20) is solved there, warm-started from the
+//     most). The shape-error step of §4.6.1 (eqs. 4.16–4.20) is solved there, warm-started from the
 //     previous solution, with the filtered error added to the model's shape in proportion to σ/(L1+L2)
 //     (none at the base, all of it at the tip): the solver then places the corrected shape, i.e. the
 //     real catheter, on the vessel.

@@ -1,5 +1,5 @@
-// ModalCatheterKinematics: forward kinematics of the two-segment SRMC (seed 000 §4.5, eq. 4.4–4.6)
-// with the calibrated modal shape model of §4.6 (eq. 4.9):
+// ModalCatheterKinematics: forward kinematics of the two-segment SRMC (Abah 2022, §4.5.1, eqs. 4.4–4.6)
+// with the calibrated modal shape model of §4.5.2 (eq. 4.9):
 //   θ_i(s, q) = Ψ(s)ᵀ·A_i·η(q),  Ψ(s) = [1, s, …, s^{n−1}]ᵀ,  η(q) = [1, q, …, q^{m−1}]ᵀ,
 // where θ is the tangent angle from x̂ in the bending (x–z) plane, s ∈ [0, L_i] in mm and q the
 // segment's push-pull actuation in mm. CatheterSegment displacement d_i = ∫₀^{L_i} [cos θ, 0, sin θ]ᵀ ds
@@ -43,7 +43,7 @@ struct ModalCatheterParameters {
   int simpson_intervals = 32;   // composite Simpson intervals over a full segment (even, ≥ 2)
 };
 
-// The constant-curvature placeholder of §4.6 as shape matrices (n = 4, m = 2): the same model as
+// The constant-curvature placeholder of §4.5.2 as shape matrices (n = 4, m = 2): the same model as
 // ConstantCurvatureCatheter with gains k1, k2 (rad/mm).
 ModalCatheterParameters constant_curvature_modal_parameters(const CatheterParameters& parameters);
 

@@ -1,4 +1,4 @@
-// Pid: the per-joint low-level position controller (seed 000 §4.11, 1 kHz PID on q_des − q_cur).
+// Pid: the per-joint low-level position controller (Abah 2022, §4.7, 1 kHz PID on q_des − q_cur).
 // Derivative acts on the measurement (no kick on setpoint steps) through a first-order filter; the
 // integrator is protected against wind-up while the output saturates, either by conditional
 // integration or by back-calculation. update() is noexcept and allocation-free.

@@ -1,4 +1,4 @@
-// QuinticInterpolator: joint-space point-to-point interpolation (seed 000 §4.11.1).
+// QuinticInterpolator: joint-space point-to-point interpolation (Abah 2022, §4.7.1).
 // Each retarget starts a quintic segment from the currently sampled position, velocity and
 // acceleration and ends at rest on the goal, with one duration for all joints chosen as the shortest
 // one that keeps every joint within its velocity and acceleration limits. Storage is fixed-size, so

@@ -10,17 +10,17 @@
 // [v (mm/s); ω (rad/s)]: the linear velocity of the tool point and the angular velocity, both in the base
 // frame, so the geometric Jacobian maps q̇ to that twist.
 //
-// Damped least squares (seed 002 eq. A14): q̇ = Jᵀ(JJᵀ + ρ²I)⁻¹V, evaluated in metres and radians (the
-// linear rows of J and V are divided by DampingParameters::length_scale), so ρ has the SI meaning the
-// seed's suggestion of 0.01–0.05 assumes and does not depend on the model's length unit. The seed leaves
-// ρ open; we choose a manipulability-dependent damping (Nakamura & Hanafusa 1986): with Yoshikawa's
+// Damped least squares (Heunis et al. 2021, eq. A14): q̇ = Jᵀ(JJᵀ + ρ²I)⁻¹V, evaluated in metres and radians
+// (the linear rows of J and V are divided by DampingParameters::length_scale), so ρ has the SI meaning that
+// the usual damping of 0.01–0.05 assumes and does not depend on the model's length unit. The article
+// leaves ρ open; we choose a manipulability-dependent damping (Nakamura & Hanafusa 1986): with Yoshikawa's
 // manipulability w = √det(JJᵀ) = |det J| of the SI Jacobian,
 //   ρ² = ρ_max² (1 − w/w₀)²  for w < w₀,  else 0,
 // so the inverse is exact away from singularities and smoothly damped near them. For any J the damped
 // gain is at most 1/(2ρ) per unit of twist, so at a singularity ‖q̇‖ ≤ ‖V‖/(2ρ_max). Defaults for the
-// UR5: ρ_max = 0.05 (the top of the seed's range) and w₀ = 0.02 m³. The UR5 at a probe-down scanning
+// UR5: ρ_max = 0.05 (the top of the usual range) and w₀ = 0.02 m³. The UR5 at a probe-down scanning
 // pose has w ≈ 0.10; the median over uniformly random joint angles is 0.014. With w₀ = 0.02 the largest
-// joint speed the seed's caps (50 mm/s, 0.1 rad/s) can demand while the wrist (q5) or the elbow (q3)
+// joint speed the article's caps (50 mm/s, 0.1 rad/s) can demand while the wrist (q5) or the elbow (q3)
 // passes through its singularity is 2.6 rad/s, inside the UR5's 3.14 rad/s; with w₀ = 0.01 it would be
 // 4.1 rad/s (serial_arm_kinematics_test.cpp sweeps both singularities).
 #pragma once
@@ -54,7 +54,7 @@ struct ArmJointLimit {
 };
 
 struct DampingParameters {
-  double max_damping = 0.05;               // ρ_max, at w = 0 (SI); the seed suggests 0.01–0.05
+  double max_damping = 0.05;               // ρ_max, at w = 0 (SI); usual values 0.01–0.05
   double manipulability_threshold = 0.02;  // w₀ (m³ for a 6R arm): no damping above it
   double length_scale = 1000.0;            // model length units per metre (mm → m)
 };
@@ -69,7 +69,7 @@ struct SerialArmParameters {
 // The UR5 (CB3 and e-series share the geometry) with Universal Robots' published DH parameters:
 // d1 = 89.159, a2 = −425, a3 = −392.25, d4 = 109.15, d5 = 94.65, d6 = 82.3 mm; α = π/2, 0, 0, π/2,
 // −π/2, 0. Limits from the UR5 data sheet: every joint ±360° at 180°/s. The data sheet gives no
-// acceleration limit; 8 rad/s² is our choice (a probe held at the seed's 50 mm/s and 0.1 rad/s needs
+// acceleration limit; 8 rad/s² is our choice (a probe held at the article's 50 mm/s and 0.1 rad/s needs
 // far less, and it keeps a simulated stop short). `tool` is identity.
 SerialArmParameters ur5_parameters();
 

@@ -1,8 +1,8 @@
-// Image-free parts of the SRMC calibration (seed 000 §4.6–4.7, §4.11.2):
+// Image-free parts of the SRMC calibration (Abah 2022, §4.5.2–4.5.3, §4.7.2):
 //  * fit_shape_matrix: least-squares characteristic shape matrix A of θ(s, q) = Ψ(s)ᵀ·A·η(q)
 //    (eq. 4.10–4.12), from a full r×z grid or scattered (s, q, θ) samples;
 //  * extract_tangent_angles: θ(s) from a segment outline given as 2D points in the bending plane
-//    (the image path of §4.6 after thresholding);
+//    (the image path of §4.5.2 after thresholding);
 //  * ActuationLoss / ConfigurationRateMap: loss lines (4.13–4.14), coupling (4.15) and the
 //    configuration-space rate law (4.21) with the reconstructed (4.22).
 // Set-up functions throw std::invalid_argument with a readable message; the rate map is noexcept.
@@ -49,7 +49,7 @@ ShapeFitResult fit_shape_matrix(const Eigen::VectorXd& arc_lengths, const Eigen:
 ShapeFitResult fit_shape_matrix(std::span<const ShapeSample> samples, const ShapeFitOptions& options = {});
 
 // ---------------------------------------------------------------------------------------------
-// Tangent-angle extraction from an outline (§4.6 image path, minus image I/O)
+// Tangent-angle extraction from an outline (§4.5.2 image path, minus image I/O)
 
 struct TangentExtractionOptions {
   // Resampling step along the arc (mm). Forward differences use this step.
@@ -92,7 +92,7 @@ void append_shape_samples(const TangentProfile& profile, double actuation, std::
 // ---------------------------------------------------------------------------------------------
 // Actuation loss (4.13–4.14), coupling (4.15) and the configuration rate law (4.21–4.23)
 
-// θ_L = slope·θ*_L + offset, θ*_L the tip-only calibrated model's tip angle (rad, as the seed's
+// θ_L = slope·θ*_L + offset, θ*_L the tip-only calibrated model's tip angle (rad, as the dissertation's
 // GAP note assumes).
 struct ActuationLoss {
   double slope = 1.0;

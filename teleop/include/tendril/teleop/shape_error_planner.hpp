@@ -1,8 +1,8 @@
-// Pre-operative path planner by shape-error minimisation (seed 000 §4.8, eqs. 4.16–4.20, §11.2). The
-// design optimiser of §4.9 and the weight sweep of §4.6.1, which run it in a loop, are in
+// Pre-operative path planner by shape-error minimisation (Abah 2022, §4.6.1, eqs. 4.16–4.20). The
+// design optimiser of §4.6.2 and the weight sweep of §4.6.1, which run it in a loop, are in
 // design_optimiser.hpp.
 //
-// Placement convention (the seed leaves it open, §4.8 [GAP]): q1 is the inserted length of the tip
+// Placement convention (the dissertation leaves it open): q1 is the inserted length of the tip
 // along the vessel. The vessel is moved so its start is the insertion point with initial tangent +z.
 // The steerable section's base sits on the centerline at arc length s_b = q1 − (L1 + L2), oriented by
 // a rotation-minimising (parallel-transport) frame started at the identity, with the passive shaft
@@ -17,7 +17,7 @@
 // Tangent residuals use the chord t̂ − t̂_c (|t̂ − t̂_c| = 2 sin(δt/2) = δt + O(δt³)) because arccos is
 // not differentiable at zero; reported tangent errors use the exact angle.
 //
-// Passive flexure (§4.3, §4.10 [GAP]): its stiffness is not given, so a design "with flexure" solves
+// Passive flexure (§4.4.1, §4.6.3): its stiffness is not given, so a design "with flexure" solves
 // γ per step as a fourth free variable next to [q2, q3, q4], bounded by flexure_min/max; without it γ
 // stays at the model's CatheterParameters::flexure.
 #pragma once
@@ -58,14 +58,14 @@ struct ShapeErrorPlannerOptions {
   double relative_cost_tolerance = 1e-9;
   double step_tolerance = 1e-10;  // stop when |Δx|∞ is below this
   // Design with a passive flexure between the segments: γ is solved per step within these limits.
-  // ±60° is chosen here (the seed gives no range): beyond it the joint would kink the lumen.
+  // ±60° is chosen here (the dissertation gives no range): beyond it the joint would kink the lumen.
   bool free_flexure = false;
   double flexure_min = -1.0471975511965976;  // rad
   double flexure_max = 1.0471975511965976;
 };
 
 // Nominal model of the planning study: tip-only placeholder gain k = 1.4 rad/mm, ad hoc design
-// χ = [22 mm, 18.8 mm, −0.76 rad] (§4.10, case ①).
+// χ = [22 mm, 18.8 mm, −0.76 rad] (§4.6.3, case ①).
 CatheterParameters nominal_planning_design();
 
 struct PlanStep {

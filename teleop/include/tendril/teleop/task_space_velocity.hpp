@@ -1,9 +1,9 @@
-// The task-space velocity laws of seed 002 Appendix A, shared by the ultrasound
+// The task-space velocity laws of Heunis et al. 2021, Appendix A, shared by the ultrasound
 // probe's hybrid position/force controller (hybrid_force_controller.hpp) and the plain Cartesian
 // commands (cartesian_control.hpp), and the step from a twist to joint velocities (A13–A14) with the
 // joint limits applied. Pure functions; noexcept and allocation-free.
 //
-// Orientation error (A2–A5), as the spec's errata fix it (E8, E9): the error is two angles about two
+// Orientation error (A2–A5), with two misprints of the article corrected: the error is two angles about two
 // axes, not a single rotation vector. E_θz is the angle between the probe's z axis (the beam axis) and
 // the target's, about θ̂_z = ẑ_u × ẑ_i; E_θy is what remains about the probe axis once the rotation
 // R(E_θz, θ̂_z) has aligned the z axes: the angle from R·ŷ_u to ŷ_i, about Rᵀ(R·ŷ_u × ŷ_i) = ±ẑ_u. Angles
@@ -12,10 +12,10 @@
 // paper's representation and do not use an angle–axis or quaternion error.
 //
 // A6–A8: ω_e = ω_d(1 − e^{−E_θy/γ})·θ̂_y + ω_d(1 − e^{−E_θz/γ})·θ̂_z; the two terms are orthogonal, so
-// their sum can reach √2·ω_d and is scaled back to ω_d (REQ-CTRL-2).
+// their sum can reach √2·ω_d and is scaled back to ω_d.
 // A9: V_e = V_d(1 − e^{−|E|/μ})·Ê + τ·E·Δt·e^{−(|E|/μ)⁵}, with the integral read per iteration (the
-// integral of E over the last control step; erratum E11: the 1-s window and the cumulative integral
-// are unstable or overshoot by 15–29 mm with τ = 20), capped at V_d.
+// integral of E over the last control step; where the article is ambiguous, the 1-s window and the cumulative
+// integral are unstable or overshoot by 15–29 mm with τ = 20), capped at V_d.
 #pragma once
 
 #include <Eigen/Core>
@@ -25,7 +25,7 @@
 
 namespace tendril::teleop {
 
-// Position and orientation parameters of seed 002 Table 1 (units mm, rad, s).
+// Position and orientation parameters of Heunis et al. 2021, Table 1 (units mm, rad, s).
 struct TaskSpaceGains {
   double velocity_threshold = 25.0;    // μ (mm): the scale of the exponential speed profile
   double integral_gain = 20.0;         // τ, Table 1's "integral time constant" (1/s² as A9 uses it)

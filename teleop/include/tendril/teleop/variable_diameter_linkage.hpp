@@ -1,11 +1,11 @@
 // The angulated scissor linkage (ASL) that serves as a spacer disk of the variable-diameter
-// multi-backbone continuum robot (MBCR, seed 000 ch. 2), and the disk-interference limit on its
-// outer radius (seed 000 §2.3–2.6, eq. 2.1–2.18).
+// multi-backbone continuum robot (MBCR, Abah 2022, ch. 2), and the disk-interference limit on its
+// outer radius (Abah 2022, §2.3–2.4, eqs. 2.1–2.18).
 //
 // Radii of one ASL, all measured from the disk centre (Table 2.1):
 //   a  inner radius: the innermost vertices (the linkage's actuation radius, the robot's 5th joint)
 //   r  configuration radius: the mid-range vertices, where the secondary backbones pass (design choice
-//      of the seed, §2.5, since a and r are proportional for every n)
+//      of the dissertation, §2.3.4, since a and r are proportional for every n)
 //   b  outer radius: the outermost vertices, which decide whether neighbouring disks collide
 // Parameters: n rhombuses (n > 2), inner and outer arm lengths l₁, l₂, hinge diameter d.
 //
@@ -17,11 +17,12 @@
 namespace tendril::teleop {
 
 struct ScissorLinkageParameters {
-  int rhombus_count = 8;           // n; 8 keeps four backbones radially symmetric (seed §2.5, Table 2.3)
+  int rhombus_count = 8;  // n; 8 keeps four backbones radially symmetric (Abah 2022, §2.3.4, Table 2.3)
   double inner_arm_length = 20.0;  // l₁ (mm), Table 2.3
-  double outer_arm_length = 20.0;  // l₂ (mm); l₂ = l₁ is the seed's design rule for a constant elbow angle
-  // d (mm). The seed gives no value; 2 mm reproduces its "26 % change of the outer diameter" for
-  // n = 8, l₁ = 20 mm (25.8 %, seed 000 §2.5), so it is our default.
+  double outer_arm_length =
+      20.0;  // l₂ (mm); l₂ = l₁ is the dissertation's design rule for a constant elbow angle
+  // d (mm). The dissertation gives no value; 2 mm reproduces its "26 % change of the outer diameter" for
+  // n = 8, l₁ = 20 mm (25.8 %, Abah 2022, §2.3.4), so it is our default.
   double hinge_diameter = 2.0;
 };
 
@@ -53,7 +54,7 @@ class ScissorLinkage {
   double configuration_radius_max() const noexcept { return r_max_; }
   double inner_radius_min() const noexcept { return a_min_; }
   double inner_radius_max() const noexcept { return a_max_; }
-  // b_min = f_b(r_max) for 2 < n < 6, else f_b(r_min) (seed §2.5).
+  // b_min = f_b(r_max) for 2 < n < 6, else f_b(r_min) (Abah 2022, §2.3.4).
   double outer_radius_min() const noexcept { return b_min_; }
   // (2.12)–(2.13): b peaks at b_max = l₂/sin(π/n) where r = l₂/tan(π/n); when that r lies outside
   // [r_min, r_max] the largest admissible b is at the nearer end, which is what this returns.
@@ -75,7 +76,7 @@ class ScissorLinkage {
          r_at_b_max_ = 0.0;
 };
 
-// Disk interference of one continuum segment (seed §2.6, Fig. 2.8): length L, n_d identical disks of
+// Disk interference of one continuum segment (Abah 2022, §2.4, Fig. 2.8): length L, n_d identical disks of
 // height h_d. Θ = θ_L − π/2 is the bend of the end disk (0 when straight, Simaan's convention).
 struct DiskInterferenceParameters {
   double segment_length = 200.0;  // L (mm), Table 2.3

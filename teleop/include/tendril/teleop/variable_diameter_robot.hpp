@@ -1,13 +1,13 @@
 // VariableDiameterRobot: the three-segment variable-diameter multi-backbone continuum robot (MBCR,
-// `mbcr_vd`, seed 000 §2.10–2.11) with gradient-projection redundancy resolution (eq. 2.31–2.36) that
+// `mbcr_vd`, Abah 2022, §2.7) with gradient-projection redundancy resolution (eq. 2.31–2.36) that
 // uses the shared diameter joint a to lower the actuation forces while it keeps every joint inside its
 // limits and the disks apart. Split as in Pinocchio into an immutable model (this class) and a
 // preallocated workspace (VariableDiameterData); after both exist, every per-step function is const,
 // noexcept, allocation-free and reports problems as values, so it may run on the control thread.
 //
-// Robot (seed §2.10): three identical segments stacked with aligned backbones, each a 2-DoF segment of
+// Robot (Abah 2022, §2.7.1): three identical segments stacked with aligned backbones, each a 2-DoF segment of
 // variable_diameter_segment.hpp on its predecessor's end disk; one diameter input a shared by all; the
-// backbones of different segments are actuated independently (seed ref. [98]).
+// backbones of different segments are actuated independently (Abah 2022, ref. [98]).
 //   ψ_s = [θ_L1, δ1, θ_L2, δ2, θ_L3, δ3]   configuration (6)
 //   q̃   = [q_1,1, q_1,2, q_2,1, q_2,2, q_3,1, q_3,2, a]   joints (7): backbones 1 and 2 of each segment
 //         (3 and 4 are their mirror images, q_3 = −q_1 and q_4 = −q_2) and the diameter joint a
@@ -15,7 +15,7 @@
 // The base frame has z along the straight robot; the tip is segment 3's end disk. A task twist is
 // [v (mm/s); ω (rad/s)] of the tip in the base frame; a wrench [f (N); m (N·mm)] acts at the tip.
 //
-// Choices where the seed is silent (each one also in
+// Choices where the dissertation is silent (each one also in
 // teleop/mbcr_vd/README.md):
 // - Statics of the stack (2.30 "with twist transformations"): the twelve backbones and a form one
 //   augmented joint vector with A₁₂ = [I₁₂ | −c], c the ∂q/∂a column of (2.22) for every backbone;
@@ -26,22 +26,22 @@
 //   finite-difference gradient is n·n_a·∂‖τ̃_s‖/∂a at fixed ψ: two statics evaluations (central
 //   difference, step `force_difference_step`) instead of fourteen, and well defined when a segment is
 //   straight, where ψ(q̃) is not differentiable. ∇H is analytic (derived here from H).
-// - Units of the objective. The model works in mm, N, s, but the seed's λ = 0.05 carries no unit, and
+// - Units of the objective. The model works in mm, N, s, but the dissertation's λ = 0.05 carries no unit, and
 //   g mixes newtons (‖τ̃_s‖) with an inverse length (H), so the units of g decide both how fast a moves
 //   and where the force and limit terms balance. Read in mm (λ in mm²/(N·s)) the gradient moves a by
 //   ~0.02 mm/s and H holds it within ~0.2 mm of a_min, so a follows only the minimum-norm part of
 //   (2.34): it stays at a_min while the segments curl and grows as they unwind, with no first growth.
 //   Read in SI (m, N, s; the units a MATLAB model is usually written in) the force and limit terms
-//   balance ~10 mm inside the limit of a, which is the behaviour the seed describes (a grows, is pushed
-//   back by the interference limit, grows again). We therefore evaluate g and λ∇g in SI
+//   balance ~10 mm inside the limit of a, which is the behaviour the dissertation describes (a grows, is
+//   pushed back by the interference limit, grows again). We therefore evaluate g and λ∇g in SI
 //   (objective_length_scale = 1000 model units per metre) and convert η back to mm/s. In SI the
 //   explicit 1 ms step of λ∇g is stiff near a limit, so the null-space motion of a is capped at
 //   max_diameter_rate (10 mm/s, our choice for the diameter drive), which keeps the step stable.
 // - The diameter limits are [a_min, min(a_max, a_interference(ψ_s))] with a_interference the inner radius
 //   at which the first segment's outer radius b reaches its interference limit (2.16); recomputed every
-//   step before (2.34) as the seed says. H is evaluated with a floor of `limit_floor` on the distance to
-//   a limit so that a limit that moves past a in one step gives a large, finite push back; after the
-//   step a is clamped into its limits and the step reports that it clamped.
+//   step before (2.34) as the dissertation says. H is evaluated with a floor of `limit_floor` on the distance
+//   to a limit so that a limit that moves past a in one step gives a large, finite push back; after the step
+//   a is clamped into its limits and the step reports that it clamped.
 // - ψ̇_s = J_xψs^#·(ẋ_d + K·e) (closed-loop resolved rates, e the pose error) with a singularity-robust
 //   inverse: damped least squares on J made dimensionless (linear rows divided by L), with
 //   damping ρ² = ρ_max²·(1 − (σ_min/σ₀)²) below σ₀ and none above (Maciejewski & Klein 1988).
@@ -67,13 +67,13 @@ using StackTwistJacobian = Eigen::Matrix<double, 6, 6>;  // J_xψs
 using StackTwist = Eigen::Matrix<double, 6, 1>;          // [v (mm/s); ω (rad/s)]
 
 struct RedundancyParameters {
-  double force_weight = 1.0;            // w₁ (seed §2.11)
+  double force_weight = 1.0;            // w₁ (Abah 2022, §2.7.2)
   double limit_weight = 1.0;            // w₂
   double step_gain = 0.05;              // λ
   double force_difference_step = 1e-3;  // mm of a for ∂‖τ̃_s‖/∂a (central difference)
   double limit_floor = 1e-3;            // mm: smallest distance to a limit that H is evaluated with
   // Model length units per length unit of the objective: g is evaluated in metres and newtons
-  // (1000 mm per m), the units in which λ = 0.05 gives the seed's behaviour (see the header comment).
+  // (1000 mm per m), the units in which λ = 0.05 gives the dissertation's behaviour (see the header comment).
   double objective_length_scale = 1000.0;
   double max_diameter_rate = 10.0;  // mm/s: cap on the null-space motion of a (the diameter drive's speed)
 };
@@ -88,10 +88,10 @@ struct VariableDiameterRobotParameters {
   ScissorLinkageParameters linkage{};  // l₁ = 20 mm, n = 8, d = 2 mm (Table 2.3 + our d)
   DiskInterferenceParameters disks{};  // L = 200 mm, n_d = 8, h_d = 10 mm (PF 0.4), per segment
   double backbone_diameter = 1.0;      // mm (Table 2.3)
-  // N/mm². The seed prints 74 MPa; as a backbone modulus that is a units slip for 74 GPa (nitinol is
+  // N/mm². The dissertation prints 74 MPa; as a backbone modulus that is a units slip for 74 GPa (nitinol is
   // 40–75 GPa), so 74 GPa is the default and tests run both.
   double youngs_modulus = 74000.0;
-  double backbone_lower = -200.0;  // q_min (mm), §2.11
+  double backbone_lower = -200.0;  // q_min (mm), §2.7.2
   double backbone_upper = 200.0;   // q_max (mm)
   RedundancyParameters redundancy{};
   TaskInverseParameters task{};

@@ -1,9 +1,9 @@
-// One continuum segment of the variable-diameter multi-backbone continuum robot (MBCR, seed 000
-// ch. 2): its instantaneous kinematics with the diameter as an extra joint (§2.7, eq. 2.19–2.23) and
-// its statics by virtual work (§2.8, eq. 2.24–2.30). Pure functions of their arguments: const data
+// One continuum segment of the variable-diameter multi-backbone continuum robot (MBCR, Abah 2022,
+// ch. 2): its instantaneous kinematics with the diameter as an extra joint (§2.5, eqs. 2.19–2.23) and
+// its statics by virtual work (§2.6.1, eqs. 2.24–2.30). Pure functions of their arguments: const data
 // in, fixed-size Eigen values out, noexcept and allocation-free, so the control thread may call them.
 //
-// Conventions (Simaan's, as the seed's equations use them):
+// Conventions (Simaan's, as the dissertation's equations use them):
 //   ψ = [θ_L, δ]: θ_L is the end disk's tangent angle, π/2 when straight; δ the bending-plane angle.
 //   Θ = θ_L − π/2 is the bend (≤ 0 when bent by a positive amount; the formulas accept either sign).
 //   Secondary backbone i (i = 1..4) sits at angle (i − 1)·π/2 about the segment's z axis on the
@@ -11,7 +11,7 @@
 //   its joint value (push–pull displacement) is q_i = L_i − L. The segment bends towards the base-frame
 //   direction (cos δ, −sin δ, 0), where the shortened backbones are.
 //   The end disk's frame is R = Rz(−δ)·Ry(−Θ)·Rz(δ) at p = (L/Θ)·[cos δ(cos Θ − 1), −sin δ(cos Θ − 1),
-//   sin Θ] (seed 000 §2.7, extended); its backbone holes line up with the next segment's backbones.
+//   sin Θ] (Abah 2022, §2.5, extended); its backbone holes line up with the next segment's backbones.
 //   A twist is [v (mm/s); ω (rad/s)] of the end disk's centre, in the segment's base frame.
 // Lengths in mm, forces in N, moments in N·mm, Young's modulus in N/mm² (MPa).
 #pragma once
@@ -56,7 +56,7 @@ double backbone_bending_stiffness(double youngs_modulus, double diameter) noexce
 // (2.24) U = Σ E·I·Θ²/(2·L_i), the backbones' bending energy (N·mm).
 double elastic_energy(const SegmentConfiguration& psi, double r, double length,
                       double bending_stiffness) noexcept;
-// (2.26) ∂U/∂r = −(E·I·Θ³/2)·Σ cos δ_i/L_i², with the square the seed's print drops (erratum 2, §9).
+// (2.26) ∂U/∂r = −(E·I·Θ³/2)·Σ cos δ_i/L_i², with the square the dissertation's print drops.
 double elastic_energy_radius_gradient(const SegmentConfiguration& psi, double r, double length,
                                       double bending_stiffness) noexcept;
 // (2.27) ∂U/∂ψ.
@@ -72,7 +72,7 @@ struct SegmentStatics {
 
 // (2.28)–(2.30) for one segment carrying `wrench` at its end disk (base frame): the minimum-norm
 // actuation τ̃ = (J_q̃ψᵀ)⁺·[J_rψᵀ∇U_r + ∇U_ψ − J_xψᵀW_e], with J_rψ = (dr/da)·(row 5 of J_q̃ψ), the
-// radius change that the diameter joint's share of the motion makes (the seed leaves J_rψ implicit).
+// radius change that the diameter joint's share of the motion makes (the dissertation leaves J_rψ implicit).
 // The pseudo-inverse drops directions that a straight segment cannot express (δ has no effect at
 // Θ = 0). Returns false, with a zero τ̃, when an input is not finite.
 bool segment_statics(const SegmentConfiguration& psi, double r, double dr_da, double length,

@@ -1,11 +1,11 @@
-// A simulation (not a controller for hardware) of the seed's variable-diameter experiment (seed 000
-// §2.11, Fig. 2.11–2.13): the three-segment robot of variable_diameter_robot.hpp follows a circle with
+// A simulation (not a controller for hardware) of the dissertation's variable-diameter experiment (Abah 2022,
+// §2.7.2, Figs. 2.11–2.13): the three-segment robot of variable_diameter_robot.hpp follows a circle with
 // its tip while carrying a payload, once with the diameter held at a_min and once with the diameter
 // free for gradient projection, and the two actuation-force histories are compared.
 //
-// Set-up from the seed: circle in the x-z plane centred at [0, 150, 435] mm, radius 70 mm; end disk
+// Set-up from the dissertation: circle in the x-z plane centred at [0, 150, 435] mm, radius 70 mm; end disk
 // kept parallel to the x-z plane; 2 kg payload, W_e = [0, 0, −19.62, 0, 0, 0]; dt = 1 ms. Where the
-// seed is silent (teleop/mbcr_vd/README.md):
+// dissertation is silent (teleop/mbcr_vd/README.md):
 // - the end disk's normal points along +y and its x axis along +x (R = Rx(−90°), the orientation of
 //   a robot bent in its y-z plane);
 // - the circle starts at its top, [0, 150, 505] mm, and runs once towards −x (counter-clockwise seen
@@ -82,11 +82,11 @@ CircleRun simulate_circle(const VariableDiameterRobot& robot, const CircleTrajec
                           const StackConfiguration& start, bool vary_diameter);
 
 struct ForceComparison {
-  double rms_fixed = 0.0;      // RMS of ‖τ̃_s‖ with a = a_min (N)
-  double rms_variable = 0.0;   // RMS of ‖τ̃_s‖ with the diameter free (N)
-  double rms_reduction = 0.0;  // RMS over time of ‖τ̃_fixed‖ − ‖τ̃_variable‖ (the seed's 48.3 N)
+  double rms_fixed = 0.0;     // RMS of ‖τ̃_s‖ with a = a_min (N)
+  double rms_variable = 0.0;  // RMS of ‖τ̃_s‖ with the diameter free (N)
+  double rms_reduction = 0.0;  // RMS over time of ‖τ̃_fixed‖ − ‖τ̃_variable‖ (the dissertation's 48.3 N)
   double mean_reduction = 0.0;
-  double std_reduction = 0.0;  // standard deviation of that difference (the seed's 17.6 N)
+  double std_reduction = 0.0;  // standard deviation of that difference (the dissertation's 17.6 N)
   double min_reduction = 0.0;
   double max_reduction = 0.0;
 };

@@ -1,9 +1,9 @@
-// Vessel centerlines for the pre-operative path planner (seed 000 §4.4): CSV loading, branch
+// Vessel centerlines for the pre-operative path planner (Abah 2022, §4.4.2): CSV loading, branch
 // splitting, equidistant arc-length resampling, local tangents and the yaw/pitch angles α, β of
 // eqs. 4.1–4.3, plus a deterministic synthetic ICA-like path for tests and benchmarks.
 //
 // Units: millimetres. Resampling is piecewise-linear along the input polyline (the input is expected
-// to be a dense, already-smoothed centerline, e.g. the spline of §4.4 step 4 exported densely);
+// to be a dense, already-smoothed centerline, e.g. the spline of §4.4.2 exported densely);
 // tangents are central differences of the resampled points (three-point one-sided at the ends),
 // which is second-order accurate where the forward difference of eq. 4.1 would lag by ds/2.
 #pragma once

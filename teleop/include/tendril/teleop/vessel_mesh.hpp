@@ -1,9 +1,9 @@
-// Vessel surface meshes (STL, ASCII and binary) and centerline extraction from them (seed 000 §4.4,
+// Vessel surface meshes (STL, ASCII and binary) and centerline extraction from them (Abah 2022, §4.4.2,
 // "centerline parameterisation", steps 1–4; step 5, resampling at ds, is VesselCenterline::from_polyline).
 //
-// The seed clusters vertices into equidistant slabs along one global PCA line. An ICA siphon turns
+// The dissertation clusters vertices into equidistant slabs along one global PCA line. An ICA siphon turns
 // by more than 90° (folds back on itself), so slabs along a single line cut the vessel twice. Here the
-// same steps are applied locally (the seed leaves this open):
+// same steps are applied locally (the dissertation leaves this open):
 //   1. PCA of all vertices gives the principal direction; the mesh end is the farthest vertex along
 //      the surface (two Dijkstra sweeps over the triangle edges), which for a tube is on a rim.
 //   2. Vertices are clustered into equidistant bands of surface distance from that end (spacing
@@ -11,7 +11,7 @@
 //   3. Each rough centre is refined: the vertices in a thin slab across the local direction (from the
 //      neighbouring centres) and near the centre are fitted with a best-fit plane (PCA), projected onto
 //      it, and the centre is the least-squares circle through the projected points (the plain mean of
-//      step 3 in the seed is pulled towards the inner wall of a bend, where vertices crowd); twice.
+//      step 3 in the dissertation is pulled towards the inner wall of a bend, where vertices crowd); twice.
 //   4. A cubic smoothing spline (Reinsch) through the centres, parameterised by chord length, is
 //      evaluated every output_spacing mm; radii are the fitted circle radii, smoothed alike.
 // Units: millimetres. One branch per mesh; a branched mesh gives the centerline of its longest

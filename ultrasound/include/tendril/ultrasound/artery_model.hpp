@@ -1,6 +1,6 @@
-// The artery model built from ultrasound (US) slices and the catheter–wall contacts (seed 002 §3.3,
-// §10, §11.3, REQ-US-5, REQ-CON-1/2):
-//   * Eq. 5 (erratum: a point set, with the probe's forward kinematics at the acquisition time):
+// The artery model built from ultrasound (US) slices and the catheter–wall contacts (Heunis et al. 2021,
+// §3.3):
+//   * Eq. 5 (read as a point set, with the probe's forward kinematics at the acquisition time):
 //     Λ_G = H_B^G · H_U^B(t_acq) · H_I^U · Λ_US; the caller composes the chain into one image pose and
 //     may append (H_P^G(t_acq))⁻¹ for the motion-stabilised tissue frame {P};
 //   * consecutive contours lofted into a triangle mesh (teleop::TriangleMesh, the vessel mesh type the
@@ -39,8 +39,8 @@ Eigen::Vector3d closest_point_on_triangle(const Eigen::Vector3d& p, const Eigen:
 double distance_to_mesh(const teleop::TriangleMesh& mesh, const Eigen::Vector3d& p) noexcept;
 
 struct CatheterContactParameters {
-  double catheter_radius = 1.0;  // mm (D_c = 2 mm, L64)
-  double margin = 0.25;          // mm: 1 + 0.25 = the paper's 1.25 mm threshold (L188)
+  double catheter_radius = 1.0;  // mm (D_c = 2 mm, Heunis et al. 2021, §2.2)
+  double margin = 0.25;          // mm: 1 + 0.25 = the paper's 1.25 mm threshold (§4.2)
   double threshold() const noexcept { return catheter_radius + margin; }
 };
 

@@ -1,9 +1,9 @@
-// B-mode ultrasound (US) images as the reconstruction reads them, and the image frame {I} of seed 002
-// §4.3: the image plane is the y–z plane of {I} (x = 0 in-plane, x the elevation axis), y lateral
-// along the array, z the depth from the transducer face. Pixel (u, v) — column u, row v — maps to
-// {I} as [0, s·(u − u₀), s·v] mm with u₀ the centre column, so the probe axis (y = 0) runs down the
-// middle of the image and row 0 is the transducer face. The L14-5 linear array of the seed gives a
-// Cartesian image, so one pixel size s serves both axes (the seed's s_u = s_v).
+// B-mode ultrasound (US) images as the reconstruction reads them, and the image frame {I} of Heunis et al.
+// 2021 §2.3: the image plane is the y–z plane of {I} (x = 0 in-plane, x the elevation axis), y lateral along
+// the array, z the depth from the transducer face. Pixel (u, v) — column u, row v — maps to {I} as [0, s·(u −
+// u₀), s·v] mm with u₀ the centre column, so the probe axis (y = 0) runs down the middle of the image and row
+// 0 is the transducer face. The L14-5 linear array of the article gives a Cartesian image, so one pixel size
+// s serves both axes (the article's s_u = s_v).
 #pragma once
 
 #include <Eigen/Core>
@@ -21,7 +21,7 @@ class UltrasoundSetupError : public std::invalid_argument {
 
 struct BModeGeometry {
   int columns = 320;          // lateral pixels: 40 mm at 0.125 mm
-  int rows = 400;             // depth pixels: 50 mm, past the seed's 20–40 mm focus depth
+  int rows = 400;             // depth pixels: 50 mm, past the article's 20–40 mm focus depth
   double pixel_size = 0.125;  // mm per pixel, both axes
 
   double width() const noexcept { return pixel_size * columns; }

@@ -1,6 +1,6 @@
-// Artery boundary per ultrasound (US) slice: the ellipse extended Kalman filter (EKF) of seed 002
-// Appendix B with probabilistic edge weighting, iterated by the star algorithm (spec §8.2–8.5,
-// REQ-US-1/2), errata E17 (the squared exponent of A21) and E18 (N rays, M candidates per ray) fixed.
+// Artery boundary per ultrasound (US) slice: the ellipse extended Kalman filter (EKF) of Heunis et al. 2021
+// Appendix B with probabilistic edge weighting, iterated by the star algorithm (
+// ellipse EKF), with the exponent of A21 squared and N rays of M candidates each, as the equations need.
 //
 // Per slice, from a seed centre c:
 //   1. the image is blurred (Gaussian, σ in pixels) once — speckle would otherwise make every
@@ -11,7 +11,7 @@
 //      the 1/√(2πS) factor cancels in A20); weighted radius r_q = Σ β_j r_j (A19–A20); update A16–A18;
 //   3. star algorithm: the new centre is the mean of the N contour points; repeat from 2 until the
 //      centre moves less than the tolerance or the iteration cap is reached.
-// Choices where the seed is silent (spec §8.5 [SUPPLEMENT]/[DECISION]):
+// Choices where the article is silent (ours):
 //   * F_e is the radial intensity rise I(r + δ) − I(r − δ) of the blurred image, clipped at an upper
 //     threshold and scaled to [0, 1] ("an intensity constrained by an upper threshold"; the paper's
 //     plain intensity would make all the bright tissue beyond the wall an edge, and the dark-lumen →
@@ -33,10 +33,10 @@
 namespace tendril::ultrasound {
 
 struct EllipseEkfParameters {
-  int rays = 30;                // N, boundary detection indices (L155: 30 for the 10 mm tube)
-  int candidates = 40;          // M edge candidates per ray [SUPPLEMENT]
-  double max_radius = 10.0;     // r_max (mm) [SUPPLEMENT]: 2× the nominal radius
-  double nominal_radius = 5.0;  // R₀ (mm): x̂₀ = [R₀, R₀, 0]
+  int rays = 30;        // N, boundary detection indices (Heunis et al. 2021, §4.1: 30 for the 10 mm tube)
+  int candidates = 40;  // M edge candidates per ray (our choice)
+  double max_radius = 10.0;                          // r_max (mm) (our choice): 2× the nominal radius
+  double nominal_radius = 5.0;                       // R₀ (mm): x̂₀ = [R₀, R₀, 0]
   Eigen::Vector3d initial_variance{1.0, 1.0, 0.5};   // P₀ diagonal (mm², mm², rad²)
   Eigen::Vector3d process_noise{0.01, 0.01, 0.001};  // Q diagonal per ray
   double measurement_noise = 0.25;                   // R (mm²)
@@ -73,7 +73,7 @@ class EllipseSliceSegmenter {
   const SliceSegmentation& segment(const BModeImage& image, const Eigen::Vector2d& seed) noexcept;
 
   // Fills `mask` (resized to the geometry's pixel count) with the polygon of the contour, the lumen
-  // mask REQ-US-2 asks for; all zero for an invalid result.
+  // mask a slice result carries; all zero for an invalid result.
   void lumen_mask(const SliceSegmentation& result, LumenMask& mask) const;
 
  private:
@@ -89,7 +89,7 @@ class EllipseSliceSegmenter {
   SliceSegmentation result_;
 };
 
-// The ellipse radius D(x) of A15 at angle θ and its Jacobian ∂D/∂(f, h, φ) (spec §8.5).
+// The ellipse radius D(x) of A15 at angle θ and its Jacobian ∂D/∂(f, h, φ) (derived from A15).
 double ellipse_radius(const Eigen::Vector3d& state, double theta) noexcept;
 Eigen::Vector3d ellipse_radius_jacobian(const Eigen::Vector3d& state, double theta) noexcept;
 

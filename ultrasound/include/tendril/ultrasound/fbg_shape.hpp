@@ -1,8 +1,8 @@
-// Fibre Bragg grating (FBG) catheter shape (seed 002 §9, REQ-FBG-1..3, REQ-SAFE-3): interrogator
-// frames of Bragg wavelengths, the multicore shape reconstruction of spec §9.2 [SUPPLEMENT] (the paper
+// Fibre Bragg grating (FBG) catheter shape (Heunis et al. 2021, §2.2 and §3.3): interrogator
+// frames of Bragg wavelengths, a standard multicore shape reconstruction (our choice) (the paper
 // used the FBGS software's own shape output), Eq. 2 into the global frame, and a SIMULATED interrogator.
 //
-// Reconstruction, per frame (spec §9.2):
+// Reconstruction, per frame (our choice):
 //   1. strain per core and grating: ε = (λ − λ_ref)/λ_ref / (1 − p_e), λ_ref from the straight
 //      reference (mold channel I);
 //   2. per grating, least squares over the four cores (centre + three outer at radius r_c, angles ψ_k):
@@ -12,7 +12,7 @@
 //      {F}, the last one the tip, so the 32 gratings span the sensed length);
 //   4. integration from R(0) = I, p(0) = 0 in steps ≤ 0.5 mm: R ← R·exp([κ_mid]×Δs) (Rodrigues),
 //      p ← p + R(s + Δs/2)·e_z·Δs; twist neglected (an untwisted fibre).
-//   5. |κ| above 1/50 mm⁻¹ (the fibre's bend limit, L64) at a grating raises a curvature warning.
+//   5. |κ| above 1/50 mm⁻¹ (the fibre's bend limit, §2.2) at a grating raises a curvature warning.
 // The shape Φ_F (one point per grating, {F}: origin at grating 1, z along the fibre there) maps to the
 // global frame by Eq. 2: Φ_G = H_C^G · H_F^C · Φ_F.
 #pragma once
@@ -36,12 +36,12 @@ class FbgFrameError : public std::invalid_argument {
 };
 
 struct MulticoreFiber {
-  int gratings = 32;                      // f (L64)
-  double grating_spacing = 270.0 / 31.0;  // mm: the 32 gratings span the 270 mm catheter [SUPPLEMENT]
-  double core_radius = 0.035;             // r_c (mm) of the outer cores (spec §9.2: ~35 µm)
+  int gratings = 32;                      // f (§2.2)
+  double grating_spacing = 270.0 / 31.0;  // mm: the 32 gratings span the 270 mm catheter (our choice)
+  double core_radius = 0.035;             // r_c (mm) of the outer cores (~35 µm, a typical multicore fibre)
   std::array<double, 3> outer_core_angles{0.0, 2.0943951023931953, 4.1887902047863905};  // ψ_k (rad)
   double photoelastic = 0.22;                                                            // p_e of silica
-  double max_curvature = 1.0 / 50.0;  // mm⁻¹: the fibre's 50 mm bend radius (L64)
+  double max_curvature = 1.0 / 50.0;  // mm⁻¹: the fibre's 50 mm bend radius (§2.2)
   static constexpr int cores = 4;     // core 0 is the centre core, 1..3 the outer ones
   double length() const noexcept { return grating_spacing * (gratings - 1); }
   // Throws std::invalid_argument unless 2 ≤ gratings ≤ 1024 and the lengths are positive and finite.
@@ -111,7 +111,7 @@ class FbgShapeReconstructor {
 void fbg_to_global(const Eigen::Isometry3d& catheter_base_in_global, const Eigen::Isometry3d& fiber_in_base,
                    const std::vector<Eigen::Vector3d>& in, std::vector<Eigen::Vector3d>& out);
 
-// Mold calibration of H_F^C (spec §4.1 [SUPPLEMENT] recipe, REQ-TF-3): the catheter lies in a curved
+// Mold calibration of H_F^C (our recipe): the catheter lies in a curved
 // mold channel (channel II) whose centerline is known in the catheter base frame {C} (design
 // coordinates through H_M^G, H_L^M and the tracked H_C^G), starting at grating 1 (the known
 // base-to-sensor-1 offset). sample_at_arc_lengths() takes the channel's points at the gratings' arc
@@ -155,7 +155,7 @@ struct FiberTruth {
 FiberTruth fiber_truth(const MulticoreFiber& fiber, const std::vector<Eigen::Vector3d>& polyline);
 
 // SIMULATED interrogator: Bragg wavelengths of the fibre laid along a polyline, with Gaussian
-// wavelength noise (spec §9.2 verification: ≈ 1 µε, 1.2 pm at 1550 nm) and a uniform temperature
+// wavelength noise (≈ 1 µε, 1.2 pm at 1550 nm) and a uniform temperature
 // change (thermo-optic 6.7e-6 /K, common to all cores). Reference wavelengths 1510 + 1.25·g nm.
 class SimulatedFbgInterrogator {
  public:

@@ -1,4 +1,4 @@
-// Robot–world and hand–eye calibration at once (seed 002 §4.2, REQ-TF-4): the arm holds a marker rigid
+// Robot–world and hand–eye calibration at once (Heunis et al. 2021, §2.3): the arm holds a marker rigid
 // body that the optical tracker sees; at K poses the tracker reports the marker in the global frame {G},
 // A_k = H_M^G, and the arm's forward kinematics gives the probe in its base frame {B}, F_k = H_U^B. With
 // the unknown marker→probe transform X = H_U^M and base→global Y = H_B^G the probe's pose in {G} is, both

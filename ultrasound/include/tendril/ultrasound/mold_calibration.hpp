@@ -1,6 +1,6 @@
-// The catheter's mold calibration of H_F^C (seed 002 §4.1, REQ-TF-3) as a routine, with a SIMULATED mold:
-// the fibre-Bragg-grating (FBG) catheter laid in turn into three channels of a mold whose centerlines are
-// known in its design frame {L}; the mold's marker body {M} and the catheter base {C} tracked in {G}.
+// The catheter's mold calibration of H_F^C (Heunis et al. 2021, §2.2–2.3) as a routine, with a SIMULATED
+// mold: the fibre-Bragg-grating (FBG) catheter laid in turn into three channels of a mold whose centerlines
+// are known in its design frame {L}; the mold's marker body {M} and the catheter base {C} tracked in {G}.
 //   * channel I (straight): the interrogator's reference frame, zero strain ↔ straight (averaged frames);
 //   * channel II (curved): the channel's design points mapped into {C} through the tracked H_M^G, the
 //     design offset H_L^M and the tracked H_C^G, sampled at the gratings' arc lengths (grating 1 at the
@@ -8,11 +8,11 @@
 //     Φ_F by Kabsch (calibrate_fiber_in_base, fbg_shape.hpp) → H_F^C;
 //   * channel III (curved in another plane): Eq. 2 with the new H_F^C and a fresh tracked H_C^G, each
 //     grating's distance to the channel's centerline in {G}: mean, sd and max. The calibration is valid
-//     when they are within the seed's reported figures (mean ≤ 0.82 mm, max ≤ 1.52 mm, §16) [our
-//     acceptance rule; the seed gives the figures, not a rule].
+//     when they are within the article's reported figures (mean ≤ 0.82 mm, max ≤ 1.52 mm, §4.2) [our
+//     acceptance rule; the article gives the figures, not a rule].
 // The simulation's truth: the fibre sits in the catheter base at `simulated_true_fiber_in_base`, which the
-// routine does not see; it sees tracked poses (the tracker's error per static recording, spec §4.6 and
-// §16 step 5) and interrogator frames with their noise.
+// routine does not see; it sees tracked poses (the tracker's error per static recording, Heunis et al. 2021,
+// §4.3, and our 0.3 mm) and interrogator frames with their noise.
 #pragma once
 
 #include <Eigen/Core>
@@ -43,8 +43,8 @@ struct SimulatedMold {
   Eigen::Isometry3d mold_in_world = Eigen::Isometry3d::Identity();                 // true H_M^G
   Eigen::Isometry3d simulated_true_fiber_in_base = Eigen::Isometry3d::Identity();  // true H_F^C
   // Tracker error of one static recording of a rigid body: a translation of N(mean, sd) mm in a random
-  // direction and a rotation of angle_sd per axis. 0.3 mm is the seed's "0.3 mm-equivalent" tracker
-  // noise (§16 step 5); the per-marker 0.56 mm of §4.6 is averaged by a rigid body's markers.
+  // direction and a rotation of angle_sd per axis. 0.3 mm is the article's "0.3 mm-equivalent" tracker
+  // noise (our choice); the per-marker 0.56 mm of §4.3 is averaged by a rigid body's markers.
   double tracker_mm = 0.3, tracker_sd_mm = 0.08;
   double tracker_angle_sd_rad = 0.02 * 3.14159265358979323846 / 180.0;
   double fbg_noise_pm = 1.2;  // per frame (≈ 1 µε)
@@ -61,7 +61,7 @@ struct MoldCalibrationResult {
   std::string summary;  // a sentence for a person
 };
 
-inline constexpr double kMoldValidationMeanMm = 0.82;  // seed 002 §16
+inline constexpr double kMoldValidationMeanMm = 0.82;  // Heunis et al. 2021, §4.2
 inline constexpr double kMoldValidationMaxMm = 1.52;
 
 // Runs the three channels on the SIMULATED mold. Throws UltrasoundSetupError for a design or setup that

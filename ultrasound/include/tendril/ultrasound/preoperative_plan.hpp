@@ -1,17 +1,17 @@
-// Pre-operative planning of the ultrasound (US) sweep (seed 002 §4.4, §5): the CT → tissue-frame {P}
+// Pre-operative planning of the ultrasound (US) sweep (Heunis et al. 2021, §2.4): the CT → tissue-frame {P}
 // registration on the calibration stick (ICP, Besl–McKay), Algorithm 1 (arterial centroids Ψ_CT from
 // the CT vessel-wall cloud) and Algorithm 2 (probe via-point poses on the skin surface cloud), with the
-// spec's errata register applied:
-//   E2  points sorted by x as rows, and only those with x_start ≤ x ≤ p_d,x enter the fit (the paper
+// corrections applied to the article's Algorithms 1–2:
+//   - points sorted by x as rows, and only those with x_start ≤ x ≤ p_d,x enter the fit (the paper
 //       left ς = 0 past the endpoint yet fitted all m rows);
-//   E3  the parameter is v = (x − x_min)/L ∈ [0, 1] (not raw x, whose 4th power is ~2.4e8 at 125 mm)
+//   - the parameter is v = (x − x_min)/L ∈ [0, 1] (not raw x, whose 4th power is ~2.4e8 at 125 mm)
 //       and the quartic is solved by QR; the centroids are evenly spaced in x, as the paper's;
-//   E4  three rows per rotation block (k += 3) — here simply one rotation per via-point;
-//   E5  the rotation holds the probe axes as columns, so pose() maps probe coordinates into {P};
-//   E6  the last via-point reuses the previous sweep direction; the cross products absorb a surface
+//   - three rows per rotation block (k += 3) — here simply one rotation per via-point;
+//   - the rotation holds the probe axes as columns, so pose() maps probe coordinates into {P};
+//   - the last via-point reuses the previous sweep direction; the cross products absorb a surface
 //       step that is not horizontal;
-//   and §5.2 notes 5–7: only surface points above the centroid are candidates, and the surface point is
-//   the mean of the k nearest to the vertical line (k = 1 is the paper's argmin).
+//   and our reading of Algorithm 2: only surface points above the centroid are candidates, and the surface
+//   point is the mean of the k nearest to the vertical line (k = 1 is the paper's argmin).
 // Units: millimetres. {P}: y is the tissue's "up" (Algorithm 2), the vessel runs roughly along x.
 #pragma once
 
@@ -35,7 +35,7 @@ Eigen::Isometry3d rigid_fit(const std::vector<Eigen::Vector3d>& source,
 
 struct IcpOptions {
   int max_iterations = 100;
-  double tolerance = 1e-6;  // mm of RMS change that ends the iteration (spec §4.4)
+  double tolerance = 1e-6;  // mm of RMS change that ends the iteration (our choice)
 };
 
 struct IcpResult {
@@ -53,7 +53,7 @@ IcpResult icp(const std::vector<Eigen::Vector3d>& model, const std::vector<Eigen
               const Eigen::Isometry3d* initial = nullptr, const IcpOptions& options = {});
 
 struct CentroidPlanOptions {
-  int count = 16;           // n (L155)
+  int count = 16;           // n (Heunis et al. 2021, §4.1)
   double end_x = 0.0;       // p_d,x: the user's endpoint in {P}
   double start_x = -1e300;  // optional start; the default keeps every point up to the endpoint
 };

@@ -1,9 +1,9 @@
-// Image-to-probe calibration of the ultrasound (US) probe (seed 002 §4.3, REQ-TF-5): the transform
+// Image-to-probe calibration of the ultrasound (US) probe (Heunis et al. 2021, §2.3): the transform
 // H_I^U of the image frame {I} in the probe frame {U} and the pixel scales s_u, s_v (mm per pixel), so
 // that pixel (u, v) lies at H_I^U · [0, s_u (u − u₀), s_v v] in {U} (u₀ the centre column; an offset of
 // the true origin is part of H_I^U).
 //
-// The calibrator is an N-wire phantom [our choice; the seed's "custom-designed calibrator object" is
+// The calibrator is an N-wire phantom [our choice; the article's "custom-designed calibrator object" is
 // in a supplement we do not have, and it names N-wire and cross-wire]: per layer, two parallel wires and
 // a diagonal between them, all along the phantom's x axis. The image plane cuts a layer's three wires in
 // three collinear echoes A, M, B, and the ratio |AM| / |AB| — unchanged by any affine map, hence by

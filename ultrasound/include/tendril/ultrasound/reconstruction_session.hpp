@@ -1,4 +1,4 @@
-// One ultrasound (US) reconstruction session of seed 002 (issue 17): the model behind the us_arm's
+// One ultrasound (US) reconstruction session of Heunis et al. 2021 (issue 17): the model behind the us_arm's
 // imaging and reconstruction topics, kept free of threads and I/O (the caller — a worker thread,
 // never the control thread — owns it and feeds it one probe sample at a time).
 //
@@ -15,9 +15,9 @@
 // comes as tracked (world_T_limb: the simulated tracker's sample-and-hold and latency) and, optionally,
 // as the simulation's truth (world_T_limb_true). The scanner images at the TRUE poses — the probe's
 // forward kinematics ⊕ the robot's error, the true limb — and the slice is mapped through the measured
-// ones — the forward kinematics, the tracked limb ⊕ the tracker's noise — with the error budget of spec
-// §4.6 (robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm, 0.02° per axis; a new draw per image, as the digital
-// twin does). Set `errors.enabled = false` to add no noise (the latency, if any, stays).
+// ones — the forward kinematics, the tracked limb ⊕ the tracker's noise — with the error budget of
+// Heunis et al. 2021, §4.3 (robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm, 0.02° per axis; a new draw per image,
+// as the digital twin does). Set `errors.enabled = false` to add no noise (the latency, if any, stays).
 //
 // Bad input (a pose that is not finite or not rigid, an image that is empty or of another geometry)
 // is refused with a status and a sentence; nothing stored before is changed.
@@ -65,9 +65,10 @@ struct SweepPlan {
 
 struct SimulatedMeasurementErrors {
   bool enabled = true;
-  double robot_mm = 0.3, robot_sd_mm = 0.1;                     // spec §4.6
-  double tracker_mm = 0.56, tracker_sd_mm = 0.08;               // spec §4.6
-  double angle_sd_rad = 0.02 * 3.14159265358979323846 / 180.0;  // per axis [our choice; seed silent]
+  double robot_mm = 0.3, robot_sd_mm = 0.1;        // Heunis et al. 2021, §4.3
+  double tracker_mm = 0.56, tracker_sd_mm = 0.08;  // Heunis et al. 2021, §4.3
+  double angle_sd_rad =
+      0.02 * 3.14159265358979323846 / 180.0;  // per axis [our choice; the article is silent]
   std::uint64_t seed = 1;
 };
 

@@ -1,7 +1,7 @@
 // SIMULATED B-mode ultrasound probe: renders the cross-section of a tube-shaped vessel (a centerline
-// with a lumen radius, e.g. the phantom's silicone tube of seed 002 §4.1: 10 mm inner diameter, 1 mm
-// wall) cut by the probe's image plane. It is a simulation, not a scanner driver; the tests and the
-// digital twin (spec §16 step 6) use it so that pose errors show up as image offsets.
+// with a lumen radius, e.g. the phantom's silicone tube of Heunis et al. 2021, §4.1: 10 mm inner diameter, 1
+// mm wall) cut by the probe's image plane. It is a simulation, not a scanner driver; the tests and the
+// digital twin (our set-up) use it so that pose errors show up as image offsets.
 //
 // What it models, per pixel (centre at depth z):
 //   echo = lumen (blood, anechoic) | wall (bright; part of it specular, strongest where the beam meets
@@ -27,7 +27,7 @@ namespace tendril::ultrasound {
 
 struct SimulatedBModeParameters {
   double lumen_radius = 5.0;    // mm, used where the centerline carries no radii (10 mm ID tube)
-  double wall_thickness = 1.0;  // mm (the seed's silicone tube)
+  double wall_thickness = 1.0;  // mm (the article's silicone tube)
   double tissue_echo = 0.35;    // mean echo of the surrounding tissue
   double lumen_echo = 0.03;     // mean echo inside the lumen (water/blood: nearly anechoic)
   double wall_echo = 1.0;       // mean echo of the wall where the beam meets it head-on

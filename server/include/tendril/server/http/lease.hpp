@@ -115,8 +115,8 @@ class LeaseManager {
 };
 
 // The leases of a server's robots, one LeaseManager each: a surgeon may command the catheter while a
-// script commands the arm (seed 002's set-up), and neither can command the other's robot. A caller's
-// leases share one lease token: a caller that already holds a live lease gets that token again with
+// script commands the arm (the set-up of Heunis et al. 2021), and neither can command the other's robot. A
+// caller's leases share one lease token: a caller that already holds a live lease gets that token again with
 // the next robot's lease, so one X-Tendril-Lease header commands every robot it holds.
 class RobotLeases {
  public:

@@ -1,8 +1,8 @@
 // A CiA 401-style analogue input node on the CAN bus (an ADC module): TPDO1 (COB-ID 0x180 + node id)
 // carries three channels as unsigned 16-bit millivolts, little-endian (objects 0x6401:1..3), and
 // optionally a 7th byte with the node's digital inputs (0x6000:1, bit 0 = input 0). tendril reads two
-// such nodes on the SRMC: the seed's analog joystick (with a foot pedal on digital input 0) and the
-// bend drives' spring-deflection potentiometers. The seed gives neither node ids nor scaling.
+// such nodes on the SRMC: the dissertation's analog joystick (with a foot pedal on digital input 0) and the
+// bend drives' spring-deflection potentiometers. The dissertation gives neither node ids nor scaling.
 //
 // A reading more than the fault margin outside 0..supply (a shorted or open input with a pull-up)
 // is a wiring fault on that channel; no TPDO for stale_after_ns makes the reading stale.

@@ -1,6 +1,6 @@
 // Image sources a lab has besides the simulated fluoroscope: a video capture device (OpenCV's V4L2
-// backend; the seed's set-up digitised the C-arm's video output with a Sensoray 2263 encoder), a video
-// file, and a folder of image files replayed at a set rate. Every source hands out 8-bit grey frames
+// backend; the dissertation's set-up digitised the C-arm's video output with a Sensoray 2263 encoder), a
+// video file, and a folder of image files replayed at a set rate. Every source hands out 8-bit grey frames
 // (fluoroscopy is monochrome; colour input is converted) of one fixed size.
 //
 // A source is used by one thread at a time. grab() may block: a capture device until its next frame

@@ -3,7 +3,7 @@
 //
 // Mapping from a device's raw axes to the controller's named outputs (roll, proximal, distal, …) is
 // configuration: which axis code feeds which output, its deadband, scale and inversion. The same
-// mapping serves evdev gamepads and the seed's analog joystick (after its ADC).
+// mapping serves evdev gamepads and the dissertation's analog joystick (after its ADC).
 #pragma once
 
 #include <array>

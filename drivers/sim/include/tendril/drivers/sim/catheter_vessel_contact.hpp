@@ -31,7 +31,7 @@
 namespace tendril::sim {
 
 struct CatheterVesselContactParameters {
-  double lumen_radius = 1.5875;  // mm: the seed's phantom tubing, ID 3.175 mm
+  double lumen_radius = 1.5875;  // mm: the dissertation's phantom tubing, ID 3.175 mm
   // Lumen radius at each centerline point (mm), e.g. a vessel file's r column; empty = lumen_radius
   // everywhere. Between points it is interpolated along the nearest segment. The wall force keeps the
   // direction of the normal: the slope of the radius along the vessel is neglected in ∂d/∂p.

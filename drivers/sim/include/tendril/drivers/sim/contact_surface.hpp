@@ -1,6 +1,6 @@
 // ContactSurface: a SIMULATED compliant surface for a tool point — the tissue an ultrasound probe
-// presses on (seed 002: "tissue as a spring with an uneven surface"). A plane, or a box whose top face is
-// the surface, in a surface frame whose z axis points out of the material; an optional height map
+// presses on (Heunis et al. 2021: "tissue as a spring with an uneven surface"). A plane, or a box whose top
+// face is the surface, in a surface frame whose z axis points out of the material; an optional height map
 // (SurfaceHeightMap) makes the surface uneven (issue 17 uses it for the limb). The surface can be moved
 // at run time (limb motion) from any thread.
 //
@@ -12,7 +12,7 @@
 // central differences (0.5 mm). Inside a box the nearest face decides (the sides and the bottom are
 // flat). Friction is not modelled: an ultrasound probe slides on gel.
 //
-// Defaults (the seed gives none): k = 0.5 N/mm, the middle of the 0.1–2 N/mm range the spec's check
+// Defaults (the article gives none): k = 0.5 N/mm, the middle of the 0.1–2 N/mm range our check
 // simulations span for porcine tissue; c = 0.005 N·s/mm, a 10 ms relaxation time, so the damper adds
 // < 0.01 N at the controller's 1.33 mm/s approach and damps a fast impact.
 #pragma once

@@ -1,4 +1,4 @@
-// SIMULATED ADC node with the seed's P3America 822 joystick on it (seed 000 §4.7): three
+// SIMULATED ADC node with the dissertation's P3America 822 joystick on it (Abah 2022, §4.7.4): three
 // potentiometers at 0–5 V (see SimulatedAnalogInputNode for the ADC, filter, noise and NMT) and a
 // foot pedal on digital input 0. Deflections, the pedal and fault injections are set from any thread.
 #pragma once
@@ -12,7 +12,7 @@ namespace tendril::sim {
 
 using AnalogJoystickNodeParameters = AnalogInputNodeParameters;
 
-// The seed's joystick on an ADC node: three centred potentiometers, and a foot pedal on digital
+// The dissertation's joystick on an ADC node: three centred potentiometers, and a foot pedal on digital
 // input 0 as the operator-presence input.
 class SimulatedAnalogJoystick final : public SimulatedAnalogInputNode {
  public:

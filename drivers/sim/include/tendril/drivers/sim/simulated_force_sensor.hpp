@@ -1,5 +1,5 @@
-// SimulatedForceSensor: a SIMULATED 3-axis force sensor between the arm's flange and its tool (seed
-// 002: a K3D40 between the UR5 and the ultrasound probe), behind hardware::ForceSensor.
+// SimulatedForceSensor: a SIMULATED 3-axis force sensor between the arm's flange and its tool (Heunis
+// et al. 2021: a K3D40 between the UR5 and the ultrasound probe), behind hardware::ForceSensor.
 //
 // Each sample takes the arm's true joint state (SimulatedVelocityArm::truth()), puts the tool point
 // where the kinematic model says it is, asks the ContactSurface for the force on it, and reports that
@@ -8,8 +8,8 @@
 // a constant bias, Gaussian noise (seeded), saturation at the measuring range, a sample rate and a
 // latency (a reading becomes visible `latency` after it was sampled, stamped with its sampling time).
 //
-// Defaults (the seed names the K3D40 but no range or rate): ±10 N range, 0.02 N noise (1σ, the
-// force-sensor noise of the spec's digital-twin scenario, seed 002 §16 step 4), zero bias (settable:
+// Defaults (the article names the K3D40 but no range or rate): ±10 N range, 0.02 N noise (1σ, our
+// choice for the simulated set-up), zero bias (settable:
 // real sensors are tared), 1 kHz sampling and 2 ms latency (amplifier filter and transport), so the
 // 500 Hz arm controller and a 1 kHz control loop always see a reading under 3 ms old. In stepped
 // simulation every sample due within a step sees the arm's state at the end of that step (the arm and
@@ -46,7 +46,7 @@ struct SimulatedForceSensorParameters {
   std::string name = "simulated force sensor";
   double sample_rate = 1000.0;                    // Hz
   double latency = 0.002;                         // s from sampling to reading
-  std::array<double, 3> noise{0.02, 0.02, 0.02};  // N (1σ) per sensor axis (spec §16)
+  std::array<double, 3> noise{0.02, 0.02, 0.02};  // N (1σ) per sensor axis (our choice)
   std::array<double, 3> bias{0.0, 0.0, 0.0};      // N per sensor axis
   double range = 10.0;                            // N: each axis saturates at ±range
   std::uint64_t seed = 0xF0ACE5u;

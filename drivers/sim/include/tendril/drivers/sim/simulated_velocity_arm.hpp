@@ -26,7 +26,7 @@
 // slots (no lock, no allocation). The simulated controller runs either in its own periodic thread
 // (activate(): absolute deadlines with clock_nanosleep, SCHED_FIFO 70 when asked for and permitted) or,
 // in stepped simulation, in step(now, period, after_control = false), which runs every controller cycle
-// due in that period (four per step at the seed's 8 ms, one every other step at 1 ms); the state it
+// due in that period (four per step at the article's 8 ms, one every other step at 1 ms); the state it
 // owns is touched by that one thread only.
 #pragma once
 

@@ -1,5 +1,5 @@
-// SrmcPlant: SIMULATED mechanics of the steerable robotic microcatheter's actuation unit (seed 000
-// §4.3). Four simulated drives give the joint vector q = (insertion mm, roll rad, proximal bend
+// SrmcPlant: SIMULATED mechanics of the steerable robotic microcatheter's actuation unit (Abah 2022,
+// §4.4.1). Four simulated drives give the joint vector q = (insertion mm, roll rad, proximal bend
 // drive mm, distal bend drive mm). Each bend drive's active carriage pushes a floating carriage
 // through a spring of stiffness k; the spring deflection (drive - carriage, mm) is what the linear
 // potentiometers read, and the spring force loads the drive's lead screw.
@@ -24,7 +24,7 @@
 namespace tendril::sim {
 
 struct SrmcPlantParameters {
-  // Spring and floating carriage (the seed gives no values: assumptions, see README of drivers/sim).
+  // Spring and floating carriage (the dissertation gives no values: assumptions, see README of drivers/sim).
   double spring_stiffness = 0.2;     // N/mm
   double carriage_mass = 0.02;       // kg
   double carriage_damping = 0.0;     // N s/mm; <= 0 picks critical damping from k and m

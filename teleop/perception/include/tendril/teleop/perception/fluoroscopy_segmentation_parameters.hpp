@@ -1,4 +1,4 @@
-// Per-view parameters of the fluoroscopy segmentation (seed 000 §4.8.1–4.8.2, IMG-02): the surgeon
+// Per-view parameters of the fluoroscopy segmentation (Abah 2022, §4.8.1–4.8.2): the surgeon
 // sets the crop (region of interest), threshold and Canny thresholds for each view (AP, lateral); they
 // are kept and reused for every frame. Here they are a plain value with a validator and JSON
 // (de)serialisation, so that the console can edit them live and the session can save them.

@@ -1,4 +1,4 @@
-// Catheter and vessel segmentation of one fluoroscopy view (seed 000 §4.8.1, IMG-03, IMG-04). One
+// Catheter and vessel segmentation of one fluoroscopy view (Abah 2022, §4.8.1). One
 // FluoroscopySegmenter per view (AP, lateral), fed 8-bit grey frames in the imaging thread.
 //
 // Catheter, per frame: region of interest → background subtraction against the empty-vessel roadmap

@@ -1,7 +1,7 @@
-// κ(s) for the tip EKF (seed 000 §4.9.3–4.9.4): the curvature of the empty vessel's centerline as seen
+// κ(s) for the tip EKF (Abah 2022, §4.9.3–4.9.4): the curvature of the empty vessel's centerline as seen
 // in one image plane, as a function of the in-plane arc length s, known a priori (4.40).
 //
-// How it is computed (the seed gives only "κ_curve = dθ/ds" of a spline through the thinned vessel):
+// How it is computed (the dissertation gives only "κ_curve = dθ/ds" of a spline through the thinned vessel):
 // the planar polyline is resampled every `spacing` mm (or a little less) of in-plane arc length (linear along
 // the polyline, which is expected to be dense and smooth, e.g. a spline exported densely or
 // teleop::VesselCenterline's points); the heading θ_i is the direction of the central chord

@@ -1,4 +1,4 @@
-// The image path of the shape calibration (seed 000 §4.5.2): a photograph of one bending segment,
+// The image path of the shape calibration (Abah 2022, §4.5.2): a photograph of one bending segment,
 // taken parallel to its bending plane, becomes the segment's backbone as points (x, z) in mm, ready
 // for teleop::extract_tangent_angles (smoothing, truncation of the straight part, θ(s) by forward
 // differences) and the least-squares fit of the shape matrix.

@@ -1,4 +1,4 @@
-// Catheter tip tracking in one image plane (seed 000 §4.9.3, spec §4.15, IMG-05): an extended Kalman
+// Catheter tip tracking in one image plane (Abah 2022, §4.9.3): an extended Kalman
 // filter on the tip pose x = [x, y, θ] (mm, mm, rad; θ measured from the plane's x axis towards its
 // y axis), stepped once per insertion increment ds with the vessel's curvature κ(s) as the prior on
 // how the heading turns (κ from the empty-vessel centerline: see planar_curvature.hpp).
@@ -45,10 +45,10 @@ struct TipEkfNoise {
   Eigen::Matrix3d process = Eigen::Matrix3d::Identity();      // Q
   Eigen::Matrix3d measurement = Eigen::Matrix3d::Identity();  // R
 
-  // (4.43), the seed's hand-drawn curve: Q = diag(0.01², 0.01², 0.0175²) (σ 0.01 mm, 1°),
+  // (4.43), the dissertation's hand-drawn curve: Q = diag(0.01², 0.01², 0.0175²) (σ 0.01 mm, 1°),
   // R = diag(0.25², 0.25², 0.0873²) (σ 0.25 mm, 5°).
   static TipEkfNoise fine_scale();
-  // (4.44), the seed's ICA fluoroscopy projection: Q as in (4.43), R = diag(2², 2², 0.175²)
+  // (4.44), the dissertation's ICA fluoroscopy projection: Q as in (4.43), R = diag(2², 2², 0.175²)
   // (σ 2 mm, 10°).
   static TipEkfNoise vessel_scale();
 };

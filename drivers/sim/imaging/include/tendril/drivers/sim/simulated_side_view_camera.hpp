@@ -1,5 +1,5 @@
 // SimulatedSideViewCamera: a SIMULATED camera looking at one bending segment of the bare catheter
-// tip from the side, parallel to its bending plane — the rig of the shape calibration (seed 000
+// tip from the side, parallel to its bending plane — the rig of the shape calibration (Abah 2022,
 // §4.5.2: step the actuation line, take an image at each step, threshold, fit). It draws the tube
 // as a dark band on a lit background from the segment's true shape (a modal model θ(s, q)), with a
 // length of straight tube before the segment, a soft edge (Gaussian optical blur), uneven
@@ -25,7 +25,7 @@ struct SideViewCameraOptions {
   double mm_per_pixel = 0.025;
   double base_column = 150.0;     // column of the straight tube's axis (pixels)
   double straight_mm = 3.0;       // visible straight tube below the segment base
-  double tube_diameter_mm = 0.6;  // the bare NiTi tip (seed 000 §4.3: 0.6 mm proximal tube)
+  double tube_diameter_mm = 0.6;  // the bare NiTi tip (Abah 2022, §4.4.1: 0.6 mm proximal tube)
   double blur_sigma_px = 1.2;     // optics
   double noise_sigma = 3.0;       // grey levels, Gaussian
   double background = 215.0;      // grey level of the lit background at the centre
