@@ -1,5 +1,5 @@
-// Per-cycle cost of the arm's control path (seed 002: "joint velocities take an average of 6 ms to be
-// calculated and prescribed"; REQ-CTRL-5 targets < 1 ms): kinematics, the damped inverse, the seed 002
+// Per-cycle cost of the arm's control path (Heunis et al. 2021: "joint velocities take an average of 6 ms to
+// be calculated and prescribed"; we target < 1 ms): kinematics, the damped inverse, the Heunis et al. 2021
 // hybrid controller, and the Cartesian commands.
 #include <benchmark/benchmark.h>
 

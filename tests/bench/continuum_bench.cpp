@@ -1,4 +1,4 @@
-// Sensing disk units (seed 000 ch. 3, continuum/): how many ToF points per second go into the voxel map,
+// Sensing disk units (Abah 2022, ch. 3, continuum/): how many ToF points per second go into the voxel map,
 // what one control cycle's SDU supervision costs, what a SIMULATED disk costs to sense, and the disks'
 // CAN bus load (worst-case stuffing) as counters.
 #include <benchmark/benchmark.h>

@@ -1,4 +1,4 @@
-// Shape-error path planner timing (seed 000 §4.8, §4.10): full plan along the synthetic 150 mm ICA
+// Shape-error path planner timing (Abah 2022, §4.6.1, §4.6.3): full plan along the synthetic 150 mm ICA
 // with ds = 0.5 mm and dq1 = 3 mm (issue target ≤ 50 ms; MATLAB reference 14.5 s), how the cost
 // grows with path length and sample spacing, the design optimiser (target ≤ 0.5 s; MATLAB 17.72 min)
 // and STL centerline extraction. Reports only; asserts nothing.
@@ -139,8 +139,8 @@ void BM_ReplanStep(benchmark::State& state) {
 }
 BENCHMARK(BM_ReplanStep)->DenseRange(0, 3)->Unit(benchmark::kMicrosecond);
 
-// Design optimisation (§4.6.2, design_optimiser.hpp; issue 15 target ≤ 0.5 s) at the seed's ds 0.5 and
-// dq1 3 with the default budget. Args: vessel (0 = synthetic ICA seed 1, 150 mm; 1–3 = the tortuous
+// Design optimisation (§4.6.2, design_optimiser.hpp; issue 15 target ≤ 0.5 s) at the dissertation's ds 0.5
+// and dq1 3 with the default budget. Args: vessel (0 = synthetic ICA seed 1, 150 mm; 1–3 = the tortuous
 // siphons of tests/support/siphon_vessels.hpp, c_siphon, s_siphon, double_loop), flexure (0/1), start
 // (0 = the planning study's nominal catheter, k = 1.4 rad/mm; 1 = the robot file's catheter with the
 // assembled gains and drive limits, which POST /designs starts from).

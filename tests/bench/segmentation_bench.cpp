@@ -1,7 +1,7 @@
-// Fluoroscopy segmentation (seed 000 §4.8.1, IMG-03 asks ≥ 10 Hz per view): one bi-plane pair of
+// Fluoroscopy segmentation (Abah 2022, §4.8.1; we ask ≥ 10 Hz per view): one bi-plane pair of
 // 1024 × 1024 SIMULATED frames (noise, anatomy, the synthetic ICA in contrast, a bent catheter)
 // segmented per iteration, AP then lateral, on one core. Items/s = pairs per second. The vessel
-// centerline of the roadmap (IMG-04, ≥ 20 Hz) is timed on its own.
+// centerline of the roadmap (≥ 20 Hz) is timed on its own.
 #include <benchmark/benchmark.h>
 
 #include <vector>

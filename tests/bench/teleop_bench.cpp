@@ -116,10 +116,10 @@ void BM_ControlTick(benchmark::State& state) {
 }
 BENCHMARK(BM_ControlTick);
 
-// Configuration controller step: one step() of configuration-space control (§4.11.2): quintic sample
-// in ψ, (4.21) twice (midpoint rule) and the drift correction, on the seed's placeholder model. The
-// goal alternates between two bend configurations whenever a motion ends, so every step is mid-motion
-// except the one that retargets.
+// Configuration controller step: one step() of configuration-space control (Abah 2022, §4.7.2): quintic
+// sample in ψ, (4.21) twice (midpoint rule) and the drift correction, on the dissertation's placeholder
+// model. The goal alternates between two bend configurations whenever a motion ends, so every step is
+// mid-motion except the one that retargets.
 void BM_ConfigurationControllerStep(benchmark::State& state) {
   using tendril::teleop::CatheterConfigurationMap;
   using V4 = CatheterConfigurationMap::Vector4;

@@ -1,4 +1,4 @@
-// Cost of one catheter tip EKF step (seed 000 §4.9.3): predict (4.41)–(4.42) and the H = I
+// Cost of one catheter tip EKF step (Abah 2022, §4.9.3): predict (4.41)–(4.42) and the H = I
 // correction, as run once per 3 mm insertion increment and segmented frame; and the κ lookup that
 // feeds it.
 #include <benchmark/benchmark.h>

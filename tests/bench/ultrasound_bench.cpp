@@ -1,6 +1,6 @@
-// Ultrasound reconstruction and FBG shape (seed 002 §8–9): one slice's ellipse EKF fit (the per-image
-// cost at the scanner's 30 Hz, REQ-US-4 asks ≤ 33 ms), the SIMULATED slice renderer that feeds it, and
-// one FBG frame's shape reconstruction.
+// Ultrasound reconstruction and FBG shape (Heunis et al. 2021, §3.2–3.3 and Appendix B): one slice's ellipse
+// EKF fit (the per-image cost at the scanner's 30 Hz, we ask ≤ 33 ms), the SIMULATED slice renderer that
+// feeds it, and one FBG frame's shape reconstruction.
 #include <benchmark/benchmark.h>
 
 #include <cmath>

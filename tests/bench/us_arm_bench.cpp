@@ -1,5 +1,5 @@
-// Per-cycle cost of the ultrasound sweep's joint-velocity computation on the control thread (seed 002:
-// "joint velocities take an average of 6 ms to be calculated and prescribed"; issue 17 targets ≤ 1 ms):
+// Per-cycle cost of the ultrasound sweep's joint-velocity computation on the control thread (Heunis et al.
+// 2021: "joint velocities take an average of 6 ms to be calculated and prescribed"; issue 17 targets ≤ 1 ms):
 // UltrasoundSweep::step — the via-point re-expressed from the limb's tracked pose (motion
 // compensation), the HybridPositionForceController (kinematics, Jacobian, damped inverse, caps), the
 // phase machine — on a plan made from the SIMULATED limb with the shipped defaults.

@@ -1,4 +1,4 @@
-// Per-step cost of the variable-diameter MBCR's redundancy resolution (seed 000 §2.10: one 1 ms
+// Per-step cost of the variable-diameter MBCR's redundancy resolution (Abah 2022, §2.7.1: one 1 ms
 // step of (2.34)–(2.36) with its three statics evaluations) and of its parts.
 #include <benchmark/benchmark.h>
 

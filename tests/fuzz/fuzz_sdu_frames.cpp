@@ -1,4 +1,4 @@
-// Fuzz target: CAN frames from the bus into the sensing disk units' frame assembler (seed 000 ch. 3,
+// Fuzz target: CAN frames from the bus into the sensing disk units' frame assembler (Abah 2022, ch. 3,
 // continuum/), and what it publishes into the SDU safety supervisor. Input bytes: id (2, LE, 11 bit),
 // flags, len, data (8), then a time step in ms; repeated. Anything on the bus must either be ignored or
 // decode to finite values inside the wire's span; a published sample must re-encode to the bytes it came

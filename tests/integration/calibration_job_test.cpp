@@ -1,4 +1,4 @@
-// Shape calibration jobs (seed 000 §4.5.2): the request reader's refusals, the fit from tangent data
+// Shape calibration jobs (Abah 2022, §4.5.2): the request reader's refusals, the fit from tangent data
 // and from pictures of the SIMULATED side-view camera, and the new robot file the result is written
 // to, loaded back into a runtime.
 #include <gtest/gtest.h>
@@ -123,8 +123,8 @@ TEST_F(CalibrationJobTest, RefusesMalformedRequestsAndNamesTheKey) {
   EXPECT_EQ(std::get<ApiResult>(job).code, "not_a_catheter");
 }
 
-// Tangent data of the seed's experiment (dq = 0.1 mm to ≈ 80°, θ sampled every 0.5 mm) with 0.02°
-// of noise: the fit gives A back, its mean error is of the seed's 0.021° order, and the robot file
+// Tangent data of the dissertation's experiment (dq = 0.1 mm to ≈ 80°, θ sampled every 0.5 mm) with 0.02°
+// of noise: the fit gives A back, its mean error is of the dissertation's 0.021° order, and the robot file
 // it writes loads into a runtime whose configuration map uses the calibrated tip.
 TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
   const auto A = true_matrix();
@@ -209,7 +209,7 @@ TEST_F(CalibrationJobTest, TangentDataFitBackAndTheWrittenRobotFileLoads) {
   EXPECT_EQ(again.code, "file_exists");
 }
 
-// Pictures of the SIMULATED side-view camera at dq = 0.1 mm steps to ≈ 80°, fitted as the seed did.
+// Pictures of the SIMULATED side-view camera at dq = 0.1 mm steps to ≈ 80°, fitted as the dissertation did.
 TEST_F(CalibrationJobTest, SideViewPicturesFitBackToTheSegmentTheyShow) {
   teleop::ModalCatheterParameters shape;
   shape.proximal = {true_matrix(), 22.0};

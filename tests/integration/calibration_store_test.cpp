@@ -1,6 +1,6 @@
-// The calibration store of the serial arm plug-in (seed 002 REQ-TF-7): a round trip through the files,
-// versions that only grow, the newest valid version in use, a corrupt file reported and skipped, a non-rigid
-// transform refused, a restart that finds what was saved.
+// The calibration store of the serial arm plug-in (calibrations persisted and versioned): a round trip
+// through the files, versions that only grow, the newest valid version in use, a corrupt file reported and
+// skipped, a non-rigid transform refused, a restart that finds what was saved.
 #include <unistd.h>
 #include <cstdlib>
 #include <filesystem>

@@ -1,4 +1,4 @@
-// Live replanning (issue 15, seed 000 §4.11 high-level controller) closed around a simulated catheter
+// Live replanning (issue 15, Abah 2022, §4.11 high-level controller) closed around a simulated catheter
 // in stepped time, no threads, no clocks. The "plant" is the same kinematics as the model with other
 // parameters: 15 % lower actuation-loss slopes (eqs. 4.13–4.14: less bend per mm of drive), 20 % more
 // coupling (eq. 4.15), a 10 % longer distal segment and 1 mm of insertion slack. Its tip is "imaged"

@@ -1,7 +1,7 @@
 // The sdu_continuum robot type (server/src/robots/sdu_continuum) end to end through the runtime and the
 // JSON API with config/robots/sdu_continuum.json, in stepped simulated time at 1 kHz: the SIMULATED
 // drives and disk nodes on the virtual CAN bus, the disks' frames reassembled on the bus side, the
-// safety path (proximity speed law with the seed's 50 / 0.25 mm/s, stop on contact in the cycle that
+// safety path (proximity speed law with the dissertation's 50 / 0.25 mm/s, stop on contact in the cycle that
 // sees it), each sensor fault's defined state, and the ToF map.
 #include <gtest/gtest.h>
 
@@ -29,7 +29,7 @@ namespace cont = tendril::continuum;
 
 const std::filesystem::path kConfig = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots";
 
-// Seed (3.4) with the seed's numbers and tendril's d_max of 130 mm.
+// The dissertation's (3.4) with its numbers and tendril's d_max of 130 mm.
 double law(double d_e) { return d_e < 130.0 ? d_e / 130.0 * (50.0 - 0.25) + 0.25 : 50.0; }
 
 class SduContinuumTest : public ::testing::Test {
@@ -501,8 +501,8 @@ TEST_F(SduContinuumTest, AnEmptyMapIsAClearErrorAndAMappedWallGivesItsPlane) {
   EXPECT_EQ(api->robot_command("sdu", "map", {{"action", "extract"}}).code, "map_empty");
 }
 
-// The ways out of a contact hold: the no-slip roll about the contact (seed (3.6)) and the contact-based
-// guidance yielding to the push, each at most the retreat speed of 5 mm/s; then resume.
+// The ways out of a contact hold: the no-slip roll about the contact (Abah 2022, eq. 3.6) and the
+// contact-based guidance yielding to the push, each at most the retreat speed of 5 mm/s; then resume.
 TEST_F(SduContinuumTest, ContactHoldWaysOutRollAndContactGuidanceBackAway) {
   start(config());
   unbias_and_enable();

@@ -1,4 +1,4 @@
-// Shared by the us_arm tests that sweep: REQ-TF-7 makes the sweep refuse without valid "robot" and "us"
+// Shared by the us_arm tests that sweep: the sweep refuses without valid "robot" and "us"
 // calibrations, so these tests get a calibration store of their own (a temporary TENDRIL_STATE_DIR) and
 // store the SIMULATED truths in it. What they then measure is the control, not a calibration's error;
 // the routines themselves are tested in us_arm_calibration_tests and us_calibration_tests.

@@ -1,4 +1,4 @@
-// The us_arm's robot–world calibration (seed 002 §4.2, REQ-TF-4, REQ-TF-7) through the runtime and the
+// The us_arm's robot–world calibration (Heunis et al. 2021, §2.3) through the runtime and the
 // JSON API in stepped time at 1 kHz: the routine moves the arm through its poses while the SIMULATED
 // optical tracker watches the marker, the solve recovers H_B^G within the error budget, the result is
 // stored and used (a restart finds it); the refusals; a tracker that goes silent ends the routine with
@@ -201,7 +201,7 @@ TEST_F(UsArmCalibrationTest, TheRoutineRecoversTheBaseInTheTrackersFrameAndTheSw
       record->residuals.at("max_mm").get<double>(), at_limb, rotation * 180.0 / M_PI,
       (estimate.translation() - truth.translation()).norm(), x_error);
   EXPECT_EQ(record->values.at("pairs"), 12.0);
-  // The seed's budget: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm per measurement.
+  // The article's budget: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm per measurement.
   EXPECT_LT(record->residual_mm, 1.0);
   EXPECT_LT(at_limb, 2.0);
   EXPECT_TRUE(std::filesystem::exists(state_dir_.path() / "calibrations" / "us_arm" / "robot-v000001.json"));

@@ -42,7 +42,7 @@ TEST(UsArmForceTopic, PublishesEachNewTickConsistentWithTheSweep) {
   auto api = json_api(*runtime);
   runtime->start();
   auto& arm = dynamic_cast<SerialArm&>(*runtime->plugin("us_arm"));
-  testing::store_true_calibrations(arm);  // the sweep refuses without them (REQ-TF-7)
+  testing::store_true_calibrations(arm);  // the sweep refuses without them
   auto topic = make_arm_force_topic(arm, /*own_thread=*/false);
   ASSERT_EQ(topic->topics().size(), 1u);
   EXPECT_EQ(topic->topics()[0].topic, "/us_arm/force");
@@ -185,9 +185,10 @@ TEST(UsArmTrackerFilter, TheFilterRemovesMostOfTheTrackersNoiseAndFollowsTheLimb
   EXPECT_LT((filter.pose().translation() - far.translation()).norm(), 1e-9);
 }
 
-// A closed loop of the seed's digital twin (§16 steps 4–5) around UltrasoundSweep alone: the arm as a
-// kinematic integrator of q̇ at 1 kHz, the SIMULATED limb (PLM, the 120 Hz tracker) and its skin as the
-// contact surface (0.5 N/mm), force noise 0.02 N. Only the sweep's step is counted.
+// A closed loop of a simulated set-up like the article's (a 0.5 N/mm tissue spring, 0.02 N force noise, the
+// limb's periodic movement) around UltrasoundSweep alone: the arm as a kinematic integrator of q̇ at 1 kHz,
+// the SIMULATED limb (PLM, the 120 Hz tracker) and its skin as the contact surface (0.5 N/mm), force noise
+// 0.02 N. Only the sweep's step is counted.
 TEST(UsArmSweepAllocation, AWholeSweepStepsWithoutAllocating) {
   const RobotConfig rc = load_robot_config(kConfig / "us_arm.json");
   const ArmSettings arm = parse_arm_settings(rc);

@@ -27,7 +27,7 @@ namespace {
 using nlohmann::json;
 
 const std::filesystem::path kConfig = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots";
-constexpr double kForceTarget = 0.8;   // d_f (N), seed 002 Table 1
+constexpr double kForceTarget = 0.8;   // d_f (N), Heunis et al. 2021, Table 1
 constexpr double kGatePosition = 0.5;  // d_p (mm)
 constexpr double kGateAngle = 0.01;    // d_θ (rad)
 
@@ -43,7 +43,7 @@ class UsArmSweepTest : public ::testing::Test {
     steps(20);
     if (runtime->plugin("us_arm")) calibrated();
   }
-  // REQ-TF-7: the sweep refuses without calibrations; these tests store the SIMULATED truths.
+  // The sweep refuses without calibrations; these tests store the SIMULATED truths.
   void calibrated() { testing::store_true_calibrations(arm()); }
   static RobotConfig arm_config() { return load_robot_config(kConfig / "us_arm.json"); }
   void TearDown() override {
@@ -215,8 +215,8 @@ TEST_F(UsArmSweepTest, FullSweepOnTheMovingLimbReachesDone) {
   EXPECT_EQ(end.slices, n);
   EXPECT_EQ(openings, n);
   EXPECT_DOUBLE_EQ(end.progress, 1.0);
-  // No overshoot on the approach (seed §7.3: monotone convergence on 0.8 N): the true force stays
-  // within the 2 % band above d_f.
+  // No overshoot on the approach (Heunis et al. 2021, Appendix A: monotone convergence on 0.8 N): the true
+  // force stays within the 2 % band above d_f.
   EXPECT_LE(first_peak, kForceTarget * 1.02);
   EXPECT_GT(first_peak, kForceTarget - 0.1);
   // The gate opened within its tolerances at every via-point.
@@ -310,7 +310,7 @@ TEST_F(UsArmSweepTest, AbortRetractsAlongTheNormalAtMostTenMillimetresPerSecondA
   std::printf("abort: retraction at most %.2f mm/s commanded, %.2f mm/s measured (10 ms windows)\n", fastest,
               fastest_measured);
   EXPECT_FALSE(sweep().retracting);
-  EXPECT_LE(fastest, 10.0 * 1.001);  // REQ-SAFE-2 (rounding of the 10 ms difference)
+  EXPECT_LE(fastest, 10.0 * 1.001);  // Retraction at ≤ 10 mm/s (rounding of the 10 ms difference)
   const Eigen::Vector3d to = arm().probe_state().world_T_probe.translation();
   EXPECT_GT(to.z() - from.z(), 15.0);  // up, off the skin (the normal is nearly vertical here)
   steps(500);

@@ -1,5 +1,5 @@
 // The us_arm's "us" (image-to-probe, N-wire phantom) and "catheter" (mold) calibrations as routines of the
-// robot's CalibrationRunner (seed 002 §4.1, §4.3, REQ-TF-3/5/7): each run saves a new version in the
+// robot's CalibrationRunner (Heunis et al. 2021, §2.2–2.3): each run saves a new version in the
 // store, a valid one becomes the one in use, the ultrasound topics' reconstruction maps with it (a wrong
 // H_I^U shows as a centroid offset, the calibrated one removes it), and the refusals.
 #include <gtest/gtest.h>
@@ -94,7 +94,7 @@ TEST_F(UsCalibrationTest, CatheterMoldCalibrationStoresANewValidVersionEachRun) 
   ASSERT_TRUE(record);
   EXPECT_TRUE(record->valid);
   EXPECT_EQ(record->transforms.count("H_F^C"), 1U);
-  EXPECT_LE(record->residuals.at("channel_iii_mean_mm").get<double>(), 0.82);  // seed §16
+  EXPECT_LE(record->residuals.at("channel_iii_mean_mm").get<double>(), 0.82);  // Heunis et al. 2021, §4.2
   EXPECT_LE(record->residuals.at("channel_iii_max_mm").get<double>(), 1.52);
   EXPECT_TRUE(std::filesystem::exists(directory / CalibrationStore::file_name("catheter", 1)));
   const auto in_use = calibrations->fiber_in_use();
@@ -175,7 +175,7 @@ TEST_F(UsCalibrationTest, ImageCalibrationIsStoredAndTheReconstructionMapsWithIt
   EXPECT_EQ(outcome.version, 1);
   const auto record = store->current("us");
   ASSERT_TRUE(record);
-  EXPECT_LT(record->residuals.at("validation_mean_mm").get<double>(), 0.5);  // REQ-TF-5
+  EXPECT_LT(record->residuals.at("validation_mean_mm").get<double>(), 0.5);  // image-to-probe calibration
   EXPECT_TRUE(store->missing_required().empty());
   const auto in_use = calibrations->image_in_use();
   ASSERT_TRUE(in_use);

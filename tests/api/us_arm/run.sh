@@ -7,7 +7,7 @@ set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 # shellcheck source=tests/api/server.sh
 source "$here/../server.sh"
-# The sweep needs calibrations (REQ-TF-7): the server starts with an empty store of its own
+# The sweep needs calibrations: the server starts with an empty store of its own
 # (server.sh), so the suite calibrates first and leaves nothing behind.
 # In simulated time (tendrild --simulated-time): the logic runs stepped, and a stall of this shared
 # machine slips simulated time instead of faulting or holding the moving arm, so any FAULT or hold here

@@ -1,4 +1,4 @@
-// The SDU safety laws with the seed's numbers, and the supervisor's defined state for every fault:
+// The SDU safety laws with the dissertation's numbers, and the supervisor's defined state for every fault:
 // a silent disk, an unusable ToF or Hall reading, a drifting baseline; each shown, logged and safe.
 #include <gtest/gtest.h>
 
@@ -18,7 +18,7 @@ namespace {
 
 TEST(SduLaws, ProximitySpeedScalingT32) {
   ProximityParameters p;
-  p.d_max_mm = 100.0;  // T3.2 with the nominal range
+  p.d_max_mm = 100.0;  // the nominal range
   EXPECT_DOUBLE_EQ(proximity_speed_limit(p, 0.0), 0.25);
   EXPECT_DOUBLE_EQ(proximity_speed_limit(p, 50.0), 25.125);
   EXPECT_DOUBLE_EQ(proximity_speed_limit(p, 100.0), 50.0);

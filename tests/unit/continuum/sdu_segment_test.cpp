@@ -61,7 +61,7 @@ TEST(SduSegment, SensorFramesLookRadiallyOutFromTheRim) {
     EXPECT_NEAR((s.translation() - 79.0 * Eigen::Vector3d(std::cos(a), std::sin(a), 0)).norm(), 0.0, 1e-9);
     EXPECT_NEAR((s.linear().col(2) - Eigen::Vector3d(std::cos(a), std::sin(a), 0)).norm(), 0.0, 1e-12);
     EXPECT_NEAR(s.linear().determinant(), 1.0, 1e-12);
-    // Hall windows sit half-way between ToF windows, ≥ 30° from their neighbours (seed §3.3).
+    // Hall windows sit half-way between ToF windows, ≥ 30° from their neighbours (Abah 2022, §3.2.2).
     EXPECT_NEAR(hall_slot_angle(m, j) - tof_slot_angle(m, j), M_PI / 8, 1e-12);
   }
 }
@@ -70,7 +70,7 @@ TEST(SduSegment, TrackerChainGivesTheSamePoseAsTheKinematics) {
   SduSegmentModel m;
   const SegmentConfiguration q{0.3, 0.7, -0.4};
   const Eigen::Isometry3d base_d = disk_pose(m, q, 3);
-  // A camera somewhere, a marker on the disk 108.5 mm out (seed §3.10).
+  // A camera somewhere, a marker on the disk 108.5 mm out (Abah 2022, §3.5).
   Eigen::Isometry3d camera_T_base = Eigen::Isometry3d::Identity();
   camera_T_base.rotate(Eigen::AngleAxisd(0.9, Eigen::Vector3d(1, 2, 3).normalized()));
   camera_T_base.pretranslate(Eigen::Vector3d(100, -400, 1200));

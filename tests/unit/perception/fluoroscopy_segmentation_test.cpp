@@ -1,4 +1,4 @@
-// Fluoroscopy segmentation (seed 000 §4.8.1, IMG-02..IMG-04) against the SIMULATED bi-plane
+// Fluoroscopy segmentation (Abah 2022, §4.8.1–4.8.2) against the SIMULATED bi-plane
 // fluoroscope's ground truth: its own projection of the catheter backbone and of the vessel
 // centerline. Frames are 1024 × 1024 with quantum noise, anatomy and the synthetic ICA (seed 1) in
 // contrast; the catheter is the SRMC constant-curvature model with an 80 mm shaft entering from below.

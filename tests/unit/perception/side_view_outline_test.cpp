@@ -1,4 +1,4 @@
-// Side-view photographs to backbone points, and the whole image calibration of seed 000 §4.5.2:
+// Side-view photographs to backbone points, and the whole image calibration of Abah 2022, §4.5.2:
 // images of a segment with a known shape matrix, stepped by dq = 0.1 mm up to ≈ 80° of bend,
 // thresholded, thinned, smoothed, θ(s) by forward differences, then the Kronecker least squares.
 #include "tendril/teleop/perception/side_view_outline.hpp"
@@ -158,8 +158,8 @@ TEST(SideViewOutline, RefusesWhatIsNotACatheterPicture) {
   EXPECT_THROW(parse_image_edge("diagonal"), SideViewImageError);
 }
 
-// The seed's experiment in simulation: dq = 0.1 mm steps until ≈ 80°, one picture each, fitted with
-// n = 4, m = 2. The seed reports a mean fit error of 0.021° (proximal) and 0.057° (distal); the
+// The dissertation's experiment in simulation: dq = 0.1 mm steps until ≈ 80°, one picture each, fitted with
+// n = 4, m = 2. The dissertation reports a mean fit error of 0.021° (proximal) and 0.057° (distal); the
 // fit must be of that order on the simulated camera and give back the true tip angles.
 TEST(ImageCalibration, PicturesOfAKnownSegmentFitBackToItsShapeMatrix) {
   const auto shape = true_shape();

@@ -16,7 +16,8 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 
 // Small budgets, ds = 2 mm and dq1 = 6 mm keep these runs to seconds under the sanitizers; the
-// defaults at the seed's ds 0.5 / dq1 3 (teleop/steerable_catheter/README.md) are what the benchmark times.
+// defaults at the dissertation's ds 0.5 / dq1 3 (teleop/steerable_catheter/README.md) are what the benchmark
+// times.
 DesignOptimiserOptions test_budget() {
   DesignOptimiserOptions o;
   o.exploration_samples = 6;
@@ -213,7 +214,7 @@ TEST(DesignOptimiser, ForwardsCancellationIntoNestedPlans) {
   EXPECT_EQ(evaluations, 3u);
 }
 
-// Table 4.1 (seed 000 §4.6.3) on the synthetic ICA (seed 1; the source's CT path is not published).
+// Table 4.1 (Abah 2022, §4.6.3) on the synthetic ICA (seed 1; the source's CT path is not published).
 // Source: ad hoc 1.70/4.18 mm, 0.27/0.62 rad; optimised 1.13/2.34 mm, 0.21/0.38 rad; optimised with
 // flexure 0.49/0.96 mm, 0.09/0.23 rad (mean/max). Measured here (ds 0.5, dq1 3; the test budget; the
 // flexure design starts from the optimised one):

@@ -105,7 +105,7 @@ TEST(SimulatedVelocityArm, CommandsTakeEffectOneControllerPeriodLater) {
 }
 
 // In stepped simulation the controller keeps its own 500 Hz whatever the control period: a runtime at
-// the seed's 8 ms (125 Hz) gets four controller cycles per step, one at 1 ms gets one every other step.
+// the article's 8 ms (125 Hz) gets four controller cycles per step, one at 1 ms gets one every other step.
 TEST(SimulatedVelocityArm, SteppedControllerKeepsItsOwnRateWhateverTheControlPeriod) {
   {
     SimulatedVelocityArm arm(ur5_simulated_arm({0.0, -1.2, 1.6, -1.97, -1.57, 0.0}));

@@ -171,7 +171,7 @@ TEST(SerialArmKinematics, DampingGrowsSmoothlyAsManipulabilityFalls) {
   EXPECT_NEAR(arm.damping_for(0.999999 * d.manipulability_threshold), 0.0, 1e-6);
 }
 
-// Sweeps a joint through a singularity and checks every twist the seed's caps allow (50 mm/s, 0.1 rad/s,
+// Sweeps a joint through a singularity and checks every twist the article's caps allow (50 mm/s, 0.1 rad/s,
 // along each axis and in random directions) maps to joint speeds within the UR5's 180°/s before any
 // clamping, and within ‖V‖/(2ρ_max) at the singularity itself.
 void expect_bounded_through(const SerialArmKinematics& arm, ArmVector q, Eigen::Index joint, double centre) {

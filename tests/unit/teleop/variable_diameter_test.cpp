@@ -1,7 +1,8 @@
-// The variable-diameter multi-backbone continuum robot (MBCR, seed 000 ch. 2): angulated scissor
-// linkage (ASL) numbers of §8.1 (T2.1–T2.8), Jacobians against finite differences, statics against the
-// virtual-work balance, and the seed's circle experiment (S2.1): the diameter grows, is pushed back by
-// disk interference, grows again, and the RMS actuation force drops against a fixed diameter.
+// The variable-diameter multi-backbone continuum robot (MBCR, Abah 2022, ch. 2): angulated scissor
+// linkage (ASL) numbers for the geometry of Table 2.3, Jacobians against finite differences, statics against
+// the virtual-work balance, and the dissertation's circle experiment (Abah 2022, §2.7.2): the diameter grows,
+// is pushed back by disk interference, grows again, and the RMS actuation force drops against a fixed
+// diameter.
 #include <gtest/gtest.h>
 
 #include <Eigen/QR>
@@ -32,7 +33,7 @@ ScissorLinkageParameters linkage_with(int n, double d = 2.0) {
 }
 
 // ---------------------------------------------------------------------------------------------------
-// ASL position analysis and limits (seed §2.3–2.5, §8.1 T2.1–T2.5)
+// ASL position analysis and limits (Abah 2022, §2.3)
 
 TEST(ScissorLinkage, ElbowAngleIsConstantForEqualArmsT21) {
   for (int n = 3; n <= 10; ++n) {
@@ -67,7 +68,7 @@ TEST(ScissorLinkage, RangeOfMotionT23) {
   EXPECT_NEAR(linkage.inner_radius_min(), 2.0 / (2.0 * std::sin(kPi / 8)), 1e-9);
   const double r_max = linkage.configuration_radius_max();
   EXPECT_NEAR(linkage.outer_radius(r_max) - linkage.inner_radius(r_max), 2.0, 1e-9);
-  // The seed's "26 % change of the outer diameter" for n = 8, with our d = 2 mm (seed 000 §2.5).
+  // The dissertation's "26 % change of the outer diameter" for n = 8, with our d = 2 mm (Abah 2022, §2.3.4).
   const double change =
       (linkage.outer_radius_max() - linkage.outer_radius_min()) / linkage.outer_radius_max();
   EXPECT_NEAR(change, 0.26, 0.005);
@@ -149,7 +150,7 @@ TEST(ScissorLinkage, RejectsImpossibleLinkagesWithAClearMessage) {
 }
 
 // ---------------------------------------------------------------------------------------------------
-// Disk interference (seed §2.6, T2.6)
+// Disk interference (Abah 2022, §2.4)
 
 TEST(DiskInterference, DimensionalAndPackingFractionFormsAgreeT26) {
   const DiskInterferenceParameters disks;  // Table 2.3: L = 200, n_d = 8, h_d = 10 (PF 0.4)
@@ -175,7 +176,7 @@ TEST(DiskInterference, DimensionalAndPackingFractionFormsAgreeT26) {
 }
 
 // ---------------------------------------------------------------------------------------------------
-// One segment: kinematics (§2.7) and statics (§2.8)
+// One segment: kinematics (§2.5) and statics (§2.6.1)
 
 constexpr double kLength = 200.0;
 
@@ -304,7 +305,7 @@ TEST(VariableDiameterSegment, StaticsBalanceVirtualWork) {
 }
 
 // ---------------------------------------------------------------------------------------------------
-// The three-segment robot (§2.10)
+// The three-segment robot (§2.7.1)
 
 StackConfiguration random_stack(std::mt19937& rng) {
   StackConfiguration psi;
@@ -491,7 +492,7 @@ TEST(VariableDiameterRobot, StepDoesNotAllocate) {
 }
 
 // ---------------------------------------------------------------------------------------------------
-// The seed's circle experiment (§2.11, S2.1)
+// The dissertation's circle experiment (Abah 2022, §2.7.2)
 
 struct CircleOutcome {
   CircleRun fixed, variable;
@@ -542,7 +543,7 @@ TEST(VariableDiameterCircle, HookBranchGrowsShrinksNearInterferenceAndGrowsAgain
     ASSERT_LT(out.fixed.samples[i].tracking_error, 0.01);
   }
 
-  // Forces: never higher with the diameter free, and lower overall, by the seed's order of magnitude.
+  // Forces: never higher with the diameter free, and lower overall, by the dissertation's order of magnitude.
   EXPECT_GE(out.forces.min_reduction, -1e-6);
   EXPECT_LT(out.forces.rms_variable, out.forces.rms_fixed);
   EXPECT_GT(out.forces.rms_reduction, 48.3 - 2 * 17.6);
@@ -602,7 +603,7 @@ TEST(VariableDiameterCircle, HookBranchGrowsShrinksNearInterferenceAndGrowsAgain
 
 TEST(VariableDiameterCircle, PrintedModulusGivesTheSameStoryS21) {
   VariableDiameterRobotParameters params;
-  params.youngs_modulus = 74.0;  // the seed's "74 MPa" as printed
+  params.youngs_modulus = 74.0;  // the dissertation's "74 MPa" as printed
   const CircleOutcome out = run_circle(params, CircleBranch::kHook, "hook, E = 74 MPa");
   EXPECT_GE(out.forces.min_reduction, -1e-6);
   EXPECT_GT(out.forces.rms_reduction, 48.3 - 2 * 17.6);

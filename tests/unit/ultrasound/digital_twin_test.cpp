@@ -1,12 +1,12 @@
-// The digital twin of seed 002 §16 in stepped simulation: a limb with an embedded 10 mm tube, its CT
-// (wall cloud + calibration stick, registered by ICP), Algorithm 1 (n = 16) and Algorithm 2 on a noisy
-// depth-camera surface, a probe that tracks the via-points (the Appendix A task-space laws on a
+// A simulated set-up like that of Heunis et al. 2021, §4, in stepped time: a limb with an embedded 10 mm
+// tube, its CT (wall cloud + calibration stick, registered by ICP), Algorithm 1 (n = 16) and Algorithm 2 on a
+// noisy depth-camera surface, a probe that tracks the via-points (the Appendix A task-space laws on a
 // Cartesian integrator at 125 Hz) and acquires at the gate, a SIMULATED B-mode slice per acquisition
 // rendered in the TRUE probe pose, the ellipse EKF, Eq. 5 with the MEASURED transforms (robot and
-// tracker errors of §4.6), the lofted artery, and a catheter in the tube seen by a SIMULATED FBG
+// tracker errors of §4.3), the lofted artery, and a catheter in the tube seen by a SIMULATED FBG
 // interrogator, mapped by Eq. 2 and checked for contacts. Stationary (ST) and under periodic limb
 // motion (VS: two-term Fourier, 30 s period, y/z ±5 mm, x rotation ±3°, compensated by the target
-// update H_i^G(t) = H_P^G(t)·H_i^P of spec §6.2).
+// update H_i^G(t) = H_P^G(t)·H_i^P of Heunis et al. 2021, §3.1).
 //
 // What the twin leaves out (teleop/ultrasound_arm/README.md): the arm's joints and the force loop —
 // the probe is a Cartesian integrator of the A8/A9 twist, held on the skin by position control, so
@@ -79,15 +79,15 @@ Isometry3d pose_error(std::mt19937& engine, double mean, double sd, double angle
   return pose(w.norm() > 0 ? rotation(w.norm(), w) : Eigen::Matrix3d::Identity(), magnitude * direction);
 }
 
-// The error budget of spec §4.6: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm; rotations are our choice
-// (the seed gives none): 0.02° per axis, what 0.05 mm of marker jitter gives on a marker body 150 mm
-// across. The catheter's tip, 270 mm from its tracked base, feels it most: at 0.05° per axis the
-// shape's largest error over a limb period was 2.07 mm (mean 0.65 mm).
+// The error budget of Heunis et al. 2021, §4.3: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm; rotations are our
+// choice (the article gives none): 0.02° per axis, what 0.05 mm of marker jitter gives on a marker body 150
+// mm across. The catheter's tip, 270 mm from its tracked base, feels it most: at 0.05° per axis the shape's
+// largest error over a limb period was 2.07 mm (mean 0.65 mm).
 constexpr double kRobotError = 0.3, kRobotErrorSd = 0.1;
 constexpr double kTrackerError = 0.56, kTrackerErrorSd = 0.08;
 constexpr double kAngleSd = 0.02 * kPi / 180.0;
 
-// ---- periodic limb movement (spec §6.1): two-term Fourier series per degree of freedom ----
+// ---- periodic limb movement (Heunis et al. 2021, §3.1): two-term Fourier series per degree of freedom ----
 
 struct LimbMotion {
   double amplitude = 0.0;  // 0: stationary (ST); 1: the VS trial
@@ -115,7 +115,7 @@ struct Plan {
   std::vector<ProbeViaPoint> via_points;
 };
 
-// Spec §16 steps 1–3: CT (wall noise 0.2 mm, a perturbed CT frame, ICP on the stick), Algorithm 1,
+// Our set-up, steps 1–3: CT (wall noise 0.2 mm, a perturbed CT frame, ICP on the stick), Algorithm 1,
 // a depth-camera cloud (noise 0.5 mm), Algorithm 2.
 Plan make_plan() {
   std::mt19937 engine(2026);
@@ -174,7 +174,7 @@ Sweep run_sweep(const Plan& plan, const LimbMotion& motion, std::uint32_t seed) 
   EllipseSliceSegmenter segmenter(geometry);
   const teleop::TaskSpaceGains gains{};
   const double dt = 0.008;  // 125 Hz, the UR5's rate
-  // Pre-positioned on the first via-point (the paper's advice, L184).
+  // Pre-positioned on the first via-point (the article's advice, §4.2).
   Isometry3d probe = kTissueAtRest * motion.at(0.0) * plan.via_points.front().pose();
   double t = 0.0, held = 0.0;
   Sweep sweep;
@@ -182,15 +182,15 @@ Sweep run_sweep(const Plan& plan, const LimbMotion& motion, std::uint32_t seed) 
     const double start = t;
     held = 0.0;
     for (;;) {
-      // Motion compensation (spec §6.2): the target follows the tracked tissue (the 120 Hz tracker's
-      // newest sample; the ~8 ms between samples is below this loop's step).
+      // Motion compensation (Heunis et al. 2021, §3.1): the target follows the tracked tissue (the 120 Hz
+      // tracker's newest sample; the ~8 ms between samples is below this loop's step).
       const Isometry3d target = kTissueAtRest * motion.at(t) * plan.via_points[i].pose();
       const teleop::Twist twist = teleop::pose_tracking_twist(probe, target, gains, dt);
       const teleop::OrientationError e_theta = teleop::orientation_error(probe.linear(), target.linear());
       const bool conditions = (target.translation() - probe.translation()).norm() < 0.5 &&
                               e_theta.about_y < 0.01 && e_theta.about_z < 0.01;
       held = conditions ? held + dt : 0.0;
-      if (held >= 0.1) break;  // the gate (REQ-CTRL-4, position and orientation)
+      if (held >= 0.1) break;  // the gate (acquisition gate, position and orientation)
       probe.translation() += twist.head<3>() * dt;
       const Vector3d w = twist.tail<3>() * dt;
       if (w.norm() > 0.0) probe.linear() = rotation(w.norm(), w) * probe.linear();
@@ -213,7 +213,7 @@ Sweep run_sweep(const Plan& plan, const LimbMotion& motion, std::uint32_t seed) 
     const Isometry3d image_measured =
         tissue_measured.inverse() * kBaseInGlobal * probe_in_base * kImageInProbe;
     const BModeImage image = scanner.render(image_true, seed * 100u + static_cast<std::uint32_t>(i));
-    // Seed: the planned centroid projected into the image through the measured chain (spec §8.5).
+    // The EKF starts from the planned centroid projected into the image through the measured chain.
     const Vector3d seed_point = image_measured.inverse() * plan.centroids[i];
     const SliceSegmentation& result = segmenter.segment(image, {seed_point.y(), seed_point.z()});
     EXPECT_TRUE(result.valid && result.converged) << "via-point " << i;
@@ -260,7 +260,7 @@ const Sweep& moving() {
   return s;
 }
 
-// Spec §16: stationary centroid error ≤ 1.1 mm (mean; paper 1.1 ± 0.5 mm), Dice ≥ 0.84.
+// Heunis et al. 2021, §4.2: stationary centroid error ≤ 1.1 mm (mean; paper 1.1 ± 0.5 mm), Dice ≥ 0.84.
 TEST(DigitalTwin, StationaryCentroidErrorAndDice) {
   const Sweep& sweep = stationary();
   ASSERT_EQ(sweep.acquisitions.size(), 16u);
@@ -273,8 +273,8 @@ TEST(DigitalTwin, StationaryCentroidErrorAndDice) {
   EXPECT_GE(s.dice_min, 0.84);
 }
 
-// Spec §16: under limb motion ≤ 1.9 mm (paper 1.9 ± 0.3 mm); Dice of the ST and VS masks of each
-// via-point in image coordinates (the paper's reproducibility, 0.84) ≥ 0.84.
+// Heunis et al. 2021, §4.2: under limb motion ≤ 1.9 mm (paper 1.9 ± 0.3 mm); Dice of the ST and VS masks of
+// each via-point in image coordinates (the paper's reproducibility, 0.84) ≥ 0.84.
 TEST(DigitalTwin, UnderLimbMotionCentroidErrorAndReproducibility) {
   const Sweep& st = stationary();
   const Sweep& vs = moving();
@@ -301,9 +301,9 @@ TEST(DigitalTwin, UnderLimbMotionCentroidErrorAndReproducibility) {
   EXPECT_GE(s.dice_min, 0.84);
 }
 
-// Spec §16 step 7 and REQ-CON-1: a catheter in the tube (straight outside, then along the vessel,
-// drifting to the wall near the end), a SIMULATED interrogator with 1 µε noise, Eq. 2 with the tracked
-// base pose: shape error mean ≤ 0.82 mm, max ≤ 1.52 mm; contacts against the lofted artery flagged
+// Contacts flagged at the article's 1.25 mm (§3.3): a catheter in the tube (straight outside, then along the
+// vessel, drifting to the wall near the end), a SIMULATED interrogator with 1 µε noise, Eq. 2 with the
+// tracked base pose: shape error mean ≤ 0.82 mm, max ≤ 1.52 mm; contacts against the lofted artery flagged
 // where the catheter truly nears the wall, none where it is far from it.
 TEST(DigitalTwin, CatheterShapeAndContactsUnderLimbMotion) {
   const Sweep& vs = moving();

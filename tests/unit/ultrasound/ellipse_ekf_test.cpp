@@ -1,5 +1,5 @@
-// The Appendix B ellipse EKF + star algorithm (seed 002 §8, REQ-US-1..3) on SIMULATED B-mode slices
-// of the phantom's 10 mm tube: centre error, contour error, Dice against the true lumen.
+// The Appendix B ellipse EKF + star algorithm (Heunis et al. 2021, §3.2 and Appendix B) on SIMULATED B-mode
+// slices of the phantom's 10 mm tube: centre error, contour error, Dice against the true lumen.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -52,7 +52,7 @@ double percentile(std::vector<double> v, double p) {
 TEST(EllipseRadius, JacobianMatchesTheSpecsCheckAndFiniteDifferences) {
   const Eigen::Vector3d x(5.3, 4.1, 0.4);
   const Eigen::Vector3d j = ellipse_radius_jacobian(x, 1.1);
-  EXPECT_NEAR(j[0], 0.404668, 1e-6);  // spec §8.5
+  EXPECT_NEAR(j[0], 0.404668, 1e-6);  // derived from A15
   EXPECT_NEAR(j[1], 0.620149, 1e-6);
   EXPECT_NEAR(j[2], 1.212207, 1e-6);
   for (int k = 0; k < 3; ++k) {
@@ -111,7 +111,7 @@ TEST(SimulatedBMode, RejectsUnusableSetUp) {
   EXPECT_THROW(SimulatedBModeProbe(mismatched, BModeGeometry{}), UltrasoundSetupError);
 }
 
-// REQ-US-3: slices of the tube, cut square and obliquely (elliptical lumens: f up to 5 / cos 35° =
+// Synthetic slices: slices of the tube, cut square and obliquely (elliptical lumens: f up to 5 / cos 35° =
 // 6.1 mm), the seed up to 2 mm off the true centre, Rayleigh speckle and noise. Centre error, mean
 // radial contour error and Dice against the true lumen.
 TEST(EllipseSliceSegmenter, FindsTheLumenOnSimulatedSlicesWithSpeckle) {
@@ -158,10 +158,10 @@ TEST(EllipseSliceSegmenter, FindsTheLumenOnSimulatedSlicesWithSpeckle) {
       "min %.3f\n",
       median(centre_errors), percentile(centre_errors, 0.95), mean_contour, mean_dice,
       *std::min_element(dices.begin(), dices.end()));
-  EXPECT_LE(median(centre_errors), 0.5);  // REQ-US-3
+  EXPECT_LE(median(centre_errors), 0.5);  // synthetic slices
   EXPECT_LE(percentile(centre_errors, 0.95), 1.0);
   EXPECT_LE(mean_contour, 0.5);
-  EXPECT_GE(mean_dice, 0.84);  // the seed's Dice
+  EXPECT_GE(mean_dice, 0.84);  // the article's Dice
   EXPECT_GE(*std::min_element(dices.begin(), dices.end()), 0.84);
 }
 

@@ -1,5 +1,5 @@
-// The catheter's mold calibration as a routine (seed 002 §4.1, REQ-TF-3) on the SIMULATED mold: channel I
-// the reference, channel II the fit of H_F^C, channel III the validation against the seed's 0.82 mm mean
+// The catheter's mold calibration as a routine (Heunis et al. 2021, §2.2–2.3) on the SIMULATED mold: channel
+// I the reference, channel II the fit of H_F^C, channel III the validation against the article's 0.82 mm mean
 // and 1.52 mm max, with the tracker's error per recording and the interrogator's noise.
 #include <gtest/gtest.h>
 
@@ -39,7 +39,7 @@ TEST(MoldCalibrationRoutine, FitsOnChannelTwoAndValidatesOnChannelThree) {
     worst_max = std::max(worst_max, r.channel_iii.max);
     worst_error = std::max(worst_error, r.simulated_error_mm);
   }
-  EXPECT_LE(worst_mean, kMoldValidationMeanMm);  // the seed's figures (§16)
+  EXPECT_LE(worst_mean, kMoldValidationMeanMm);  // the article's figures (§4.2)
   EXPECT_LE(worst_max, kMoldValidationMaxMm);
   EXPECT_LT(worst_error, 1.5);  // two tracked poses of 0.3 mm each, turned over the fibre's 270 mm
 

@@ -1,4 +1,4 @@
-// Pre-operative planning (seed 002 §4.4, §5, REQ-TF-6, REQ-PLAN-1/2): ICP on a calibration stick,
+// Pre-operative planning (Heunis et al. 2021, §2.4): ICP on a calibration stick,
 // Algorithm 1 on a noisy tube-wall cloud, Algorithm 2 on a cylinder "limb".
 #include <gtest/gtest.h>
 
@@ -68,7 +68,7 @@ TEST(Icp, RegistersTheCalibrationStickFromA20mm15DegreeOffset) {
     scanned.push_back(tissue_to_ct * p + Vector3d(gauss(engine), gauss(engine), gauss(engine)));
   const IcpResult result = icp(stick, scanned);
   EXPECT_TRUE(result.converged);
-  EXPECT_LT(result.rms, 0.3);  // REQ-TF-6
+  EXPECT_LT(result.rms, 0.3);  // ICP registration
   const Eigen::Isometry3d error = result.transform * tissue_to_ct;
   EXPECT_LT(error.translation().norm(), 0.3);
   EXPECT_LT(Eigen::AngleAxisd(error.linear()).angle(), 0.5 * kPi / 180.0);
@@ -85,7 +85,7 @@ TEST(RigidFit, RecoversAKnownTransformAndRejectsBadInput) {
   EXPECT_THROW(rigid_fit(a, b), PlanningInputError);
 }
 
-// REQ-PLAN-1: 5000 wall points with 0.2 mm noise, through the CT frame and back by ICP's transform.
+// Algorithm 1: 5000 wall points with 0.2 mm noise, through the CT frame and back by ICP's transform.
 TEST(Algorithm1, FitsTheCenterlineFromTheWallCloudWithTheErrataFixed) {
   std::mt19937 engine(11);
   const auto wall = tube_wall(5000, 0.2, engine);
@@ -105,7 +105,7 @@ TEST(Algorithm1, FitsTheCenterlineFromTheWallCloudWithTheErrataFixed) {
   }
   std::printf("Algorithm 1: worst centroid distance to the true centerline %.3f mm\n", worst);
   EXPECT_LT(worst, 0.2);
-  // E2: points past the endpoint do not bend the fit — the cloud extends to 130 mm here.
+  // Points past the endpoint do not bend the fit — the cloud extends to 130 mm here.
   EXPECT_NEAR(centroids.back().x(), 125.0, 0.1);
   options.end_x = -100.0;
   EXPECT_THROW(arterial_centroids(wall_ct, tissue_to_ct.inverse(), options), PlanningInputError);
@@ -114,7 +114,7 @@ TEST(Algorithm1, FitsTheCenterlineFromTheWallCloudWithTheErrataFixed) {
   EXPECT_THROW(arterial_centroids(wall_ct, tissue_to_ct.inverse(), options), PlanningInputError);
 }
 
-// The limb of the digital twin (spec §16 step 1): a half-cylinder, r = 60 mm, axis along x.
+// The limb of the digital twin (our set-up): a half-cylinder, r = 60 mm, axis along x.
 std::vector<Vector3d> cylinder_surface(double spacing) {
   std::vector<Vector3d> points;
   for (double x = -10.0; x <= 135.0; x += spacing) {

@@ -1,4 +1,4 @@
-// Image-to-probe calibration (seed 002 §4.3, REQ-TF-5) with the SIMULATED N-wire phantom: echo
+// Image-to-probe calibration (Heunis et al. 2021, §2.3) with the SIMULATED N-wire phantom: echo
 // detection to sub-pixel, the least-squares solve against a known truth with noise, its refusals, and
 // the whole routine validated on images it did not fit.
 #include <gtest/gtest.h>
@@ -131,9 +131,9 @@ TEST(ImageCalibrationSolve, RefusesDegenerateDataWithAReason) {
   EXPECT_THROW((void)solve_image_calibration(bad, g), ImageCalibrationError);
 }
 
-// REQ-TF-5 end to end: 24 poses over the phantom, each with the robot's positioning error (spec §4.6:
-// 0.3 ± 0.1 mm, 0.02° per axis) between where the arm says the probe is and where it is; fit on 18
-// images, validate on the other 6.
+// Image-to-probe calibration end to end: 24 poses over the phantom, each with the robot's positioning error
+// (Heunis et al. 2021, §4.3: 0.3 ± 0.1 mm, 0.02° per axis) between where the arm says the probe is and where
+// it is; fit on 18 images, validate on the other 6.
 TEST(NWireCalibration, RecoversTheTrueImagePlaneAndValidatesOnHeldOutImages) {
   const BModeGeometry g;
   const ImageCalibration truth = true_calibration(), nominal = ImageCalibration::nominal(g);
@@ -171,7 +171,8 @@ TEST(NWireCalibration, RecoversTheTrueImagePlaneAndValidatesOnHeldOutImages) {
   EXPECT_EQ(run.images, 24);
   EXPECT_GE(run.images_used, 22);
   EXPECT_GE(run.validation.points, 12);
-  EXPECT_LT(run.validation.mean_mm, 0.5);  // REQ-TF-5: a phantom point reprojects to < 0.5 mm
+  EXPECT_LT(run.validation.mean_mm,
+            0.5);  // Image-to-probe calibration: a phantom point reprojects to < 0.5 mm
   EXPECT_LT(run.validation.max_mm, 1.0);
   EXPECT_GT(nominal_off, 1.0);     // the truth is really off the nominal
   EXPECT_LT(calibrated_off, 0.5);  // and the calibration finds it

@@ -1,9 +1,9 @@
-// UltrasoundReconstructionSession (issue 17, imaging part): the digital twin of seed 002 §16 driven
-// through the session as the us_arm's imaging worker drives it — a stream of probe samples (probe and
-// limb poses, contact, the gate's acquisition flag, the via-point) — instead of calling the algorithms
-// one by one. The phantom, plan and probe motion are those of digital_twin_test.cpp (copied, not
-// shared, so that either test can change its scenario alone); the session adds the §4.6 measurement
-// errors itself. Expectations are the seed's §16 numbers.
+// UltrasoundReconstructionSession (issue 17, imaging part): a simulated set-up like that of Heunis et al.
+// 2021, §4, driven through the session as the us_arm's imaging worker drives it — a stream of probe samples
+// (probe and limb poses, contact, the gate's acquisition flag, the via-point) — instead of calling the
+// algorithms one by one. The phantom, plan and probe motion are those of digital_twin_test.cpp (copied, not
+// shared, so that either test can change its scenario alone); the session adds the §4.3 measurement
+// errors itself. Expectations are the article's reported numbers (§4.2).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -83,7 +83,7 @@ ProbeSample sample_at(double t, const Isometry3d& probe, const Isometry3d& limb,
 
 const Isometry3d kTissueAtRest = pose(rotation(0.3, Vector3d::UnitY()), Vector3d(400.0, 100.0, -50.0));
 
-// Spec §16 steps 1–3 (CT with noise, ICP on the stick, Algorithm 1, a noisy depth-camera surface,
+// Our set-up (CT with noise, ICP on the stick, Algorithm 1, a noisy depth-camera surface,
 // Algorithm 2), as in digital_twin_test.cpp.
 SweepPlan make_plan() {
   std::mt19937 engine(2026);
@@ -240,7 +240,8 @@ Summary summarise(const SweepRun& run) {
   return s;
 }
 
-// Spec §16: stationary centroid error ≤ 1.1 mm, Dice ≥ 0.84; one slice per via-point, a lofted mesh.
+// Heunis et al. 2021, §4.2: stationary centroid error ≤ 1.1 mm, Dice ≥ 0.84; one slice per via-point, a
+// lofted mesh.
 TEST(ReconstructionSession, StationarySweepReproducesCentroidErrorAndDice) {
   const SweepRun& run = stationary();
   ASSERT_EQ(run.session->slices().size(), 16u);
@@ -257,7 +258,7 @@ TEST(ReconstructionSession, StationarySweepReproducesCentroidErrorAndDice) {
   EXPECT_GT(run.live_frames, 0);
 }
 
-// Spec §16: under limb motion ≤ 1.9 mm, Dice ≥ 0.84 (vs truth and ST-vs-VS per via-point).
+// Heunis et al. 2021, §4.2: under limb motion ≤ 1.9 mm, Dice ≥ 0.84 (vs truth and ST-vs-VS per via-point).
 TEST(ReconstructionSession, MovingLimbSweepReproducesCentroidErrorAndDice) {
   const SweepRun& st = stationary();
   const SweepRun& vs = moving();
@@ -276,7 +277,7 @@ TEST(ReconstructionSession, MovingLimbSweepReproducesCentroidErrorAndDice) {
   EXPECT_GE(reproducibility, 0.84);
 }
 
-// Spec §16 step 7: the session's SIMULATED interrogator over one limb period: shape error mean
+// Our set-up: the session's SIMULATED interrogator over one limb period: shape error mean
 // ≤ 0.82 mm, max ≤ 1.52 mm; contacts against the session's mesh where the catheter is truly 0.5 mm
 // from the wall, none where it is over 2.5 mm from it; no curvature warning for this gentle path.
 TEST(ReconstructionSession, CatheterShapeContactsAndCurvatureUnderLimbMotion) {
@@ -326,7 +327,7 @@ TEST(ReconstructionSession, CatheterShapeContactsAndCurvatureUnderLimbMotion) {
   EXPECT_LE(sum / count, 0.82);
   EXPECT_LE(worst, 1.52);
   EXPECT_GT(near_sensors, 0);
-  // The seed gives no detection rate. A sensor 0.5 mm from the wall is flagged when its measured
+  // The article gives no detection rate. A sensor 0.5 mm from the wall is flagged when its measured
   // distance is under 1.25 mm, and two independent tracker errors of 0.56 mm (the catheter base and
   // the limb) move it by about 0.8 mm, so some frames miss; measured: each flagged in ≥ 82 % of frames.
   EXPECT_GE(near_fraction, 0.75);
@@ -445,9 +446,10 @@ TEST(ReconstructionSession, ImagesAtTheTrueLimbAndMapsThroughTheTrackedOne) {
   EXPECT_EQ(exact.slices().size(), 1u);
 }
 
-// REQ-TF-5 in the reconstruction: the SIMULATED scanner images through its TRUE H_I^U and pixel scales
-// (0.8 mm and 1° off the nominal plane, scales 1.6 % off), the session maps through the calibration it
-// is given. With the nominal one the centroids are off; with the N-wire calibration's result they are not.
+// Image-to-probe calibration in the reconstruction: the SIMULATED scanner images through its TRUE H_I^U and
+// pixel scales (0.8 mm and 1° off the nominal plane, scales 1.6 % off), the session maps through the
+// calibration it is given. With the nominal one the centroids are off; with the N-wire calibration's result
+// they are not.
 TEST(ReconstructionSession, MapsWithTheCalibratedImagePlaneWhileTheScannerImagesWithTheTrueOne) {
   ReconstructionSessionConfig c = session_config(11);
   c.catheter_path.clear();
@@ -506,7 +508,7 @@ TEST(ReconstructionSession, MapsWithTheCalibratedImagePlaneWhileTheScannerImages
   EXPECT_NEAR(calibrated.image_calibration().s_v, run.fit.calibration.s_v, 1e-12);  // unchanged
 }
 
-// REQ-TF-3 in the reconstruction: the fibre truly sits at one H_F^C, Eq. 2 uses the configured one; a
+// Mold calibration in the reconstruction: the fibre truly sits at one H_F^C, Eq. 2 uses the configured one; a
 // new calibration (set_fiber_in_base) takes effect at the next catheter update.
 TEST(ReconstructionSession, MapsTheCatheterWithTheCalibratedFibreInBase) {
   ReconstructionSessionConfig c = session_config(13);
