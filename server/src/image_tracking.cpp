@@ -112,7 +112,7 @@ TrackingConfig parse_tracking_config(const nlohmann::json& tracking,
     } else if (v == "vessel") {
       c.vessel_scale_noise = true;
     } else {
-      fail("noise", "\"fine\" (the seed's eq. 4.43) or \"vessel\" (eq. 4.44)");
+      fail("noise", "\"fine\" (Abah 2022, eq. 4.43) or \"vessel\" (eq. 4.44)");
     }
   }
   if (tracking.contains("segmentation")) {

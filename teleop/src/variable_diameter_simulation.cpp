@@ -1,4 +1,4 @@
-// Simulation of the seed's variable-diameter circle experiment (seed 000 §2.11); see the header.
+// Simulation of the dissertation's variable-diameter circle experiment (Abah 2022, §2.7.2); see the header.
 #include "tendril/teleop/variable_diameter_simulation.hpp"
 
 #include <algorithm>
@@ -187,7 +187,8 @@ bool write_circle_svg(const std::string& path, const CircleRun& fixed, const Cir
   out << "<rect x=\"60\" y=\"280\" width=\"700\" height=\"200\" fill=\"none\" stroke=\"black\"/>\n";
   out << polyline(ff, t_max, 0.0, f_max, 280.0, 200.0, "#d62728");
   out << polyline(fv, t_max, 0.0, f_max, 280.0, 200.0, "#1f77b4");
-  out << "<text x=\"60\" y=\"500\">time 0 to " << t_max << " s (circle of seed 000 §2.11)</text>\n</svg>\n";
+  out << "<text x=\"60\" y=\"500\">time 0 to " << t_max
+      << " s (circle of Abah 2022, §2.7.2)</text>\n</svg>\n";
   return static_cast<bool>(out);
 }
 

@@ -1,6 +1,6 @@
 // The mbcr_vd's part of the network API (network threads): its fields of /robots and operating_state,
 // the /{robot}/actuation topic (diameter and actuation forces, 20 Hz), and its commands `trajectory`
-// (the seed's circle) and `diameter` (variable or fixed for the task mode). servo_cv and move_cp are
+// (the dissertation's circle) and `diameter` (variable or fixed for the task mode). servo_cv and move_cp are
 // the core's CRTK endpoints, which reach the type through RobotPlugin::cartesian_command.
 #include <cmath>
 #include <utility>
@@ -27,7 +27,8 @@ class MbcrApi final : public RobotApiExtension {
     const auto& l = robot_.model().linkage();
     const auto& c = s.circle;
     out["mbcr"] = {
-        {"model", "three-segment multi-backbone continuum robot with scissor-linkage disks (seed 000 ch. 2)"},
+        {"model",
+         "three-segment multi-backbone continuum robot with scissor-linkage disks (Abah 2022, ch. 2)"},
         {"simulated", true},
         {"drives", "CiA 402 lead-screw axes on the robot's CAN bus; SIMULATED on a virtual bus"},
         {"units",
@@ -125,7 +126,7 @@ class MbcrApi final : public RobotApiExtension {
           {"required", {"action"}}},
          false,
          "",
-         "task mode: start (moves to the circle's start, then runs the seed's circle, seed 000 §2.11, with "
+         "task mode: start (moves to the circle's start, then runs the circle of Abah 2022, §2.7.2, with "
          "the "
          "diameter variable or fixed) or stop the seed_circle trajectory"},
         {"diameter",
@@ -176,7 +177,7 @@ class MbcrApi final : public RobotApiExtension {
     if (body.contains("name") && body["name"] != "seed_circle")
       return ApiResult::error(400, "bad_request",
                               "unknown trajectory " + body["name"].dump() + "; robot '" + robot +
-                                  "' knows \"seed_circle\" (seed 000 §2.11)");
+                                  "' knows \"seed_circle\" (Abah 2022, §2.7.2)");
     ApiResult bad;
     const auto choice = diameter_choice(body, "diameter", bad);
     if (!bad.ok()) return bad;

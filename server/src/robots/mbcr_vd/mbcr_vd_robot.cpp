@@ -26,7 +26,7 @@ class MbcrType final : public RobotType {
  public:
   std::string kind() const override { return "mbcr_vd"; }
   std::string description() const override {
-    return "variable-diameter multi-backbone continuum robot (seed 000 ch. 2): three segments, "
+    return "variable-diameter multi-backbone continuum robot (Abah 2022, ch. 2): three segments, "
            "scissor-linkage "
            "disks, task-space control with gradient-projection redundancy resolution";
   }
@@ -91,7 +91,7 @@ MbcrSettings parse_mbcr_settings(const RobotConfig& rc) {
     p.linkage.rhombus_count =
         static_cast<int>(l.integer_in_or("rhombus_count", 3, 64, p.linkage.rhombus_count));
     p.linkage.inner_arm_length = l.positive_or("arm_length_mm", p.linkage.inner_arm_length);
-    p.linkage.outer_arm_length = p.linkage.inner_arm_length;  // l₂ = l₁, the seed's design rule
+    p.linkage.outer_arm_length = p.linkage.inner_arm_length;  // l₂ = l₁, the dissertation's design rule
     p.linkage.hinge_diameter = l.positive_or("hinge_diameter_mm", p.linkage.hinge_diameter);
   }
   if (m.has("segments")) {
@@ -237,8 +237,8 @@ MbcrRobot::MbcrRobot(const RobotConfig& rc, RobotAssembly& assembly)
   if (!(settings_.parameters.backbone_lower < 0.0 && settings_.parameters.backbone_upper > 0.0))
     throw ConfigError(file +
                       ": joints: expected the backbones' soft limits to contain 0 (the straight robot)");
-  // The seed's circle starts on the hook branch (teleop/mbcr_vd/README.md: the branch whose diameter
-  // history is the seed's).
+  // The dissertation's circle starts on the hook branch (teleop/mbcr_vd/README.md: the branch whose diameter
+  // history is the dissertation's).
   circle_start_ = teleop::circle_start_configuration(model_, settings_.circle, teleop::CircleBranch::kHook);
   auto data = model_.make_data();
   const double miss = (model_.tip_pose(circle_start_, data).translation() -
@@ -259,8 +259,8 @@ MbcrRobot::~MbcrRobot() = default;
 std::vector<ModeInfo> MbcrRobot::modes() const {
   return {{"task",
            "CRTK servo_cv and move_cp of the tip; the diameter moves in the task's null space to lower the "
-           "actuation forces (gradient projection, seed 000 §2.10) or is held (fixed), and the trajectory "
-           "command runs the seed's circle"}};
+           "actuation forces (gradient projection, Abah 2022, §2.7.1) or is held (fixed), and the trajectory "
+           "command runs the circle of Abah 2022, §2.7.2"}};
 }
 
 double MbcrRobot::approach_duration(const MbcrSnapshot& from, double a_to) const noexcept {

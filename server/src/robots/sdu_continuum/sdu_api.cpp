@@ -271,9 +271,8 @@ class SduApi final : public RobotApiExtension {
              {{"type", "object"}, {"properties", {{"rate_rad_s", number}}}, {"required", {"rate_rad_s"}}},
              true,
              "",
-             "while stopped on a contact: the 1-DoF no-slip roll about the contact (seed (3.6)); refresh "
-             "within the "
-             "servo timeout"},
+             "while stopped on a contact: the 1-DoF no-slip roll about the contact (Abah 2022, eq. 3.6); "
+             "refresh within the servo timeout"},
             {"unbias",
              {{"type", "object"}},
              false,

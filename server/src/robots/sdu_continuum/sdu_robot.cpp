@@ -28,7 +28,7 @@ class SduContinuumType final : public RobotType {
  public:
   std::string kind() const override { return "sdu_continuum"; }
   std::string description() const override {
-    return "continuum segment on a rotary stage with five sensing disk units (seed 000 ch. 3): proximity "
+    return "continuum segment on a rotary stage with five sensing disk units (Abah 2022, ch. 3): proximity "
            "speed scaling, stop on contact, HRI guidance, ToF mapping; disks on CAN (SIMULATED on a "
            "virtual bus)";
   }

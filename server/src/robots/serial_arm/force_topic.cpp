@@ -109,7 +109,7 @@ std::vector<TopicInfo> ArmForceTopic::topics() const {
       {"title", "tendril.ArmForce"},
       {"description",
        "The arm's 3-axis force reading in the probe frame at the control loop's pace (≤ 100 Hz), F_n against "
-       "the sweep's target (seed 002 REQ-VIS-4)"},
+       "the sweep's target"},
       {"properties",
        {{"timestamp",
          {{"type", "object"},

@@ -296,7 +296,7 @@ class SerialArmApi final : public RobotApiExtension {
   }
 
  private:
-  // REQ-TF-7: no sweep without a valid calibration of every required kind; the sentence names them
+  // No sweep without a valid calibration of every required kind; the sentence names them
   // and the requests that make them.
   std::optional<std::string> missing_calibrations() const {
     const auto* runner = robot_.calibrations();
@@ -308,7 +308,7 @@ class SerialArmApi final : public RobotApiExtension {
       what += (what.empty() ? "" : ", ") + k.kind;
       how += (how.empty() ? "" : ", then ") + k.command;
     }
-    return "sweep: no valid " + what + " calibration (REQ-TF-7); run " + how + " first";
+    return "sweep: no valid " + what + " calibration; run " + how + " first";
   }
 
   // A plan whose via-points (or the pre-position above the first) leave the arm's workspace box at

@@ -29,7 +29,8 @@ class SerialArmType final : public RobotType {
  public:
   std::string kind() const override { return "serial_arm"; }
   std::string description() const override {
-    return "six-joint serial arm (UR5 geometry, seed 002): velocity-commanded joints, CRTK Cartesian "
+    return "six-joint serial arm (UR5 geometry, Heunis et al. 2021): velocity-commanded joints, CRTK "
+           "Cartesian "
            "commands, "
            "3-axis force sensor; SIMULATED (a real UR5 would be RTDE over Ethernet)";
   }
@@ -300,7 +301,7 @@ void SerialArm::set_up_calibrations() {
   // The SIMULATED optical tracker defines {G} (ultrasound.simulation.tracker). Defaults: the arm's base
   // 1.2 m from its origin, turned 35° about the vertical and tilted 1–2° (a camera rig's frame is never
   // level with a robot's), the marker rigid body 60 mm behind the probe face, turned 10° (our choices:
-  // the seed gives none), and the errors of seed §4.6.
+  // the article gives none), and the errors of Heunis et al. 2021, §4.3.
   OpticalTrackerSettings t;
   t.global_T_base = pose_rpy({850.0, -620.0, 540.0}, {0.02, -0.03, 0.61});
   t.marker_T_probe = pose_rpy({5.0, -40.0, 60.0}, {0.1, 0.05, 0.17});
@@ -495,7 +496,7 @@ void SerialArm::robot_calibration_worker(std::uint32_t run) {
   CalibrationRecord record;
   record.kind = "robot";
   record.method =
-      "seed 002 §4.2: A_k X = Y F_k over " + std::to_string(result.pairs) +
+      "Heunis et al. 2021, §2.3: A_k X = Y F_k over " + std::to_string(result.pairs) +
       " poses (rotation: Park–Martin least squares in Procrustes form; translations: linear least squares; " +
       std::to_string(result.iterations) + " Gauss–Newton iterations); SIMULATED optical tracker";
   record.transforms["H_B^G"] = result.world_T_base;
@@ -539,11 +540,12 @@ std::vector<ModeInfo> SerialArm::modes() const {
   std::vector<ModeInfo> modes = {
       {"cartesian",
        "CRTK move_cp (straight line, quintic), servo_cp and servo_cv of the tool, through the damped "
-       "inverse (seed 002 App. A)"}};
+       "inverse (Heunis et al. 2021, Appendix A)"}};
   if (ultrasound_)
     modes.push_back({"sweep",
                      "the ultrasound sweep over the via-points of the plan: hybrid position/force control "
-                     "(seed 002 App. A), the acquisition gate, motion compensation from the limb's tracked "
+                     "(Heunis et al. 2021, Appendix A), the acquisition gate, motion compensation from the "
+                     "limb's tracked "
                      "pose; driven by POST sweep {\"action\": ...}"});
   return modes;
 }

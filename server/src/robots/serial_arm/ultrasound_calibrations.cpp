@@ -1,4 +1,4 @@
-// The us_arm's "us" and "catheter" calibrations (seed 002 §4.1, §4.3); see the header.
+// The us_arm's "us" and "catheter" calibrations (Heunis et al. 2021, §2.2–2.3); see the header.
 #include "serial_arm/ultrasound_calibrations.hpp"
 
 #include <cmath>
@@ -52,11 +52,11 @@ UltrasoundCalibrations::UltrasoundCalibrations(std::string robot, CalibrationRun
   simulation_.true_image.validate();
   simulation_.phantom.validate();
   runner_.add(
-      {"us", "image-to-probe: H_I^U and the pixel scales s_u, s_v (seed 002 §4.3, REQ-TF-5), N-wire phantom",
+      {"us", "image-to-probe: H_I^U and the pixel scales s_u, s_v (Heunis et al. 2021, §2.3), N-wire phantom",
        "POST /api/v1/robots/" + robot_ + "/calibrate {\"kind\":\"us\"}", true},
       [this](const OperatingStateView& state) { return start(state, true); });
   runner_.add({"catheter",
-               "catheter mold: H_F^C of the FBG fibre in the catheter base (seed 002 §4.1, REQ-TF-3), "
+               "catheter mold: H_F^C of the FBG fibre in the catheter base (Heunis et al. 2021, §2.2–2.3), "
                "validated on channel III",
                "POST /api/v1/robots/" + robot_ + "/calibrate {\"kind\":\"catheter\"}", false},
               [this](const OperatingStateView& state) { return start(state, false); });
@@ -138,7 +138,8 @@ void UltrasoundCalibrations::run_image_calibration(std::uint64_t run) {
                         {"simulated_error_mm", off.translation().norm()},
                         {"simulated_error_deg", Eigen::AngleAxisd(off.linear()).angle() / kDegree},
                         {"notes", result.notes}};
-    // REQ-TF-5: a phantom point reprojects to < 0.5 mm (here: points of images the fit did not see).
+    // Image-to-probe calibration: a phantom point reprojects to < 0.5 mm (here: points of images the fit did
+    // not see).
     record.valid = result.validation.points > 0 && result.validation.mean_mm < 0.5;
     record.summary =
         "H_I^U and s_u " + mm(c.s_u) + ", s_v " + mm(c.s_v) + " mm/px from " +

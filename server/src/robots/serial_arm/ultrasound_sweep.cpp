@@ -117,8 +117,7 @@ std::optional<UltrasoundSettings> parse_ultrasound_settings(const RobotConfig& r
   s.pre_position_tolerance = u.positive_or("pre_position_tolerance_mm", s.pre_position_tolerance);
   s.acquire_time = u.non_negative_or("acquire_ms", s.acquire_time * 1e3) / 1e3;
   s.retract_speed = u.positive_or("retract_speed_mm_s", s.retract_speed);
-  if (s.retract_speed > 10.0)
-    u.fail("retract_speed_mm_s", "at most 10 (seed 002 REQ-SAFE-2)", u.raw("retract_speed_mm_s"));
+  if (s.retract_speed > 10.0) u.fail("retract_speed_mm_s", "at most 10", u.raw("retract_speed_mm_s"));
   s.retract_distance = u.positive_or("retract_distance_mm", s.retract_distance);
   s.velocity_feed_forward = u.boolean_or("velocity_feed_forward", s.velocity_feed_forward);
   s.tracker_filter_hz = u.non_negative_or("tracker_filter_hz", s.tracker_filter_hz);
@@ -201,9 +200,9 @@ SweepPlan make_sweep_plan(const LimbSimulation& limb, const UltrasoundSettings& 
   SweepPlan plan;
   plan.skin = limb.skin_scan();
   const auto ct_wall = limb.ct_wall_cloud();
-  // ICP (§4.4): the calibration stick in the CT (data) onto its model in {P} gives T: CT → {P}. (The
-  // skin alone registers poorly: a limb is nearly a cylinder, free to slide along and turn about its
-  // axis; we measured 0.9 mm across the limb that way against 0.1 mm on the stick.)
+  // ICP (Heunis et al. 2021, §2.4): the calibration stick in the CT (data) onto its model in {P} gives T: CT
+  // → {P}. (The skin alone registers poorly: a limb is nearly a cylinder, free to slide along and turn about
+  // its axis; we measured 0.9 mm across the limb that way against 0.1 mm on the stick.)
   const auto icp = ultrasound::icp(limb.stick_model(), limb.ct_stick_cloud());
   plan.ct_to_limb = icp.transform;
   plan.icp_rms = icp.rms;

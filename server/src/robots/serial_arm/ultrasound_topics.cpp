@@ -574,9 +574,10 @@ std::vector<TopicInfo> UltrasoundTopics::topics() const {
                     "The fitted ellipse (LINE_LOOP), its centre (POINTS) and a status text, "
                     "in pixels of the image of the same timestamp",
                     {{"circles", kArray}, {"points", kArray}, {"texts", kArray}});
-  const json scene = object_schema("foxglove.SceneUpdate",
-                                   "The ultrasound reconstruction in the tissue frame (Fig. 7 of seed 002)",
-                                   {{"deletions", kArray}, {"entities", kArray}});
+  const json scene =
+      object_schema("foxglove.SceneUpdate",
+                    "The ultrasound reconstruction in the tissue frame (Fig. 7 of Heunis et al. 2021)",
+                    {{"deletions", kArray}, {"entities", kArray}});
   const json tf = object_schema("foxglove.FrameTransforms", "The ultrasound arm's frame chain (Eqs. 2 and 5)",
                                 {{"transforms", kArray}});
   return {{image_topic(), "foxglove.CompressedImage", image.dump()},

@@ -12,7 +12,7 @@ namespace {
 
 using nlohmann::json;
 
-constexpr std::size_t kMaxPictures = 200;       // the seed steps 0.1 mm to ≈ 80°: about 10–60
+constexpr std::size_t kMaxPictures = 200;       // the dissertation steps 0.1 mm to ≈ 80°: about 10–60
 constexpr std::size_t kMaxSamples = 2'000'000;  // scattered (s, q, θ) triples
 constexpr std::size_t kMaxOutlinePoints = 200'000;
 ApiResult bad_request(const std::string& message) { return ApiResult::error(400, "bad_request", message); }
@@ -134,7 +134,7 @@ std::variant<CalibrationRequest, ApiResult> read_calibration_request(
     if (!r[key].is_number_integer() || r[key].get<double>() < 1 ||
         r[key].get<double>() > teleop::kMaxModalOrder)
       return bad_request(std::string(key) + ": expected an integer from 1 to " +
-                         std::to_string(teleop::kMaxModalOrder) + " (the seed uses n = 4, m = 2)");
+                         std::to_string(teleop::kMaxModalOrder) + " (Abah 2022 uses n = 4, m = 2)");
     *order = r[key].get<int>();
   }
   int forms = 0;

@@ -30,7 +30,7 @@ class SteerableCatheterType final : public RobotType {
  public:
   std::string kind() const override { return "steerable_catheter"; }
   std::string description() const override {
-    return "steerable robotic microcatheter (seed 000 ch. 4): insertion, roll and two bend drives with "
+    return "steerable robotic microcatheter (Abah 2022, ch. 4): insertion, roll and two bend drives with "
            "series-elastic spring sensing";
   }
   nlohmann::json settings_schema() const override {
@@ -99,7 +99,7 @@ SteerableCatheter::SteerableCatheter(const RobotConfig& rc, RobotAssembly& assem
   }
   // ψ bounds for the configuration quintic: insertion and roll as configured; a bend angle may move as
   // fast as its drive's limit allows through the map's slope at the straight pose (the slope is
-  // constant for the m = 2 models of the seed), less 10 % for the coupling.
+  // constant for the m = 2 models of the dissertation), less 10 % for the coupling.
   const Eigen::Vector4d zero = Eigen::Vector4d::Zero();
   const Eigen::Vector4d base = map_->configuration(zero);
   for (Eigen::Index i = 0; i < 4; ++i) {
