@@ -1,7 +1,7 @@
-// The variable-diameter continuum robot's panel (robot kind mbcr_vd, seed 000 ch. 2): a live plot of the
-// robot's diameter and of its backbones' actuation forces, the seed circle's start and stop, and the
+// The variable-diameter continuum robot's panel (robot kind mbcr_vd, Abah 2022, ch. 2): a live plot of the
+// robot's diameter and of its backbones' actuation forces, the reference circle's start and stop, and the
 // choice between a variable diameter (gradient projection lowers the forces) and a fixed one (the
-// seed's baseline). The values are the robot's operating_state "mbcr" fields as the /{robot}/actuation
+// the dissertation's baseline). The values are the robot's operating_state "mbcr" fields as the /{robot}/actuation
 // topic carries them (20 Hz, over the console's WebSocket); while that stream is silent (no WebSocket,
 // a proxy that drops it) the panel reads GET operating_state every 100 ms instead.
 import {TimePlot} from './plot.js';
@@ -46,7 +46,7 @@ export class MbcrPanel {
       this.values[key] = v;
       readouts.append(item);
     }
-    const controls = el('div', {class: 'mbcr-controls', role: 'group', 'aria-label': 'Seed circle'});
+    const controls = el('div', {class: 'mbcr-controls', role: 'group', 'aria-label': 'Reference circle'});
     const choice = el('fieldset', {class: 'mbcr-choice'});
     choice.append(el('legend', {}, 'diameter'));
     for (const value of ['variable', 'fixed']) {
@@ -57,7 +57,7 @@ export class MbcrPanel {
       choice.append(label);
     }
     this.start = el('button', {type: 'button', class: 'btn btn-go', 'data-testid': 'mbcr-start',
-      'aria-label': 'Run the seed circle (switches to task mode)'}, 'Run seed circle');
+      'aria-label': 'Run the reference circle of Abah 2022 (switches to task mode)'}, 'Run circle');
     this.stop = el('button', {type: 'button', class: 'btn', 'data-testid': 'mbcr-stop'}, 'Stop');
     controls.append(choice, this.start, this.stop);
     const plots = el('div', {class: 'mbcr-plots'});
@@ -74,7 +74,7 @@ export class MbcrPanel {
 
     const fmt = (d) => (v) => v.toFixed(d);
     this.diameterPlot = new TimePlot(diameterCanvas, {
-      // a, the diameter joint, against its limits (as the seed's Fig. 2.12); the outer diameter is a
+      // a, the diameter joint, against its limits (as the dissertation's Fig. 2.12); the outer diameter is a
       // readout (it follows a, and on one axis with it would flatten a's history).
       series: [{label: 'a', color: '#4ea1ff', format: fmt(2)},
         {label: 'upper limit (joint, interference)', color: '#f85149', dash: true, format: fmt(1)},
@@ -128,10 +128,10 @@ export class MbcrPanel {
         await new Promise((r) => setTimeout(r, 50));
       }
       const answer = await this.api.post(this.path('trajectory'), {action: 'start', name: 'seed_circle', diameter});
-      this.status(`Seed circle, ${diameter} diameter: ${answer.approach_s.toFixed(1)} s to its start, then ` +
+      this.status(`Circle, ${diameter} diameter: ${answer.approach_s.toFixed(1)} s to its start, then ` +
         `${(answer.duration_s - answer.approach_s).toFixed(0)} s around`, 'ok');
     } catch (err) {
-      this.status(`Seed circle not started: ${err.message}`, 'error');
+      this.status(`Circle not started: ${err.message}`, 'error');
     }
   }
 
@@ -139,7 +139,7 @@ export class MbcrPanel {
     if (!this.robot) return;
     try {
       await this.api.post(this.path('trajectory'), {action: 'stop'});
-      this.status('Seed circle stopped', 'ok');
+      this.status('Circle stopped', 'ok');
     } catch (err) {
       this.status(`Stop refused: ${err.message}`, 'error');
     }

@@ -1,11 +1,11 @@
-// Panel of the ultrasound arm (a serial arm with an "ultrasound" section in GET /robots; seed 002):
+// Panel of the ultrasound arm (a serial arm with an "ultrasound" section in GET /robots; Heunis et al. 2021):
 // - sweep controls (plan, preview, pre-position, start, pause, abort: POST /robots/{r}/sweep) with the
 //   phase, the via-point reached, the progress and the acquisition gate from /{robot}/sweep;
 // - the live SIMULATED B-mode image (/{robot}/ultrasound/image, foxglove.CompressedImage in JSON, PNG)
 //   with the artery boundary the ellipse EKF fitted (/{robot}/ultrasound/annotations,
 //   foxglove.ImageAnnotations) drawn over it, matched by time stamp;
 // - the contact force plot: the normal force against the 0.8 N target (/{robot}/force, every sample);
-// - the 3D scene of seed 002's Fig. 7 (/{robot}/reconstruction, foxglove.SceneUpdate in the frame
+// - the 3D scene of Fig. 7 of Heunis et al. 2021 (/{robot}/reconstruction, foxglove.SceneUpdate in the frame
 //   "tissue") in a tissue-stabilised view: the 3D view's fixed frame becomes "tissue" through /tf, so
 //   the limb stands still on screen while it moves in the world, and the arm and probe move about it.
 import {el, group, fmt, describe, robotCommand} from './panel_kit.js';
@@ -127,7 +127,7 @@ class UltrasoundPanel {
         group('Ultrasound image', '(SIMULATED B-mode; fitted ellipse in orange, its centre in red)', u.image, u.imageInfo),
         group('Contact force', '(normal force vs target)',
               el('div', {className: 'plot-box rp-plot'}, u.forceCanvas), u.forceValue),
-        group('3D reconstruction', '(seed 002 Fig. 7)',
+        group('3D reconstruction', '(Heunis et al. 2021, Fig. 7)',
               el('label', {className: 'rp-label'}, u.tissueView, ' tissue-stabilised view (the camera moves with the limb)'),
               u.tfInfo, u.reconInfo),
         u.hint);
@@ -229,7 +229,7 @@ class UltrasoundPanel {
     this.plotForce(normal, stampMs, msg.in_contact ? 'contact' : 'free space');
   }
 
-  // `mode`: the controller's mode (REQ-VIS-4): the hybrid controller's force phase is "contact".
+  // `mode`: the controller's mode: the hybrid controller's force phase is "contact".
   plotForce(normal, stampMs, mode) {
     if (!Number.isFinite(this.t0)) this.t0 = stampMs;
     const t = (stampMs - this.t0) / 1000;

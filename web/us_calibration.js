@@ -1,4 +1,4 @@
-// The Calibration sub-panel of the ultrasound panel (seed 002 §4, REQ-TF-7): for every kind the robot
+// The Calibration sub-panel of the ultrasound panel (Heunis et al. 2021, §2.3): for every kind the robot
 // lists in GET /robots (`calibrations.kinds`) its version in use, when it was taken, its residual and
 // summary, and a Calibrate button (POST /robots/{r}/calibrate {"kind"}); while a routine runs its step
 // and message; a refusal's sentence next to the button; the kinds the sweep still needs. Generic over

@@ -1,7 +1,7 @@
 // Operator words for server sentences. The server's messages are written for API users too: a refusal
 // or a hold's way out names the request to send ("switch to tip mode (POST /api/v1/robots/sdu/mode
-// {"mode": "tip"})", "roll along it: POST /api/v1/robots/sdu/roll") and the requirement it enforces
-// ("(REQ-TF-7)"). The console shows what to press instead; the server's own sentence stays in the
+// {"mode": "tip"})", "roll along it: POST /api/v1/robots/sdu/roll") and, in older sentences, a requirement id
+// in parentheses. The console shows what to press instead; the server's own sentence stays in the
 // element's title for whoever needs it.
 
 const prettyMode = (mode) => {
