@@ -592,6 +592,7 @@ function showTip(position, zAxis) {
   const [x, y, z] = position;
   ui.tip.textContent = `tip x ${x.toFixed(1)}  y ${y.toFixed(1)}  z ${z.toFixed(1)} mm`;
   ui.configTip.textContent = `${x.toFixed(1)}, ${y.toFixed(1)}, ${z.toFixed(1)} mm`;
+  plan?.showTip(position);
   if (zAxis) {
     // The tip frame's z axis (the catheter's heading) as azimuth in XY and elevation above XY.
     const [zx, zy, zz] = zAxis;

@@ -10,7 +10,7 @@
 // nearest the catheter's insertion, not to step 0 if that means withdrawing it far.
 import {ApiError} from './api.js';
 import {StepPlot} from './plot.js';
-import {planVerdict, stepRoute, nearestStep, movePreview} from './plan_verdict.js';
+import {planVerdict, stepRoute, nearestStep, movePreview, targetReach} from './plan_verdict.js';
 
 const $ = (sel) => document.querySelector(sel);
 const JOB_POLL_MS = 400;
@@ -45,6 +45,8 @@ export class PlanPanel {
       next: $('[data-testid="step-next-button"]'),
       stepInput: $('[data-testid="step-input"]'),
       go: $('[data-testid="step-go-button"]'),
+      // The tip's distance from the plan's target, in the Plan tab and beside the tip in the Joints tab.
+      targets: [$('[data-testid="plan-target"]'), $('[data-testid="config-target"]')],
     };
     this.errorPlot = new StepPlot($('[data-testid="plan-error-plot"]'), {
       left: {label: 'mean position error', unit: 'mm', color: '#e3b341'},
@@ -417,6 +419,27 @@ export class PlanPanel {
     this.ui.stepInput.max = String(Math.max(0, steps.length - 1));
     this.preview(0);
     this.updateButtons();
+  }
+
+  // The tip (robot frame, mm) against the target of the plan loaded on the robot, else of the plan shown:
+  // "Tip 1.7 mm from the vessel's end · reached (within 3.0 mm, the lumen radius there)".
+  showTip(tip) {
+    const loaded = this.path?.loaded && this.loadedResult?.planId === this.path.plan ? this.loadedResult.result : null;
+    const plan = loaded || this.plan;
+    // The lumen radius is the selected branch's: a plan of another vessel or branch gets no verdict.
+    const sameBranch = plan && String(plan.vessel) === this.ui.vessel.value && String(plan.branch ?? 0) === String(this.ui.branch.value || 0);
+    const r = sameBranch ? targetReach(plan, this.ctx.robot()?.vessel_entry, this.branchRadius, tip) : null;
+    const where = r?.truncated ? "the plan's end (truncated: the vessel goes on)" : "the vessel's end";
+    const verdict = r ? `${r.reached ? 'reached' : 'not reached'} (within ${r.toleranceMm.toFixed(1)} mm` : '';
+    const texts = [r ? `Tip ${r.distanceMm.toFixed(1)} mm from ${where} · ${verdict}, the lumen radius there)` : '',
+                   r ? `${r.distanceMm.toFixed(1)} mm · ${verdict})` : '—'];
+    this.ui.targets.forEach((el, k) => {
+      el.textContent = texts[k];
+      el.hidden = k === 0 && !r;
+      el.dataset.reached = r ? String(r.reached) : '';
+      el.dataset.distanceMm = r ? r.distanceMm.toFixed(2) : '';
+      el.dataset.toleranceMm = r ? r.toleranceMm.toFixed(2) : '';
+    });
   }
 
   // Highlights a step in the 3D view and the error plot without moving the robot.

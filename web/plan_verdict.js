@@ -168,3 +168,28 @@ export function movePreview(from, to, joints = []) {
   if (!parts.length) return `will move: nothing${still.length ? ` · unchanged: ${still.join(', ')}` : ''}`;
   return `will move: ${parts.join(', ')}${still.length ? ` · unchanged: ${still.join(', ')}` : ''}`;
 }
+
+// ---- The plan's target (issue 31) ----
+// Where the plan ends (its vessel path's last point: the vessel's end unless the plan was truncated to the
+// insertion range), in the robot's frame through the robot's vessel_entry (position, orientation [x, y, z, w]),
+// and the tip's distance from it. Reached: the tip within the lumen radius there (the last of the branch's
+// radii, or its one radius), i.e. inside the vessel at its end: the seeds give no tolerance, and a tip
+// closer than the wall is where the vessel ends. null when a number is missing (nothing is guessed).
+export function targetReach(plan, entry, radiusMm, tip) {
+  const path = Array.isArray(plan?.vessel_path) ? plan.vessel_path : [];
+  const end = path[path.length - 1];
+  const p = Array.isArray(end) ? end : end && [end.x, end.y, end.z];
+  const radii = Array.isArray(radiusMm) ? radiusMm : [radiusMm];
+  const toleranceMm = Number(radii[radii.length - 1]);
+  if (!p || !Array.isArray(entry?.position) || !Array.isArray(tip) || !(toleranceMm > 0)) return null;
+  const [qx, qy, qz, qw] = Array.isArray(entry.orientation) && entry.orientation.length === 4 ? entry.orientation.map(Number) : [0, 0, 0, 1];
+  // v' = v + 2 w (u × v) + 2 u × (u × v), u = (qx, qy, qz): the unit quaternion's rotation.
+  const [vx, vy, vz] = p.map(Number);
+  const cx = qy * vz - qz * vy, cy = qz * vx - qx * vz, cz = qx * vy - qy * vx;
+  const dx = qy * cz - qz * cy, dy = qz * cx - qx * cz, dz = qx * cy - qy * cx;
+  const target = [vx + 2 * (qw * cx + dx) + Number(entry.position[0]), vy + 2 * (qw * cy + dy) + Number(entry.position[1]),
+                  vz + 2 * (qw * cz + dz) + Number(entry.position[2])];
+  const distanceMm = Math.hypot(tip[0] - target[0], tip[1] - target[1], tip[2] - target[2]);
+  if (!Number.isFinite(distanceMm)) return null;
+  return {target, distanceMm, toleranceMm, reached: distanceMm <= toleranceMm, truncated: !!plan.truncated_to_insertion_range};
+}
