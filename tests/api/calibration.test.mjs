@@ -1,4 +1,4 @@
-// The shape calibration of seed 000 §4.5.2 over REST: pictures from the SIMULATED side-view camera
+// The shape calibration of Abah 2022, §4.5.2 over REST: pictures from the SIMULATED side-view camera
 // at dq = 0.1 mm steps, a calibration job that fits the shape matrix from them, the new robot file
 // it writes (never over an existing one), and the refusals.
 import {test} from 'node:test';

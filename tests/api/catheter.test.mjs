@@ -1,4 +1,4 @@
-// The steerable catheter's modes over REST and the Foxglove WebSocket (seed 000 §4.7): every mode
+// The steerable catheter's modes over REST and the Foxglove WebSocket (Abah 2022, §4.7): every mode
 // switch, refused switches with their reason, configuration goals, and the console joystick as a
 // REST call and as a Foxglove client channel, with its deadman. Free space (tests/api/server.sh
 // drops the simulated vessel).

@@ -1,7 +1,7 @@
 // Browser test of the variable-diameter robot's panel (web/mbcr.js) against a tendrild serving the
 // catheter and the SIMULATED mbcr_vd robot (config/robots/mbcr_vd.json): select the robot, take its
-// lease, enable it, run the seed circle from the page with a variable diameter; the plots get data and
-// the diameter grows (seed 000 §2.11: a rises from a_min to ~17 mm in the circle's first 2 s).
+// lease, enable it, run the reference circle from the page with a variable diameter; the plots get data and
+// the diameter grows (Abah 2022, §2.7.2: a rises from a_min to ~17 mm in the circle's first 2 s).
 // Env: TENDRIL_URL, TENDRIL_TOKEN (tests/e2e/run.sh starts the server with config/robots/mbcr_vd.json).
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
@@ -26,7 +26,7 @@ after(async () => {
 
 const innerRadius = async () => parseFloat(await page.locator(tid('mbcr-radius')).textContent());
 
-test('the seed circle runs from the Diameter tab; the plots fill and the diameter grows', async () => {
+test('the reference circle runs from the Diameter tab; the plots fill and the diameter grows', async () => {
   await page.goto(`${BASE_URL}/?token=${encodeURIComponent(TOKEN)}`);
   await page.waitForFunction(() => document.querySelectorAll('[data-testid="robot-select"] option').length === 2,
     null, WAIT);

@@ -1,4 +1,4 @@
-// Browser test of the console against a tendrild serving two robots (seed 002's set-up: the SIMULATED
+// Browser test of the console against a tendrild serving two robots (the set-up of Heunis et al. 2021: the SIMULATED
 // catheter and the SIMULATED UR5 arm). The robot selector lists both; choosing one rebuilds the joint
 // panel and the mode bar from that robot's description, and the lease badge shows that robot's own
 // lease: the console holds the catheter's while a lab engineer's script holds the arm's.

@@ -131,7 +131,7 @@ test('a sweep runs from the console while the catheter is driven in the same ser
     await page.click(tid('enable-button'));
     await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').textContent.includes('ENABLED'),
       null, WAIT);
-    // The robot calibration first (REQ-TF-7: no sweep without it), from the Calibration sub-panel: in
+    // The robot calibration first (the sweep refuses without it), from the Calibration sub-panel: in
     // cartesian mode, the Calibrate button, then about 65 s of motion through 12 poses.
     assert.match(await page.locator(tid('us-cal-missing')).textContent(), /robot/);
     const inCartesian = await page.waitForFunction(() => {

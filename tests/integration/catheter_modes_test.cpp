@@ -1,7 +1,7 @@
-// The steerable catheter's modes over the virtual bus in stepped simulated time (seed 000 §4.7,
+// The steerable catheter's modes over the virtual bus in stepped simulated time (Abah 2022, §4.7,
 // §4.10.2): configuration control through eq. 4.21, telemanipulation from the console and from the
 // simulated ADC joystick with its deadman, active compliance from the simulated spring-deflection
-// sensors, the spring-deflection hold with retraction only, and the seed's active-vs-passive bend.
+// sensors, the spring-deflection hold with retraction only, and the dissertation's active-vs-passive bend.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -105,7 +105,7 @@ TEST_F(CatheterTest, ListsTheModesAndTheConfigurationSpace) {
                                             "image_guided", "path_following"}));
   EXPECT_EQ(robot["configuration"]["names"],
             nlohmann::json({"insertion", "roll", "theta_proximal", "theta_distal"}));
-  // Seed bend-drive limits: -6 <= q3 <= 10 mm, |q4| <= 5 mm.
+  // The dissertation's bend-drive limits: -6 <= q3 <= 10 mm, |q4| <= 5 mm.
   EXPECT_EQ(robot["joints"][2]["lower"], -6.0);
   EXPECT_EQ(robot["joints"][2]["upper"], 10.0);
   EXPECT_EQ(robot["joints"][3]["lower"], -5.0);
@@ -208,7 +208,7 @@ TEST_F(CatheterTest, TelemanipulationMovesOnlyWhileTheDeadmanIsHeld) {
   EXPECT_EQ(api->robot_command("srmc", "joystick", {{"axes", {0, 0, 0}}, {"deadman", true}}).status, 422);
 }
 
-TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
+TEST_F(CatheterTest, TheDissertationsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
   start(free_space_srmc());
   enable();
   mode("telemanipulation");
@@ -230,11 +230,11 @@ TEST_F(CatheterTest, TheSeedsAnalogJoystickDrivesTheBendsWithThePedalHeld) {
   stick->set_pedal(false);
 }
 
-// The seed's channel experiment (§4.10.2) in the simulated vessel: a curved channel (the phantom
+// The dissertation's channel experiment (§4.10.2) in the simulated vessel: a curved channel (the phantom
 // tubing's lumen, a 55 mm lead-in, then a 120° bend of 20 mm radius), the catheter inserted 40 mm at
 // 2 mm/s, once with the bend drives held (passive: only the springs let the tubes bend) and once
 // under active compliance. For the comparison at equal depth both runs raise the deflection bound
-// to 9.5 mm (the passive catheter ends near 6 mm; the seed's passive run had no such bound).
+// to 9.5 mm (the passive catheter ends near 6 mm; the dissertation's passive run had no such bound).
 RobotConfig channel_srmc(double deflection_limit_mm) {
   auto c = load_robot_config(kSrmc);
   c.settings["catheter"]["simulation"]["vessel"] = {{"lead_in_mm", kChannel.lead_in},
@@ -282,7 +282,7 @@ TEST_F(ChannelTest, ActiveComplianceBendsFurtherThanPassiveWithLessWallForce) {
               passive.bend_deg, passive.peak_contact_n, active.bend_deg, active.peak_contact_n);
   EXPECT_EQ(passive.state, "ENABLED");
   EXPECT_EQ(active.state, "ENABLED");
-  // Seed: 81° with active compliance against 43° passive.
+  // The dissertation: 81° with active compliance against 43° passive.
   EXPECT_NEAR(active.bend_deg, 81.0, kChannel.band_deg);
   EXPECT_NEAR(passive.bend_deg, 43.0, kChannel.band_deg);
   // The contact force stays under its configured bound (max_contact_force_n, 0.1 N) with compliance;

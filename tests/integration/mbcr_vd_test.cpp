@@ -1,9 +1,9 @@
 // The mbcr_vd robot type (server/src/robots/mbcr_vd) end to end through the runtime and the JSON API with
 // config/robots/mbcr_vd.json: seven SIMULATED CiA 402 drives on a virtual bus, stepped simulated time
-// at 1 kHz. The seed's circle (seed 000 §2.11) run through the plug-in with the diameter variable and
-// fixed gives the library's numbers (RMS ‖τ̃_s‖ 177.7 N against 203.2 N, reduction RMS 39.8 N on the
-// hook branch at 74 GPa; seed 48.3 ± 17.6 N) and the grow–shrink–grow diameter; bad goals are refused;
-// an operator's motion stops before the disks must touch.
+// at 1 kHz. The dissertation's circle (Abah 2022, §2.7.2) run through the plug-in with the diameter variable
+// and fixed gives the library's numbers (RMS ‖τ̃_s‖ 177.7 N against 203.2 N, reduction RMS 39.8 N on the hook
+// branch at 74 GPa; the dissertation's 48.3 ± 17.6 N) and the grow–shrink–grow diameter; bad goals are
+// refused; an operator's motion stops before the disks must touch.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -24,7 +24,7 @@ namespace {
 using nlohmann::json;
 
 const std::filesystem::path kConfig = std::filesystem::path(TENDRIL_SOURCE_DIR) / "config/robots";
-constexpr double kMinInnerRadius = 2.613;  // a_min (mm), seed T2.3
+constexpr double kMinInnerRadius = 2.613;  // a_min (mm) of the Table 2.3 geometry
 
 class MbcrTest : public ::testing::Test {
  protected:
@@ -73,7 +73,7 @@ class MbcrTest : public ::testing::Test {
     double rms = 0.0;
     std::uint32_t unavoidable_steps = 0;
   };
-  // Runs the seed circle through the API and records it sample by sample from the published snapshot.
+  // Runs the reference circle through the API and records it sample by sample from the published snapshot.
   CircleRecord run_circle(const std::string& diameter) {
     CircleRecord rec;
     const auto r = api->robot_command("mbcr", "trajectory",
@@ -124,7 +124,7 @@ TEST_F(MbcrTest, DescribesSevenJointsInMillimetresAndATaskMode) {
   EXPECT_LT(r["buses"][0]["load"].get<double>(), 0.7);
   std::printf("mbcr bus %s: worst-case load %.1f %%\n", r["buses"][0]["name"].get<std::string>().c_str(),
               100.0 * r["buses"][0]["load"].get<double>());
-  EXPECT_NEAR(r["mbcr"]["linkage"]["inner_radius_mm"][0].get<double>(), kMinInnerRadius, 1e-3);  // T2.3
+  EXPECT_NEAR(r["mbcr"]["linkage"]["inner_radius_mm"][0].get<double>(), kMinInnerRadius, 1e-3);  // a_min
   EXPECT_NEAR(r["mbcr"]["linkage"]["inner_radius_mm"][1].get<double>(), 47.224, 1e-3);
   // Straight at start: the tip 3 × 200 mm up the base's z axis.
   const auto p = api->measured_cp("mbcr").body;
@@ -135,7 +135,7 @@ TEST_F(MbcrTest, DescribesSevenJointsInMillimetresAndATaskMode) {
   EXPECT_EQ(state["mbcr"]["actuation"]["backbone_forces_n"].size(), 12u);
 }
 
-TEST_F(MbcrTest, SeedCircleVariableDiameterLowersTheActuationForces) {
+TEST_F(MbcrTest, ReferenceCircleVariableDiameterLowersTheActuationForces) {
   start();
   enable_task_mode();
   const CircleRecord fixed = run_circle("fixed");
@@ -155,13 +155,13 @@ TEST_F(MbcrTest, SeedCircleVariableDiameterLowersTheActuationForces) {
   }
   const double reduction = std::sqrt(sum_sq / static_cast<double>(fixed.force.size()));
   EXPECT_NEAR(reduction, 39.8, 0.3);
-  EXPECT_GT(reduction, 48.3 - 2 * 17.6);  // the seed's 48.3 ± 17.6 N, within two standard deviations
+  EXPECT_GT(reduction, 48.3 - 2 * 17.6);  // the dissertation's 48.3 ± 17.6 N, within two standard deviations
   EXPECT_LT(reduction, 48.3 + 2 * 17.6);
   EXPECT_GE(min_reduction, -1e-6);  // never worse than the fixed diameter
   // Fixed: a stays at a_min.
   for (double a : fixed.diameter) EXPECT_NEAR(a, kMinInnerRadius, 1e-3);
   // Varying: grows to ~17 mm in the first 2 s, is pushed back to a_min by the interference limit
-  // through the bottom of the circle, grows again to ~28.6 mm at the end (seed Fig. 2.12).
+  // through the bottom of the circle, grows again to ~28.6 mm at the end (Abah 2022, Fig. 2.12).
   double early_peak = 0.0, middle_low = 1e9;
   for (std::size_t i = 0; i < 3000; ++i) early_peak = std::max(early_peak, variable.diameter[i]);
   for (std::size_t i = 8000; i < 12000; ++i) middle_low = std::min(middle_low, variable.diameter[i]);
@@ -169,7 +169,8 @@ TEST_F(MbcrTest, SeedCircleVariableDiameterLowersTheActuationForces) {
   EXPECT_LT(middle_low, kMinInnerRadius + 0.1);
   EXPECT_GT(variable.diameter.back(), 25.0);
   std::printf(
-      "seed circle through the plug-in: RMS fixed %.2f N, variable %.2f N, reduction RMS %.2f N; a: %.2f mm "
+      "reference circle through the plug-in: RMS fixed %.2f N, variable %.2f N, reduction RMS %.2f N; a: "
+      "%.2f mm "
       "by 3 s, %.3f mm at 8-12 s, %.2f mm at the end; unavoidable interference %u / %u steps\n",
       fixed.rms, variable.rms, reduction, early_peak, middle_low, variable.diameter.back(),
       fixed.unavoidable_steps, variable.unavoidable_steps);

@@ -182,7 +182,7 @@ TEST_F(SerialArmTest, ServoCvMovesTheToolAtTheStreamedVelocity) {
   EXPECT_LT((vec3(pose()["position"]) - held).norm(), 0.02);
 }
 
-TEST_F(SerialArmTest, ServoCvIsCappedAtTheSeedsSpeed) {
+TEST_F(SerialArmTest, ServoCvIsCappedAtTheArticlesSpeed) {
   start({arm_config()});
   enable();
   cartesian_mode();
@@ -281,7 +281,7 @@ TEST_F(SerialArmTest, ContactForceOverFmaxHoldsAndRetracts) {
   EXPECT_TRUE(s["arm"]["force_hold"].get<bool>());
   // The force never got far past F_max: the hold comes within a sample of crossing it.
   EXPECT_LT(arm().simulated_force_sensor().truth().penetration, 6.6 + 0.5);
-  // REQ-SAFE-2: it backs away along the contact force until under the resume bound (1.5 N).
+  // Retraction at ≤ 10 mm/s: it backs away along the contact force until under the resume bound (1.5 N).
   ASSERT_TRUE(step_until([&] { return !op()["arm"]["retracting"].get<bool>(); }, 5000)) << op().dump();
   steps(200);
   EXPECT_LT(op()["arm"]["contact_force_n"].get<double>(), 1.6);
@@ -480,7 +480,7 @@ TEST_F(SerialArmTest, RobotFilesTheTypeRefuses) {
   expect_refused(parse_robot_config(document, kConfig / "ur5_arm.json"), "work_space_mm");
 }
 
-// ---- two robots in one runtime: the catheter and the arm, seed 002's set-up ----------------------------
+// ---- two robots in one runtime: the catheter and the arm, the set-up of Heunis et al. 2021 ------------
 
 class TwoRobotsTest : public SerialArmTest {
  protected:

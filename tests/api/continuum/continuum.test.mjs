@@ -134,7 +134,7 @@ test('/sdu/scene draws the SIMULATED scene: the wall plate, the cabinet and the 
   const cabinet = latest.cubes[1];
   assert.deepEqual([cabinet.size.x, cabinet.size.y, cabinet.size.z], [120, 80, 300]);
   assert.deepEqual([cabinet.pose.position.x, cabinet.pose.position.y, cabinet.pose.position.z], [0, 260, 150]);
-  assert.equal(latest.cylinders[0].size.x, 50.8, 'the seed\'s 50.8 mm rod');
+  assert.equal(latest.cylinders[0].size.x, 50.8, 'the dissertation\'s 50.8 mm rod');
   assert.ok(latest.metadata.some((m) => m.key === 'simulated' && m.value === 'true'));
   const approach = await post(`${SDU}/simulation_scene`, {action: 'approach', speed_mm_s: 100});
   assert.equal(approach.status, 202, approach.text);

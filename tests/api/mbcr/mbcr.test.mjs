@@ -1,6 +1,6 @@
 // The variable-diameter continuum robot (config/robots/mbcr_vd.json, robot type mbcr_vd) in a tendrild
 // next to the catheter, over REST and WebSocket: /robots, the trajectory and diameter commands with bad
-// bodies, and the /mbcr/actuation topic while the seed's circle runs. Run by tests/api/mbcr/run.sh (a
+// bodies, and the /mbcr/actuation topic while the dissertation's circle runs. Run by tests/api/mbcr/run.sh (a
 // server of its own).
 import {test, after} from 'node:test';
 import assert from 'node:assert/strict';
@@ -46,8 +46,8 @@ test('GET /robots lists the mbcr with seven joints in mm, a task mode and its mo
   assert.deepEqual(mbcr.modes, ['joint', 'task']);
   assert.equal(mbcr.cartesian, true);
   assert.equal(mbcr.mbcr.simulated, true);
-  assert.ok(Math.abs(mbcr.mbcr.linkage.inner_radius_mm[0] - 2.613) < 1e-3, 'a_min, seed T2.3');
-  assert.ok(Math.abs(mbcr.mbcr.linkage.inner_radius_mm[1] - 47.224) < 1e-3, 'a_max, seed T2.3');
+  assert.ok(Math.abs(mbcr.mbcr.linkage.inner_radius_mm[0] - 2.613) < 1e-3, 'a_min of the Table 2.3 geometry');
+  assert.ok(Math.abs(mbcr.mbcr.linkage.inner_radius_mm[1] - 47.224) < 1e-3, 'a_max of the Table 2.3 geometry');
   assert.equal(mbcr.mbcr.trajectories.seed_circle.radius_mm, 70);
   const commands = JSON.stringify(mbcr.commands);
   assert.ok(commands.includes('trajectory') && commands.includes('diameter'), `commands: ${commands}`);
@@ -65,7 +65,7 @@ test('the trajectory command refuses bad bodies, and needs the task mode', async
   assert.equal((await state()).mbcr.motion, 'none');
 });
 
-test('the seed circle runs from the API and /mbcr/actuation streams the diameter and forces', async () => {
+test('the reference circle runs from the API and /mbcr/actuation streams the diameter and forces', async () => {
   await enableTaskMode();
   const {lease_token: leaseToken} = await holdLease();
   const ws = new WebSocket(`${WS_URL}?token=${encodeURIComponent(TOKEN)}&lease=${leaseToken}`,

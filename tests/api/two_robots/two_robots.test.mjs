@@ -1,4 +1,4 @@
-// Two robots in one tendrild (seed 002's set-up): the SIMULATED catheter (config/robots/srmc.json) and
+// Two robots in one tendrild (the set-up of Heunis et al. 2021): the SIMULATED catheter (config/robots/srmc.json) and
 // the SIMULATED UR5 arm (config/robots/ur5_arm.json, robot type serial_arm), over REST and WebSocket.
 // Each has its own safety state and mode; one e-stop stops both; the arm's Cartesian stream goes over a
 // Foxglove client channel /ur5/servo_cv. Run by tests/api/two_robots/run.sh (a server of its own).

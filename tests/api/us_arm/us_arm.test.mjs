@@ -112,7 +112,7 @@ test('the sweep is refused out of order, each time with the reason', async () =>
   assert.match(r.json.error.message, /no plan/);
   assertErrorShape(await sweep('preview'), 409, 'conflict');
   assertErrorShape(await sweep('fly'), 400, 'bad_request');
-  // REQ-TF-7: no plan without a robot calibration; the routine runs in cartesian mode.
+  // No plan without a robot calibration; the routine runs in cartesian mode.
   r = await sweep('plan');
   assertErrorShape(r, 409, 'conflict');
   assert.match(r.json.error.message, /no valid robot, us calibration.*calibrate \{"kind":"robot"\}.*calibrate \{"kind":"us"\}/);

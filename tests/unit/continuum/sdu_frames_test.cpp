@@ -136,9 +136,9 @@ TEST(SduFrames, FiveDisksAt100HzFitAClassicMegabitBus) {
   EXPECT_NEAR(load.load, 0.478, 1e-9);
   EXPECT_LT(load.load, 0.70);  // the server's default bus ceiling
   std::printf("SDU bus load: %s\n", load.breakdown.c_str());
-  // The seed's 4.26 Hz would use 2 %; at 200 Hz five disks would not fit under 70 %.
+  // The dissertation's 4.26 Hz would use 2 %; at 200 Hz five disks would not fit under 70 %.
   EXPECT_GT(estimate_sdu_bus_load(1'000'000, 200.0, 5).load, 0.70);
-  std::printf("SDU bus load at the seed's 4.26 Hz: %s\n",
+  std::printf("SDU bus load at the dissertation's 4.26 Hz: %s\n",
               estimate_sdu_bus_load(1'000'000, 4.26, 5).breakdown.c_str());
   // Sharing can0 with three CiA 402 axes at the SRMC's 2.5 ms SYNC would not fit: the SDUs get a bus.
   const auto drives =

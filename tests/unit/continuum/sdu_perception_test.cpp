@@ -1,5 +1,5 @@
 // Perception from the SDUs: points in {0}, the voxel map, RANSAC planes, the bracing check, the Hall
-// path, and the mapping error of a simulated scan beside the seed's 9.73 mm RMS.
+// path, and the mapping error of a simulated scan beside the dissertation's 9.73 mm RMS.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -83,7 +83,7 @@ TEST(SduPlanes, RansacFindsPlanesAndHonoursTheReferenceNormal) {
   EXPECT_GT(fit.plane.normal.dot(Eigen::Vector3d::UnitY()), 0.999);
   EXPECT_NEAR(fit.plane.offset_mm, 300.0, 1.0);
   EXPECT_EQ(fit.inliers.size(), wall.size());  // 40 mm inlier distance: the floor is 150 mm away
-  // Without a reference the seed's procedure peels both planes off, larger first.
+  // Without a reference the dissertation's procedure peels both planes off, larger first.
   const auto planes = extract_planes(all, RansacParameters{}, 3);
   ASSERT_TRUE(std::holds_alternative<std::vector<PlaneFit>>(planes));
   const auto& list = std::get<std::vector<PlaneFit>>(planes);
@@ -156,7 +156,7 @@ TEST(SduHall, UnbiasForceAndContactLocalisation) {
   for (int i = 0; i < 100; ++i) EXPECT_TRUE(u.add(node.sense_forces({}, 0.0)));
   const HallBias bias = u.bias();
   for (std::size_t j = 0; j < kHallPerSdu; ++j) EXPECT_NEAR(bias.b0_mT[j][2], node.rest_field()[j][2], 0.002);
-  // T3.1: ΔB = 2.6 mT ↔ 10 N.
+  // ΔB = 2.6 mT ↔ 10 N.
   SduSample s;
   s.received = true;
   s.hall_ok.fill(true);
@@ -188,11 +188,11 @@ TEST(SduHall, UnbiasForceAndContactLocalisation) {
   EXPECT_FALSE(locate_contact(m, poses, forces, 5.0).contact);
 }
 
-// The seed's mapping set-up (§3.10) in simulation: vertical walls (normal [0, 1, 0]) and slanted ones
+// The dissertation's mapping set-up (§3.5) in simulation: vertical walls (normal [0, 1, 0]) and slanted ones
 // (normal [0.98, 0, 0.22]), each half aluminium and half poster board 9.25 mm in front of it; the segment
 // bends, turns its bending plane and rolls while the 5 SDUs range; the map is the points in {0}; the
 // error is each point's distance to its parent ground-truth plane.
-TEST(SduMapping, SimulatedScanErrorBesideTheSeeds973mm) {
+TEST(SduMapping, SimulatedScanErrorBesideTheDissertations973mm) {
   SduSegmentModel m;
   Scene scene;
   const Eigen::Vector3d n1(0, 1, 0);
@@ -230,7 +230,7 @@ TEST(SduMapping, SimulatedScanErrorBesideTheSeeds973mm) {
   VoxelMap map(5.0, 200'000);
   std::vector<Eigen::Vector3d> raw;
   std::array<Eigen::Vector3d, kTofPerSdu> pts;
-  // About the seed's sweep rates (bend ±0.02 rad/s, plane ±0.1 rad/s, roll ±0.1 rad/s) over 60 s; a
+  // About the dissertation's sweep rates (bend ±0.02 rad/s, plane ±0.1 rad/s, roll ±0.1 rad/s) over 60 s; a
   // sample every 40 ms keeps the sanitized test short (the map's density, not its error, depends on it).
   for (int k = 0; k < 1500; ++k) {
     const double t = k * 0.04;
@@ -252,7 +252,7 @@ TEST(SduMapping, SimulatedScanErrorBesideTheSeeds973mm) {
   const double rms_raw = rms_to_nearest_plane(raw, truth);
   const auto voxels = map.points();
   const double rms_map = rms_to_nearest_plane(voxels, truth);
-  // The seed's evaluation (§3.10): RANSAC (40 mm, reference normals n̂₁ then n̂₂ on the rest) splits the
+  // The dissertation's evaluation (§3.5): RANSAC (40 mm, reference normals n̂₁ then n̂₂ on the rest) splits the
   // points into the vertical and the slanted set; each point's parent is the nearer of that set's two
   // ground-truth planes (aluminium, poster board); the error is the RMS of the orthogonal residuals.
   RansacParameters rp;
@@ -277,8 +277,10 @@ TEST(SduMapping, SimulatedScanErrorBesideTheSeeds973mm) {
       std::acos(std::min(1.0, std::abs(std::get<PlaneFit>(vertical).plane.normal.dot(n1))));
   const double angle_s = std::acos(std::min(1.0, std::abs(std::get<PlaneFit>(slanted).plane.normal.dot(n2))));
   std::printf(
-      "simulated mapping: %zu points (%zu voxels of 5 mm); the seed's evaluation: %zu vertical + %zu slanted "
-      "points, RMS %.2f mm (vertical %.2f, slanted %.2f; seed 9.73 mm with an optical tracker at 8.08 Hz); "
+      "simulated mapping: %zu points (%zu voxels of 5 mm); the dissertation's evaluation: %zu vertical + %zu "
+      "slanted "
+      "points, RMS %.2f mm (vertical %.2f, slanted %.2f; dissertation 9.73 mm with an optical tracker at "
+      "8.08 Hz); "
       "every point to its nearest true plane %.2f mm raw, %.2f mm voxel means; RANSAC normals %.1f and %.1f "
       "deg "
       "from the true ones\n",

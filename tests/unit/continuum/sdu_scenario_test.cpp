@@ -1,8 +1,8 @@
-// Scenario in stepped time (100 Hz, the seed's continuum-robot loop): a SIMULATED arm (an upright 50.8 mm
-// rod, the seed's wrist) approaches the segment's top disk at 20 mm/s; the operator commands the tip
-// towards it at 50 mm/s. The disks' samples travel as CAN frames through the assembler into the
-// supervisor; the commanded speed scales down with the distance and the contact stops the segment in
-// the cycle it is felt. Run with the disks at 100 Hz (tendril's CAN layout) and at the seed's 4.26 Hz;
+// Scenario in stepped time (100 Hz, the dissertation's continuum-robot loop): a SIMULATED arm (an
+// upright 50.8 mm rod, the dissertation's wrist) approaches the segment's top disk at 20 mm/s; the operator
+// commands the tip towards it at 50 mm/s. The disks' samples travel as CAN frames through the assembler into
+// the supervisor; the commanded speed scales down with the distance and the contact stops the segment in the
+// cycle it is felt. Run with the disks at 100 Hz (tendril's CAN layout) and at the dissertation's 4.26 Hz;
 // the stopping distance and time are printed (teleop/sdu_continuum/README.md).
 #include <gtest/gtest.h>
 
@@ -28,7 +28,7 @@ struct ScenarioResult {
   std::vector<std::pair<double, double>> speed_by_gap;  // (true gap mm, commanded speed mm/s)
 };
 
-// The disks sample every sense_every control cycles (1: 100 Hz; 23: the seed's 4.26 Hz).
+// The disks sample every sense_every control cycles (1: 100 Hz; 23: the dissertation's 4.26 Hz).
 ScenarioResult run_scenario(int sense_every, const SduSupervisorParameters& params) {
   const SduSegmentModel model;
   ScenarioResult r;
@@ -142,9 +142,9 @@ TEST(SduScenario, ApproachingArmSlowsThenStopsTheSegmentOnTouch) {
   EXPECT_EQ(r.incomplete, 0U);
 }
 
-// The seed's 4.26 Hz for 5 disks (one sample every 23 cycles of 10 ms; the stale bound widened to 300 ms
-// so that the robot may move at all): the segment still stops, but later and farther.
-TEST(SduScenario, AtTheSeeds426HzTheSameApproachStopsLaterAndFarther) {
+// The dissertation's 4.26 Hz for 5 disks (one sample every 23 cycles of 10 ms; the stale bound widened to 300
+// ms so that the robot may move at all): the segment still stops, but later and farther.
+TEST(SduScenario, AtTheDissertations426HzTheSameApproachStopsLaterAndFarther) {
   SduSupervisorParameters slow;
   slow.stale_after_ns = 300'000'000;
   slow.unbias_samples = 10;

@@ -1,5 +1,5 @@
-// The SIMULATED disk nodes: ray casting against the scene, the ToF error model of seed §3.8, the Hall
-// response of §3.7 and the slope calibration that recovers it.
+// The SIMULATED disk nodes: ray casting against the scene, the ToF error model of Abah 2022, §3.3.2, the Hall
+// response of §3.3.1 and the slope calibration that recovers it.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -39,7 +39,7 @@ TEST(SduScene, RaysHitPlanesBoxesAndCylinders) {
   EXPECT_THROW(scene.move_cylinder(7, Eigen::Vector3d::Zero()), std::out_of_range);
 }
 
-TEST(SduToFModel, ErrorGrowsFromTheAxisToTheSeedsConeEdge) {
+TEST(SduToFModel, ErrorGrowsFromTheAxisToTheDissertationsConeEdge) {
   TofModel m;
   EXPECT_NEAR(tof_error_mm(m, SurfaceFinish::kMatte, 0.0), 0.01, 1e-12);
   EXPECT_NEAR(tof_error_mm(m, SurfaceFinish::kMatte, m.matte_half_angle_rad), 12.5, 1e-12);
@@ -49,7 +49,7 @@ TEST(SduToFModel, ErrorGrowsFromTheAxisToTheSeedsConeEdge) {
 
 // A node facing a wall reads its distance on the axis; a rod at the cone's edge reads long by up to the
 // edge error; a glossy rod outside ±11.9° is not seen at all, a matte one is (up to ±16.5°).
-TEST(SduToFModel, SimulatedNodeSeesWithTheSeedsCone) {
+TEST(SduToFModel, SimulatedNodeSeesWithTheDissertationsCone) {
   SduSegmentModel seg;
   TofModel tof;
   tof.noise_sd_mm = 0.0;
@@ -90,15 +90,15 @@ TEST(SduToFModel, SimulatedNodeSeesWithTheSeedsCone) {
   EXPECT_EQ(node.sense(far, disk, 0.0).tof_status[0], TofStatus::kNoTarget);
 }
 
-TEST(SduHallModel, ResponseIsTheSeedsSlopeWithItsBow) {
+TEST(SduHallModel, ResponseIsTheDissertationsSlopeWithItsBow) {
   HallModel m;
   EXPECT_NEAR(hall_field_change_mT(m, 0.0), 0.0, 1e-12);
-  EXPECT_NEAR(hall_field_change_mT(m, 10.0), 2.6, 1e-12);  // T3.1: 2.6 mT at 10 N
+  EXPECT_NEAR(hall_field_change_mT(m, 10.0), 2.6, 1e-12);  // 2.6 mT at 10 N
   EXPECT_GT(hall_field_change_mT(m, 5.0), 0.26 * 5.0);     // the bow
 }
 
-// Seed §3.7: a probe pressed in steps to 10 N and back, 5 times, on all 8 windows; a least-squares line
-// recovers the slope (0.26 mT/N) and the F-linearity (4.52 %).
+// Abah 2022, §3.3.1: a probe pressed in steps to 10 N and back, 5 times, on all 8 windows; a least-squares
+// line recovers the slope (0.26 mT/N) and the F-linearity (4.52 %).
 TEST(SduHallCalibration, RecoversTheSlopeFromSimulatedLoading) {
   SduSegmentModel seg;
   SimulatedSduNode node(seg, TofModel{}, HallModel{}, 11);
@@ -124,10 +124,11 @@ TEST(SduHallCalibration, RecoversTheSlopeFromSimulatedLoading) {
     blin_sum += cal.b_linearity_pct;
   }
   std::printf(
-      "Hall calibration over 8 windows x 5 runs: slope %.4f mT/N (seed 0.26 +- 0.03), F-linearity %.2f %% "
-      "(seed 4.52 +- 0.56), B-linearity %.2f %% (seed 4.47 +- 0.57)\n",
+      "Hall calibration over 8 windows x 5 runs: slope %.4f mT/N (dissertation 0.26 +- 0.03), F-linearity "
+      "%.2f %% "
+      "(dissertation 4.52 +- 0.56), B-linearity %.2f %% (dissertation 4.47 +- 0.57)\n",
       slope_sum / 8, lin_sum / 8, blin_sum / 8);
-  EXPECT_NEAR(lin_sum / 8, 4.52, 0.56);  // within the seed's spread over the windows
+  EXPECT_NEAR(lin_sum / 8, 4.52, 0.56);  // within the dissertation's spread over the windows
   EXPECT_THROW(calibrate_hall_slope(std::vector<double>{1, 1}, std::vector<double>{2, 3}),
                std::invalid_argument);
   EXPECT_THROW(calibrate_hall_slope(std::vector<double>{1}, std::vector<double>{2}), std::invalid_argument);

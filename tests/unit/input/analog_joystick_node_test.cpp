@@ -1,5 +1,5 @@
 // The SIMULATED P3America 822 ADC node and AnalogJoystickReceiver over the virtual CAN bus: frames,
-// timing, NMT, the seed's voltage mapping through a 12-bit ADC with noise, and the failure cases.
+// timing, NMT, the dissertation's voltage mapping through a 12-bit ADC with noise, and the failure cases.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -48,7 +48,7 @@ TEST(SimulatedAnalogJoystick, BootsSendsHeartbeatsAndTpdosAtTheirRates) {
   for (double o : state.outputs) EXPECT_EQ(o, 0.0);  // centred stick: noise stays inside the deadband
 }
 
-TEST(SimulatedAnalogJoystick, DeflectionReachesTheReceiverAsTheSeedsVoltage) {
+TEST(SimulatedAnalogJoystick, DeflectionReachesTheReceiverAsTheDissertationsVoltage) {
   Rig rig;
   rig.node.set_deflection({1.0, -1.0, 0.5});
   rig.run(0.1);  // 25 filter time constants

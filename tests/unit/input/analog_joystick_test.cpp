@@ -1,4 +1,4 @@
-// The seed's P3America 822 joystick through its ADC node (seed 000 §4.7, T4.6).
+// The dissertation's P3America 822 joystick through its ADC node (Abah 2022, §4.7.4).
 #include "tendril/drivers/input/analog_joystick.hpp"
 
 #include <gtest/gtest.h>
@@ -8,7 +8,7 @@
 namespace tendril::input {
 namespace {
 
-TEST(AnalogJoystick, SeedMappingHalfSupplyIsZeroEndsAreFullRate) {
+TEST(AnalogJoystick, DissertationMappingHalfSupplyIsZeroEndsAreFullRate) {
   AnalogJoystickCalibration c;  // 5 V supply, 0.1 V deadband
   const auto s = analog_joystick_state({2.5, 5.0, 0.0}, c, true, 0);
   ASSERT_TRUE(s.connected);
@@ -25,7 +25,8 @@ TEST(AnalogJoystick, DeadbandAroundHalfSupplyAndLinearBeyond) {
   // 3.75 V is half deflection: (0.5 − 0.04) / 0.96 after cutting the 0.1 V (4 %) deadband.
   EXPECT_NEAR(analog_joystick_state({3.75, 2.5, 2.5}, c, true, 0).outputs[0], 0.46 / 0.96, 1e-12);
   c.deadband_volts = 0.0;
-  EXPECT_NEAR(analog_joystick_state({3.75, 2.5, 2.5}, c, true, 0).outputs[0], 0.5, 1e-12);  // T4.6 exactly
+  EXPECT_NEAR(analog_joystick_state({3.75, 2.5, 2.5}, c, true, 0).outputs[0], 0.5,
+              1e-12);  // the linear map exactly
 }
 
 TEST(AnalogJoystick, OutOfRangeVoltageIsAWiringFaultThatStopsMotion) {

@@ -33,7 +33,7 @@ double model_angle(const Eigen::MatrixXd& A, double s, double q) {
   return psi.dot(A * eta);
 }
 
-// The seed's experiment: q stepped by 0.1 mm until the tip bend reaches ≈ 80°, r = 50 points on s.
+// The dissertation's experiment: q stepped by 0.1 mm until the tip bend reaches ≈ 80°, r = 50 points on s.
 struct Grid {
   Eigen::VectorXd s, q;
   Eigen::MatrixXd phi;
@@ -85,7 +85,7 @@ TEST(FitShapeMatrix, NoiseFreeHigherOrderScatteredSamplesRecoverShapeMatrix) {
   EXPECT_LT((fit.shape_matrix - A).cwiseAbs().maxCoeff(), 1e-9) << fit.shape_matrix;
 }
 
-TEST(FitShapeMatrix, NoisyExperimentRecoversShapeWithSeedLevelFitError) {
+TEST(FitShapeMatrix, NoisyExperimentRecoversShapeWithDissertationLevelFitError) {
   const Eigen::MatrixXd A = proximal_like_shape();
   const Grid g = make_grid(A, 10.5, 0.03, 2024);
   const ShapeFitResult fit = fit_shape_matrix(g.s, g.q, g.phi);

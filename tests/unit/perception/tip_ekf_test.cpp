@@ -1,6 +1,6 @@
-// The catheter tip EKF of seed 000 §4.9.3 (spec §4.15, IMG-05): the Jacobian (T4.8), the filter's
-// equations, bad input, and the simulated tracking of S4.1 (hand-drawn-like curves, R of 4.43) and
-// S4.2 (ICA-like vessel in fluoroscopy projection, R of 4.44).
+// The catheter tip EKF of Abah 2022, §4.9.3: the Jacobian, the filter's
+// equations, bad input, and the simulated tracking of §4.9.4 on hand-drawn-like curves (R of 4.43) and
+// on an ICA-like vessel in fluoroscopy projection (R of 4.44).
 #include "tendril/teleop/perception/tip_ekf.hpp"
 
 #include <gtest/gtest.h>
@@ -28,7 +28,7 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ---------------------------------------------------------------------------------------------------
-// T4.8: A_k of (4.42) is the Jacobian of f of (4.41).
+// A_k of (4.42) is the Jacobian of f of (4.41).
 
 TEST(TipEkf, T4_8_JacobianMatchesFiniteDifferences) {
   const std::vector<Eigen::Vector3d> poses{{0.0, 0.0, 0.0},        {12.5, -3.0, 0.7},    {-40.0, 8.0, -2.5},
@@ -70,7 +70,7 @@ TEST(TipEkf, T4_8_JacobianMatchesFiniteDifferences) {
 // ---------------------------------------------------------------------------------------------------
 // The filter's equations.
 
-TEST(TipEkf, PresetsAreTheSeedsMatrices) {
+TEST(TipEkf, PresetsAreTheDissertationsMatrices) {
   const TipEkfNoise fine = TipEkfNoise::fine_scale();
   const TipEkfNoise vessel = TipEkfNoise::vessel_scale();
   EXPECT_TRUE(
@@ -245,7 +245,7 @@ TEST(TipEkf, InvalidNoiseMatricesAreRefusedAtSetUp) {
 }
 
 // ---------------------------------------------------------------------------------------------------
-// S4.1 / S4.2: simulated tracking as in the seed (§4.9.4): a known path, the tip advanced 3 mm per
+// Simulated tracking as in the dissertation (§4.9.4): a known path, the tip advanced 3 mm per
 // step, measurements = truth + Gaussian noise with σ = sqrt(diag R), κ of the path as the prior.
 
 // Deterministic standard normal draws on every platform: std::mt19937's output is specified by the
@@ -284,10 +284,10 @@ struct TrackingRun {
 };
 
 // Tracks the tip along `curve` from s = 0, the truth being the curve's point and heading at s_k and
-// κ for the step the curve's mean curvature over [s_{k−1}, s_k]. The seed's procedure steps ds along
+// κ for the step the curve's mean curvature over [s_{k−1}, s_k]. The dissertation's procedure steps ds along
 // the planar curve; with `along_vessel` the catheter instead inserts ds along the vessel, and the
 // in-plane positions are s_k = in_plane_arc_length(k·ds), as a robot's insertion steps appear in the
-// image. The filter starts at the first measurement with covariance R (the seed gives no x₀, P₀);
+// image. The filter starts at the first measurement with covariance R (the dissertation gives no x₀, P₀);
 // errors are taken over steps 1..N.
 TrackingRun track(const PlanarCurvatureProfile& curve, const TipEkf& ekf, double ds, std::uint32_t seed,
                   bool along_vessel = false) {
@@ -333,7 +333,7 @@ ReductionSummary summarise(const std::vector<double>& reductions) {
 }
 
 // A planar curve of length `length` from its curvature κ(s), integrated densely (midpoint rule on
-// 0.02 mm steps), starting at the origin along +x: the "hand-drawn" test paths of S4.1.
+// 0.02 mm steps), starting at the origin along +x: the "hand-drawn" test paths of §4.9.4.
 std::vector<Eigen::Vector2d> integrate_curve(const std::function<double(double)>& kappa, double length) {
   constexpr double h = 0.02;
   const int n = static_cast<int>(std::lround(length / h));
@@ -413,14 +413,15 @@ TEST(TipEkf, S4_1_ArbitraryCurveReducesTheTrackingError) {
   for (const NamedCurve& named : hand_drawn_curves()) {
     const PlanarCurvatureProfile curve =
         PlanarCurvatureProfile::from_polyline(integrate_curve(named.kappa, 240.0));
-    const ReductionSummary summary = track_seeds("S4.1", named.name, curve, ekf, false, all);
-    // Seed: 68.8 % on its hand-drawn curve; an independent reimplementation got 45–57 % on synthetic ones.
+    const ReductionSummary summary = track_seeds("hand-drawn", named.name, curve, ekf, false, all);
+    // The dissertation: 68.8 % on its hand-drawn curve; an independent reimplementation got 45–57 % on
+    // synthetic ones.
     EXPECT_GE(summary.mean, 0.40) << named.name;
   }
-  print_overall("S4.1", all);
+  print_overall("hand-drawn", all);
 }
 
-// An ICA seen with its bends in the image plane, as the seed's lateral projection shows the siphon:
+// An ICA seen with its bends in the image plane, as the dissertation's lateral projection shows the siphon:
 // straight runs of 10–30 mm alternating with circular bends of 5–15 mm radius (the range of
 // teleop::make_synthetic_ica) that turn 40–115°, in alternating directions, over 150 mm. Deterministic
 // for a seed on every platform (its own mapping of std::mt19937's output).
@@ -459,21 +460,20 @@ TEST(TipEkf, S4_2_VesselScaleReducesTheTrackingError) {
     const PlanarCurvatureProfile curve =
         PlanarCurvatureProfile::from_polyline(integrate_curve(in_plane_ica_curvature(vessel_seed), 150.0));
     const std::string name = "ica_plane" + std::to_string(vessel_seed);
-    const ReductionSummary summary = track_seeds("S4.2", name, curve, ekf, false, all);
-    // Seed: 65 % (60 % in its conclusions, erratum 17); an independent reimplementation got 63–75 %.
+    const ReductionSummary summary = track_seeds("ICA", name, curve, ekf, false, all);
+    // The dissertation: 65 % (60 % in its conclusions); an independent reimplementation got 63–75 %.
     EXPECT_GE(summary.mean, 0.55) << name;
   }
-  print_overall("S4.2", all);
+  print_overall("ICA", all);
 }
 
-// S4.2 on the 3D ICA-like vessel of config/vessels/synthetic_ica.csv (make_synthetic_ica seed 7 at
-// 0.2 mm) and two more of its kind, whose bends lie in randomly rolled planes, seen in both
-// fluoroscopy views (erratum 20: the seed's text says its ICA run used the lateral view, its figure
-// caption AP). Axes as the simulated fluoroscope's: AP images (x, z), lateral images (−y, z); the
-// vessel starts at the origin along +z. The catheter inserts 3 mm per step along the vessel, so where
-// the vessel turns out of the plane the in-plane step shrinks with the foreshortening (stepping 3 mm
-// in the plane instead crosses such foreshortened bends, 1–2.5 rad of in-plane turn, in one step of
-// (4.41), and gave 38–55 % on these views).
+// Simulated tracking on the 3D ICA-like vessel of config/vessels/synthetic_ica.csv (make_synthetic_ica seed 7
+// at 0.2 mm) and two more of its kind, whose bends lie in randomly rolled planes, seen in both fluoroscopy
+// views (the dissertation's text says its ICA run used the lateral view, its figure caption AP). Axes as the
+// simulated fluoroscope's: AP images (x, z), lateral images (−y, z); the vessel starts at the origin along
+// +z. The catheter inserts 3 mm per step along the vessel, so where the vessel turns out of the plane the
+// in-plane step shrinks with the foreshortening (stepping 3 mm in the plane instead crosses such
+// foreshortened bends, 1–2.5 rad of in-plane turn, in one step of (4.41), and gave 38–55 % on these views).
 TEST(TipEkf, S4_2_ProjectedVesselWithInsertionSteps) {
   const TipEkf ekf(TipEkfNoise::vessel_scale());
   std::vector<double> all;
@@ -486,10 +486,10 @@ TEST(TipEkf, S4_2_ProjectedVesselWithInsertionSteps) {
     const PlanarCurvatureProfile ap = PlanarCurvatureProfile::from_projection(
         vessel.points, Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitZ());
     const std::string name = "ica" + std::to_string(vessel_seed);
-    EXPECT_GE(track_seeds("S4.2-3D", name + "_lateral", lateral, ekf, true, all).mean, 0.55) << name;
-    EXPECT_GE(track_seeds("S4.2-3D", name + "_AP", ap, ekf, true, all).mean, 0.55) << name;
+    EXPECT_GE(track_seeds("ICA 3D", name + "_lateral", lateral, ekf, true, all).mean, 0.55) << name;
+    EXPECT_GE(track_seeds("ICA 3D", name + "_AP", ap, ekf, true, all).mean, 0.55) << name;
   }
-  print_overall("S4.2-3D", all);
+  print_overall("ICA 3D", all);
 }
 
 }  // namespace

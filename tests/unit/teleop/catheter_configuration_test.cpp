@@ -1,4 +1,4 @@
-// Configuration-space map and controller of the SRMC (seed 000 §4.11.2, eqs. 4.13–4.15, 4.21–4.23).
+// Configuration-space map and controller of the SRMC (Abah 2022, §4.7.2, eqs. 4.13–4.15, 4.21–4.23).
 #include "tendril/teleop/catheter_configuration.hpp"
 
 #include <gtest/gtest.h>
@@ -17,7 +17,7 @@ namespace {
 
 using Vector4 = CatheterConfigurationMap::Vector4;
 
-constexpr double kGain = 1.4;                    // placeholder curvature gain k (rad/mm), seed §4.6
+constexpr double kGain = 1.4;                    // placeholder curvature gain k (rad/mm), Abah 2022, §4.5.2
 const double kCoupling = 0.6 * std::cos(-0.44);  // c = r1·cos δ2 with r1 = 0.6 mm
 
 ModalCatheterParameters linear_model() { return constant_curvature_modal_parameters(CatheterParameters{}); }
@@ -48,7 +48,8 @@ ModalCatheterParameters singular_distal_model() {
 }
 
 ConfigurationRateParameters rates(bool coupling) {
-  ConfigurationRateParameters r;  // seed values: a1 0.063, b1 −0.049, a2 0.17, b2 0.019, r1 0.6, δ2 −0.44
+  // Defaults are the dissertation's values: a1 0.063, b1 −0.049, a2 0.17, b2 0.019, r1 0.6, δ2 −0.44.
+  ConfigurationRateParameters r;
   r.coupling_enabled = coupling;
   return r;
 }
@@ -68,8 +69,8 @@ Eigen::Matrix4d numeric_jacobian(const CatheterConfigurationMap& map, const Vect
 // ---------------------------------------------------------------------------------------------
 // CatheterConfigurationMap
 
-TEST(CatheterConfigurationMap, LossLinesGiveSeedT45) {
-  // T4.5: θ*_L1 = 1 rad → θ_L1 = 0.014; θ*_L2 = 1 rad → θ_L2 = 0.189. With k = 1.4 rad/mm the nominal
+TEST(CatheterConfigurationMap, LossLinesGiveTheDissertationsAssembledAngles) {
+  // θ*_L1 = 1 rad → θ_L1 = 0.014; θ*_L2 = 1 rad → θ_L2 = 0.189. With k = 1.4 rad/mm the nominal
   // bend is 1 rad at q = 1/1.4 mm.
   const CatheterConfigurationMap uncoupled(linear_model(), rates(false));
   const double q_one_rad = 1.0 / kGain;
@@ -86,7 +87,7 @@ TEST(CatheterConfigurationMap, LossLinesGiveSeedT45) {
   EXPECT_NEAR(psi_c[2], 0.014, 1e-12);
   EXPECT_NEAR(psi_c[3], 0.189, 1e-12);
 
-  // And the inverse recovers those actuations from the seed's assembled angles.
+  // And the inverse recovers those actuations from the dissertation's assembled angles.
   Vector4 q;
   ASSERT_TRUE(uncoupled.joints(Vector4(12.0, 0.3, 0.014, 0.189), q));
   EXPECT_NEAR(q[2], q_one_rad, 1e-12);
@@ -161,7 +162,7 @@ TEST(CatheterConfigurationMap, InverseRejectsNonFiniteAndUnreachableBends) {
   EXPECT_GT(q[3], -14.0 / 6.0);
 }
 
-TEST(CatheterConfigurationMap, JointRatesHaveTheSeedSignsAndCouplingTerm) {
+TEST(CatheterConfigurationMap, JointRatesHaveTheDissertationsSignsAndCouplingTerm) {
   const CatheterConfigurationMap coupled(linear_model(), rates(true));
   const Vector4 q(10.0, 0.2, 0.4, -0.3);
   Vector4 qd;

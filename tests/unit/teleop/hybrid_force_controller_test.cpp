@@ -1,4 +1,4 @@
-// Seed 002 Appendix A with Table 1's numbers (REQ-CTRL-1..6).
+// Heunis et al. 2021, Appendix A with Table 1's numbers.
 #include "tendril/teleop/hybrid_force_controller.hpp"
 
 #include <gtest/gtest.h>
@@ -24,8 +24,8 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 // ---- the laws on their own ----
 
-// §7.3: V_d(1 − e^{−|E|/μ}) at 50, 25, 5, 0.5 mm is 43.2, 31.6, 9.1, 0.99 mm/s.
-TEST(TaskSpaceVelocity, PositionSpeedProfileHasTheSeedsNumbers) {
+// V_d(1 − e^{−|E|/μ}) at 50, 25, 5, 0.5 mm is 43.2, 31.6, 9.1, 0.99 mm/s.
+TEST(TaskSpaceVelocity, PositionSpeedProfileHasTheArticlesNumbers) {
   const TaskSpaceGains g;
   const auto speed = [&](double e) { return linear_velocity(Eigen::Vector3d(e, 0, 0), g, 0.0).norm(); };
   EXPECT_NEAR(speed(50.0), 43.23, 0.01);
@@ -50,8 +50,8 @@ TEST(TaskSpaceVelocity, IntegralTermActsOnlyNearTheTarget) {
   EXPECT_LT(extra(45.0), 1e-6);                                          // gate ≈ 0
 }
 
-// REQ-CTRL-6: a 50 mm step reaches |E| < 0.5 mm in under 3 s with no overshoot (the spec's check
-// simulation: 2.7 s at dt = 8 ms), at the seed's loop period and at ours.
+// Step response: a 50 mm step reaches |E| < 0.5 mm in under 3 s with no overshoot (our check
+// simulation: 2.7 s at dt = 8 ms), at the article's loop period and at ours.
 TEST(TaskSpaceVelocity, FiftyMillimetreStepSettlesWithoutOvershoot) {
   const TaskSpaceGains g;
   for (const double dt : {0.008, 0.002}) {
@@ -96,7 +96,7 @@ TEST(TaskSpaceVelocity, OrientationErrorSplitsTiltAndSpin) {
   EXPECT_NEAR((reached - target).norm(), 0.0, 1e-9);
 }
 
-// §7.3: at E = d_θ = 0.01 rad the commanded rate is 0.1·(1 − e^{−0.1}) = 0.0095 rad/s; large errors on both
+// At E = d_θ = 0.01 rad the commanded rate is 0.1·(1 − e^{−0.1}) = 0.0095 rad/s; large errors on both
 // axes sum to √2·ω_d and are capped at ω_d.
 TEST(TaskSpaceVelocity, AngularSpeedProfileAndCap) {
   const TaskSpaceGains g;
@@ -192,7 +192,7 @@ TEST(HybridPositionForceController, PrePositioningConvergesToAPoseWithinTheGateT
   RecordProperty("pre_position_converged_s", std::to_string(converged));
 }
 
-// REQ-CTRL-2: random targets up to 300 mm away with large orientation errors never exceed the caps,
+// Speed caps: random targets up to 300 mm away with large orientation errors never exceed the caps,
 // including the integral and force terms.
 TEST(HybridPositionForceController, CapsHoldForFarTargets) {
   Rig rig;
@@ -261,7 +261,7 @@ ContactRun run_contact(double stiffness, double height, double seconds, double d
   return run;
 }
 
-// REQ-CTRL-3 with the spec's check simulation (1-D spring tissue, start 5 mm above): 0.8 N within ±2 %
+// Force regulation with our check simulation (1-D spring tissue, start 5 mm above): 0.8 N within ±2 %
 // without overshoot, settling after 4.9 s (2 N/mm), 8.4 s (0.5 N/mm) and 27 s (0.1 N/mm).
 TEST(HybridPositionForceController, RegulatesContactForceWithoutOvershoot) {
   const struct { double stiffness, seed_settle; } cases[] = {{2.0, 4.9}, {0.5, 8.4}, {0.1, 27.0}};
@@ -277,7 +277,7 @@ TEST(HybridPositionForceController, RegulatesContactForceWithoutOvershoot) {
 }
 
 // From higher up the position law brings the probe down and hands over 5 mm above the surface point;
-// a lagging arm (20 ms velocity time constant) and the seed's 8 ms loop period still do not overshoot.
+// a lagging arm (20 ms velocity time constant) and the article's 8 ms loop period still do not overshoot.
 TEST(HybridPositionForceController, SwitchesToForceControlOnApproachWithoutOvershoot) {
   for (const double dt : {0.002, 0.008}) {
     const ContactRun run = run_contact(2.0, 60.0, 20.0, dt, 0.02);
@@ -313,8 +313,8 @@ TEST(HybridPositionForceController, UnexpectedContactSwitchesToForceControl) {
   EXPECT_NEAR(out.normal_force, 0.8, 0.016);
 }
 
-// REQ-CTRL-4: the gate opens only in contact with |E_∥| < 0.5 mm, E_θy, E_θz < 0.01 rad and |F_n − 0.8| ≤
-// 0.1 N held for 100 ms; it never opens while a condition fails and opens within 1 s of all holding.
+// Acquisition gate: the gate opens only in contact with |E_∥| < 0.5 mm, E_θy, E_θz < 0.01 rad and |F_n − 0.8|
+// ≤ 0.1 N held for 100 ms; it never opens while a condition fails and opens within 1 s of all holding.
 TEST(HybridPositionForceController, AcquisitionGateOpensOnlyWhenEveryConditionHasHeld) {
   Rig rig;
   const Eigen::Isometry3d start = rig.tool();

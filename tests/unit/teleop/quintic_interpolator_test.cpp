@@ -22,7 +22,7 @@ State sample_at(const QuinticInterpolator& interp, double t) {
   return s;
 }
 
-TEST(QuinticInterpolator, RestToRestMatchesSeedFormula) {
+TEST(QuinticInterpolator, RestToRestMatchesTheDissertationsFormula) {
   QuinticInterpolator interp(3);
   const std::vector<double> q0{0.5, -1.0, 2.0};
   const std::vector<double> qf{3.0, 1.5, 2.5};

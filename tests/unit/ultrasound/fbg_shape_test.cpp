@@ -1,4 +1,4 @@
-// FBG catheter shape (seed 002 §9, REQ-FBG-1/2, REQ-SAFE-3) and contacts (§10, REQ-CON-1): the frame
+// FBG catheter shape (Heunis et al. 2021, §2.2 and §3.3) and contacts (§3.3): the frame
 // codec, reconstruction from a SIMULATED interrogator, Eq. 2, curvature warnings, wall contacts.
 #include <gtest/gtest.h>
 
@@ -82,7 +82,7 @@ TEST(FbgFrame, RoundTripsAndRejectsMalformedFrames) {
   }
 }
 
-// REQ-FBG-2: a constant-curvature arc R = 100 mm, 270 mm, noise-free → max error < 0.05 mm; a 3-D
+// Shape from strain: a constant-curvature arc R = 100 mm, 270 mm, noise-free → max error < 0.05 mm; a 3-D
 // S-curve too; and with temperature (common mode) it does not matter.
 TEST(FbgShapeReconstructor, ReconstructsArcsAndSCurvesNoiseFree) {
   const MulticoreFiber fiber;
@@ -103,8 +103,9 @@ TEST(FbgShapeReconstructor, ReconstructsArcsAndSCurvesNoiseFree) {
   for (const auto& k : shape.curvature) EXPECT_NEAR(k.norm(), 0.01, 1e-5);
 }
 
-// REQ-FBG-2 with 1 µε-equivalent wavelength noise (1.2 pm): mean ≤ 0.82 mm, max ≤ 1.52 mm over 200 frames.
-TEST(FbgShapeReconstructor, StaysInsideTheSeedsEnvelopeWithOneMicrostrainOfNoise) {
+// Shape from strain with 1 µε-equivalent wavelength noise (1.2 pm): mean ≤ 0.82 mm, max ≤ 1.52 mm over 200
+// frames.
+TEST(FbgShapeReconstructor, StaysInsideTheArticlesEnvelopeWithOneMicrostrainOfNoise) {
   const MulticoreFiber fiber;
   SimulatedFbgInterrogator interrogator(fiber, 1.2, 7);
   FbgShapeReconstructor reconstructor(fiber, interrogator.reference());
@@ -148,7 +149,7 @@ TEST(FbgShapeReconstructor, WarnsAboveTheBendLimitAndRejectsBadFramesWithoutAllo
   EXPECT_THROW(fiber_truth(fiber, arc(100.0, 200.0)), std::invalid_argument);  // shorter than the fibre
 }
 
-// REQ-FBG-1: Eq. 2 round-trips a known shape and base pose to 1e-9.
+// Eq. 2 transform: Eq. 2 round-trips a known shape and base pose to 1e-9.
 TEST(FbgToGlobal, IsEquationTwo) {
   Eigen::Isometry3d base = Eigen::Isometry3d::Identity(), fiber_in_base = Eigen::Isometry3d::Identity();
   base.linear() = Eigen::AngleAxisd(0.7, Vector3d(1, 2, 3).normalized()).toRotationMatrix();
@@ -182,8 +183,8 @@ std::vector<Vector3d> mold_channel(double amplitude, double plane, double length
   return points;
 }
 
-// REQ-TF-3 / REQ-FBG-3: H_F^C from a curved channel II with 0.3 mm noise on its points, then Eq. 2
-// validated on channel III (another bend plane): the seed's 0.82 ± 0.21 mm, max 1.52 mm envelope.
+// Mold calibration: H_F^C from a curved channel II with 0.3 mm noise on its points, then Eq. 2
+// validated on channel III (another bend plane): the article's 0.82 ± 0.21 mm, max 1.52 mm envelope.
 TEST(MoldCalibration, RecoversTheFibreInTheBaseAndValidatesOnAnotherChannel) {
   const MulticoreFiber fiber;
   SimulatedFbgInterrogator interrogator(fiber, 1.2, 5);
@@ -237,7 +238,7 @@ TEST(MoldCalibration, RecoversTheFibreInTheBaseAndValidatesOnAnotherChannel) {
       "mold calibration: rms %.3f mm, H_F^C off by %.3f mm / %.3f deg (%.3f mm at the worst grating); "
       "channel III %.3f +- %.3f mm, max %.3f mm\n",
       calibration.rms, error.translation().norm(), angle, worst_point, v.mean, v.standard_deviation, v.max);
-  EXPECT_LT(error.translation().norm(), 0.2);  // REQ-TF-3
+  EXPECT_LT(error.translation().norm(), 0.2);  // mold calibration
   EXPECT_LT(angle, 0.2);
   EXPECT_LE(v.mean, 0.82);
   EXPECT_LE(v.max, 1.52);
@@ -251,7 +252,7 @@ TEST(MoldCalibration, RecoversTheFibreInTheBaseAndValidatesOnAnotherChannel) {
                std::invalid_argument);  // too short
 }
 
-// REQ-CON-1: a straight catheter, tilted in a 10 mm tube (a mesh of 120 sides), is flagged exactly
+// Contact flagging: a straight catheter, tilted in a 10 mm tube (a mesh of 120 sides), is flagged exactly
 // at the sensors within 0.25 mm of touching the wall (axis closer than 1.25 mm to it); none centred.
 TEST(CatheterContacts, AreFlaggedExactlyUnderOnePointTwoFiveMillimetres) {
   tendril::teleop::CenterlinePolyline tube;

@@ -1,5 +1,5 @@
-// The robot–world / hand–eye solver (seed 002 §4.2, REQ-TF-4): A_k X = Y F_k with known truth, without and
-// with the seed's error budget (§4.6: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm), and its refusals.
+// The robot–world / hand–eye solver (Heunis et al. 2021, §2.3): A_k X = Y F_k with known truth, without and
+// with the article's error budget (§4.3: robot 0.3 ± 0.1 mm, tracker 0.56 ± 0.08 mm), and its refusals.
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -36,7 +36,7 @@ Vector3d error_vector(std::mt19937& rng, double mean, double sd) {
 }
 
 // K poses of the probe around a scanning pose, each tilted by up to 0.25 rad about a varying axis and
-// moved by up to 30 mm; `robot_error` and `tracker_error` add the §4.6 budget (and 0.02° per axis of
+// moved by up to 30 mm; `robot_error` and `tracker_error` add the §4.3 budget (and 0.02° per axis of
 // tracker rotation noise) when true.
 std::vector<HandEyePair> make_pairs(int k, bool noisy, unsigned seed, double tilt = 0.5) {
   std::mt19937 rng(seed);
@@ -91,8 +91,8 @@ TEST(HandEye, RecoversTheTruthWithoutNoise) {
   EXPECT_LT(result.closed_form_rms_position_mm, 1e-6);  // the closed form alone is exact without noise
 }
 
-TEST(HandEye, RecoversTheTruthWithinTheSeedsErrorBudget) {
-  // 20 independent runs of 14 poses tilted by 0.2–0.5 rad, with the §4.6 errors: the workspace error of
+TEST(HandEye, RecoversTheTruthWithinTheArticlesErrorBudget) {
+  // 20 independent runs of 14 poses tilted by 0.2–0.5 rad, with the §4.3 errors: the workspace error of
   // H_B^G must stay within the budget's sum (0.3 + 0.56 mm) on average and within 2 mm in every run, and
   // the residual near the budget's quadrature sum (0.64 mm). (With tilts of 0.1–0.25 rad the mean was
   // 1.3 mm: t_X and t_Y trade off against each other unless the poses turn far.)
@@ -110,7 +110,7 @@ TEST(HandEye, RecoversTheTruthWithinTheSeedsErrorBudget) {
     EXPECT_LE(result.rms_position_mm, result.closed_form_rms_position_mm + 1e-9);
   }
   std::printf(
-      "hand-eye, 14 poses, §4.6 errors, %d runs: H_B^G workspace error mean %.3f mm, max %.3f mm; "
+      "hand-eye, 14 poses, §4.3 errors, %d runs: H_B^G workspace error mean %.3f mm, max %.3f mm; "
       "rotation error max %.4f°; residual rms max %.3f mm\n",
       runs, sum_workspace / runs, worst_workspace, worst_rotation * 180.0 / M_PI, worst_rms);
   EXPECT_LT(sum_workspace / runs, 0.86);
