@@ -7,7 +7,7 @@
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
 import path from 'node:path';
-import {ARTIFACTS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
+import {ARTIFACTS, WAIT, clickWhenEnabled, openBrowser, serverUnderTest, tid} from './browser.mjs';
 
 const {BASE_URL, TOKEN} = serverUnderTest();
 const ROBOT = 'us_arm';
@@ -61,19 +61,9 @@ test('Calibrate robot says why it is not offered outside an ENABLED arm in carte
   await page.waitForFunction(() => document.querySelector('[data-testid="us-message"]').textContent.length > 0, null, WAIT);
   assert.doesNotMatch(await page.locator(tid('us-message')).textContent(), /POST |\{"action"/);
   // Cartesian mode: offered, no reason left.
-  // (A click in a STALE moment finds the button disabled: pressed again, bounded.)
-  for (let attempt = 0; ; ++attempt) {
-    await page.waitForFunction(() => !document.querySelector('[data-testid="mode-cartesian"]').disabled, null, WAIT);
-    await page.click(tid('mode-cartesian'));
-    try {
-      await page.waitForFunction(() => document.querySelector('[data-testid="mode-cartesian"]').getAttribute('aria-pressed') === 'true',
-                                 null, {timeout: 8000});
-      break;
-    } catch (err) {
-      err.message += ` status: ${await page.locator(tid('command-status')).textContent()}`;
-      if (attempt >= 3) throw err;
-    }
-  }
+  await clickWhenEnabled(page, tid('mode-cartesian'));
+  await page.waitForFunction(() => document.querySelector('[data-testid="mode-cartesian"]').getAttribute('aria-pressed') === 'true',
+                             null, WAIT);
   await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-robot-calibrate"]').disabled, null, WAIT);
   c = await calibrate();
   assert.equal(c.message, '', JSON.stringify(c));

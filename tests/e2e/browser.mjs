@@ -37,3 +37,16 @@ export async function openBrowser(name, viewport = {width: 1280, height: 800}) {
   };
   return {context, page, close};
 }
+
+// Clicks the element once, in the same page task that sees it enabled. A check and a separate click
+// race a page that turns STALE in between (its buttons are disabled while its data is old) and the
+// click then lands on a disabled button; here the click cannot be lost, so no test needs to press again.
+export async function clickWhenEnabled(page, selector, options = WAIT) {
+  await page.waitForFunction((sel) => {
+    const element = document.querySelector(sel);
+    if (!element || element.disabled) return false;
+    element.scrollIntoView({block: 'nearest'});
+    element.click();
+    return true;
+  }, selector, options);
+}

@@ -9,7 +9,7 @@ import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
 import {chromium} from 'playwright-core';
-import {ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, WAIT, serverUnderTest, tid} from './browser.mjs';
+import {ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, WAIT, clickWhenEnabled, serverUnderTest, tid} from './browser.mjs';
 
 const {BASE_URL, TOKEN} = serverUnderTest();
 
@@ -66,21 +66,17 @@ async function enable() {
   await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED', null, WAIT);
 }
 
-// Switches mode from the mode bar (repeated, bounded, while the page may be STALE for a moment).
+// Switches mode from the mode bar once the robot holds; a refusal fails with the console's words.
 async function switchMode(mode) {
-  for (let attempt = 0; attempt < 5; ++attempt) {
-    await waitHolding();
-    await page.waitForFunction((m) => !document.querySelector(`[data-testid="mode-${m}"]`).disabled, mode, WAIT);
-    await page.click(tid(`mode-${mode}`));
-    try {
-      await page.waitForFunction((m) => document.querySelector(`[data-testid="mode-${m}"]`).getAttribute('aria-pressed') === 'true',
-                                 mode, {timeout: 5000});
-      return;
-    } catch {
-      // refused while settling, or not yet streamed: look again
-    }
+  await waitHolding();
+  await clickWhenEnabled(page, tid(`mode-${mode}`));
+  try {
+    await page.waitForFunction((m) => document.querySelector(`[data-testid="mode-${m}"]`).getAttribute('aria-pressed') === 'true',
+                               mode, WAIT);
+  } catch (err) {
+    err.message += `; mode ${mode} not reached: ${await page.locator(tid('command-status')).textContent()}`;
+    throw err;
   }
-  assert.fail(`mode ${mode} not reached: ${await page.locator(tid('command-status')).textContent()}`);
 }
 
 const deadmanPressed = () => page.locator(tid('deadman-button')).getAttribute('aria-pressed');

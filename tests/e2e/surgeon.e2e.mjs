@@ -8,7 +8,7 @@
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
 import path from 'node:path';
-import {ARTIFACTS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
+import {ARTIFACTS, WAIT, clickWhenEnabled, openBrowser, serverUnderTest, tid} from './browser.mjs';
 
 const {BASE_URL, TOKEN} = serverUnderTest();
 
@@ -65,20 +65,11 @@ async function waitFor(predicate, arg, options = WAIT) {
 
 const badge = () => page.evaluate(() => document.querySelector('[data-testid="state-badge"]').dataset);
 
-// Clicks a command and waits for its answer in the status line. A click in a moment the page is STALE
-// (two loaded cores) finds the button disabled and does nothing, by design; it is then repeated, bounded.
+// Clicks a command (once, when it is enabled) and waits for its answer in the status line.
 async function command(id, answer) {
-  for (let attempt = 0; ; ++attempt) {
-    await waitFor((sel) => !document.querySelector(sel).disabled, tid(id));
-    await page.click(tid(id));
-    try {
-      await page.waitForFunction((source) => new RegExp(source).test(document.querySelector('[data-testid="command-status"]').textContent),
-                                 answer.source, {timeout: 8000});
-      return;
-    } catch (err) {
-      if (attempt >= 3) throw err;
-    }
-  }
+  await clickWhenEnabled(page, tid(id));
+  await waitFor((source) => new RegExp(source).test(document.querySelector('[data-testid="command-status"]').textContent),
+                answer.source);
 }
 
 async function openConsole(robot = 'srmc') {
