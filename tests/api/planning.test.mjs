@@ -54,14 +54,14 @@ let vesselId;
 let planJob;
 
 // Issue 31: a plan carries the design it was made for; the console's verdict refuses one made for another
-// catheter, naming both (the design optimiser's 5/5 mm segments against the mounted 22/18.8 mm). The
-// mounted design comes from GET /robots once the server gives it (branch catheter-in-vessel); here the
-// robot's entry is given it as the server will.
-test('a plan for another design is "made for another catheter"', async () => {
+// catheter, naming both (the design optimiser's 5/5 mm segments against the mounted 22/18.8 mm).
+test('GET /robots gives the mounted design; a plan for another design is "made for another catheter"', async () => {
   const robots = await get('/robots');
   assert.equal(robots.status, 200, robots.text);
-  const robot = {...robots.json.find((r) => r.name === ROBOT)};
-  robot.design = {L1: 22, L2: 18.8, k1: 0.0882};
+  const robot = robots.json.find((r) => r.name === ROBOT);
+  assert.ok(robot.design, JSON.stringify(robot));
+  assert.equal(robot.design.L1, 22);
+  assert.equal(robot.design.L2, 18.8);
   const step = {q: [10, 0, 0, 0], position_error_mm: 0.2, position_error_max_mm: 0.4, orientation_error_deg: 2,
                 orientation_error_max_deg: 4};
   const mine = planVerdict({design: {...robot.design}, steps: [step]}, robot, [2.5]);
