@@ -84,7 +84,7 @@ export class TipPanel {
         const b = el('button', {type: 'button', className: 'btn tip-jog', 'data-testid': `cart-jog-${axis}-${sign > 0 ? 'plus' : 'minus'}`,
                                 text: `${axis.toUpperCase()} ${sign > 0 ? '+' : '−'}`,
                                 'aria-label': `Hold to move the ${tool} along ${axis} ${sign > 0 ? 'plus' : 'minus'}`});
-        holdToRun(b, {start: () => this.startJog(i, sign), stop: () => this.stopJog()});
+        holdToRun(b, {start: () => this.startJog(i, sign), stop: () => this.stopJog('released')});
         u.jogButtons.push(b);
         return b;
       };
@@ -176,7 +176,7 @@ export class TipPanel {
     }
     u.speed.disabled = !!why;
     u.jogWhy.textContent = why ? `Jog: ${why}` : '';
-    if (why) this.stopJog();
+    if (why) this.stopJog(why);
     if (!this.edited && this.pose) this.pose.position.forEach((v, i) => { u.goal[i].value = v.toFixed(1); });
     let goWhy = why;
     const goal = u.goal.map((g) => Number(g.value));
@@ -224,25 +224,42 @@ export class TipPanel {
     const linear = [0, 0, 0];
     linear[axis] = sign * speed;
     this.jogAxis = {axis, sign};
-    const send = () => this.ctx.api.servoCv(this.robot.name, linear).catch((err) => {
-      this.stopJog();
-      this.ctx.status(`Jog: ${operatorWords(describe(err))}`, 'error');
-    });
+    let answered = 0;
+    const timer = setInterval(() => send(), JOG_REFRESH_MS);
+    // One command in flight at a time (a slow server gets no backlog; a command that waits longer than
+    // the robot's timeout lets the robot stop, the safe side).
+    const send = () => {
+      if (this.jogInFlight || this.jogTimer !== timer) return;
+      this.jogInFlight = this.ctx.api.servoCv(this.robot.name, linear).then(() => {
+        // For whoever checks a jog: how many of its commands the server took.
+        this.container.dataset.jogAnswered = String(++answered);
+      }, (err) => {
+        this.stopJog('refused');
+        this.ctx.status(`Jog: ${operatorWords(describe(err))}`, 'error');
+      }).finally(() => { this.jogInFlight = null; });
+    };
+    this.jogTimer = timer;
     send();
-    this.jogTimer = setInterval(send, JOG_REFRESH_MS);
     this.ui.jogging.textContent = `moving ${AXES[axis]} ${sign > 0 ? '+' : '−'} at ${speed} mm/s (release to stop)`;
     this.container.dataset.jogging = 'true';
   }
 
   // Ends the stream with a zero twist, so the robot stops now rather than at its command timeout.
-  stopJog() {
+  // reason: why the jog ended (released, refused, or why motion is not allowed now), kept in
+  // data-jog-ended for whoever checks a jog.
+  stopJog(reason = '') {
     if (!this.jogTimer) return;
+    this.container.dataset.jogEnded = reason;
     clearInterval(this.jogTimer);
     this.jogTimer = null;
     this.jogAxis = null;
-    this.ctx.api.servoCv(this.robot.name, [0, 0, 0]).catch(() => {
+    // The zero twist now, and again once a command still in flight has been answered (it may reach the
+    // robot after the first zero).
+    const stop = () => this.ctx.api.servoCv(this.robot.name, [0, 0, 0]).catch(() => {
       // refused (e.g. after an E-STOP or a mode change): the robot has stopped already
     });
+    stop();
+    this.jogInFlight?.then(stop);
     if (this.ui) this.ui.jogging.textContent = 'not moving';
     this.container.dataset.jogging = 'false';
   }
