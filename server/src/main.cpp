@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -122,6 +123,40 @@ tendril::server::HttpOptions http_options(const tendril::server::ServerConfig& c
   return ho;
 }
 
+// The control thread's real-time scheduling, as GET /api/v1/health reports it: asked for, granted
+// (with its SCHED_FIFO priority), or why not.
+nlohmann::json control_realtime(const tendril::server::LoopStatistics& ls, bool simulated_time) {
+  std::string reason;
+  if (!ls.realtime_requested)
+    reason = simulated_time ? "simulated time: the loop is paced at normal priority by design"
+                            : "not asked for (realtime_priority false, or --no-realtime)";
+  else if (!ls.realtime_scheduling)
+    reason = std::strerror(ls.realtime_error);
+  return {{"requested", ls.realtime_requested},
+          {"granted", ls.realtime_scheduling},
+          {"priority", ls.realtime_scheduling ? ls.realtime_priority : 0},
+          {"memory_locked", ls.memory_locked},
+          {"reason", reason}};
+}
+
+// The same at start-up, for whoever reads the log (a container's log included).
+void log_control_realtime(const nlohmann::json& rt) {
+  if (rt["granted"].get<bool>()) {
+    std::cerr << "tendrild: control loop at real-time priority (SCHED_FIFO " << rt["priority"].get<int>()
+              << (rt["memory_locked"].get<bool>() ? ", memory locked)" : ", memory NOT locked)") << std::endl;
+  } else if (rt["requested"].get<bool>()) {
+    std::cerr << "tendrild: WARNING: the control loop was refused real-time priority ("
+              << rt["reason"].get<std::string>()
+              << "): it runs at normal priority, so other load on this computer can delay its cycles. "
+                 "A container needs CAP_SYS_NICE and a real-time budget from its host (docker/README.md, "
+                 "\"Real-time priority\")."
+              << std::endl;
+  } else {
+    std::cerr << "tendrild: control loop at normal priority: " << rt["reason"].get<std::string>()
+              << std::endl;
+  }
+}
+
 void print_console_url(const tendril::server::ServerConfig& config, const tendril::server::HttpServer& http,
                        const std::string& token) {
   std::string shown_host = config.host == "0.0.0.0" || config.host == "::" ? "127.0.0.1" : config.host;
@@ -182,6 +217,14 @@ int run_replay(tendril::server::ServerConfig config, const std::string& token,
   HttpOptions ho = http_options(config, token, extra_origins);
   ho.topic_sources.push_back(replay);
   ho.replay = replay;
+  // The console asks GET /api/v1/replay only where the server says it replays.
+  ho.health_details = {{"mode", "replay"},
+                       {"control_realtime",
+                        {{"requested", false},
+                         {"granted", false},
+                         {"priority", 0},
+                         {"memory_locked", false},
+                         {"reason", "replay: no robot is driven, so no control loop runs"}}}};
   HttpServer http(api, ho);
   http.start();
   replay->start();
@@ -321,6 +364,8 @@ int main(int argc, char** argv) {
       for (auto& branch : placed_vessel) branch = tendril::teleop::transformed(branch, placement);
     }
     runtime.start();
+    const nlohmann::json realtime = control_realtime(runtime.loop_statistics(), simulated_time);
+    log_control_realtime(realtime);
     // The JSON face of the robots for the front end, with each robot type's part of the API and the
     // schema of each robot file.
     std::map<std::string, nlohmann::json> schemas;
@@ -336,6 +381,7 @@ int main(int argc, char** argv) {
         });
 
     HttpOptions ho = http_options(config, token, extra_origins);
+    ho.health_details = {{"mode", "live"}, {"control_realtime", realtime}};
     // Bi-plane imaging (simulated or from sources): its own threads read the runtime snapshot, never the
     // RT thread.
     std::shared_ptr<ImagingWorker> imaging;
@@ -358,8 +404,7 @@ int main(int argc, char** argv) {
       imaging = std::make_shared<ImagingWorker>(std::move(backbone), std::move(ic));
       std::cerr << "tendrild: imaging: bi-plane (/imaging/ap, /imaging/lateral) " << geometry.width << "x"
                 << geometry.height << ", simulated planes at " << fps << " fps, imaging robot '" << imaged
-                << "'; "
-                << imaging->describe_sources() << "; vessel: " << vessel_source << std::endl;
+                << "'; " << imaging->describe_sources() << "; vessel: " << vessel_source << std::endl;
       // Stale, dropped or ended images are the imaged robot's operator's concern: warnings in its log.
       imaging->set_warning_sink([&runtime, imaged](tendril::safety::FaultCode code, const std::string& text) {
         runtime.report_warning(imaged, code, text);

@@ -62,7 +62,9 @@ void PeriodicThread::start(std::string name, std::chrono::nanoseconds period, Cy
   priority_ = priority;
   stop_.store(false);
   running_.store(true);
+  realtime_decided_.store(false);
   thread_ = std::thread([this] { run(); });
+  realtime_decided_.wait(false);
 }
 
 void PeriodicThread::stop() {
@@ -76,7 +78,9 @@ void PeriodicThread::run() {
   if (request_realtime_) {
     sched_param sp{};
     sp.sched_priority = priority_;
-    realtime_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0);
+    const int refused = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    realtime_error_.store(refused);
+    realtime_.store(refused == 0);
     // MCL_ONFAULT: pages are locked as they are first touched, not all at once. Locking every mapped
     // page (each thread's 8 MB stack, every allocator arena) made an idle server resident at
     // ~285 MB; what the real-time threads touch is locked just the same, and prefault_stack() below
@@ -86,6 +90,8 @@ void PeriodicThread::run() {
     locked_.store(locked);
     prefault_stack();
   }
+  realtime_decided_.store(true);
+  realtime_decided_.notify_all();
   using clock = std::chrono::steady_clock;
   // steady_clock is CLOCK_MONOTONIC on Linux, so its epoch matches clock_nanosleep's.
   auto deadline = clock::now() + period_;
@@ -158,6 +164,9 @@ LoopStatistics PeriodicThread::statistics() const noexcept {
   s.work_max_us = work_.max();
   s.realtime_scheduling = realtime_.load();
   s.memory_locked = locked_.load();
+  s.realtime_requested = request_realtime_;
+  s.realtime_priority = priority_;
+  s.realtime_error = realtime_error_.load();
   return s;
 }
 

@@ -2,6 +2,7 @@
 // order: lease -> enable -> move -> bad input -> e-stop -> reset, as an operator would.
 import {test, after, beforeEach} from 'node:test';
 import assert from 'node:assert/strict';
+import fs from 'node:fs';
 import {BASE_URL, ROBOT, robotConfig, get, post, call, script, holdLease, assertErrorShape, pollUntil, sleep, tolerance} from './helpers.mjs';
 
 const R = `/robots/${ROBOT}`;
@@ -35,6 +36,39 @@ test('GET /health answers without a token', async () => {
   assert.equal(res.json.status, 'ok');
   assert.equal(typeof res.json.version, 'string');
   assert.equal(typeof res.json.uptime_s, 'number');
+});
+
+// The kernel's word on the control thread ("control", server/src/periodic_thread.cpp): its scheduling
+// policy and real-time priority, fields 41 and 40 of /proc/<pid>/task/<tid>/stat. TENDRIL_SERVER_PID
+// names tendrild where TENDRIL_PID is not it (scripts/test-container.sh: the podman client).
+function controlThreadScheduling() {
+  const pid = process.env.TENDRIL_SERVER_PID || process.env.TENDRIL_PID;
+  assert.ok(pid, 'TENDRIL_PID (tests/api/server.sh) names the server under test');
+  for (const tid of fs.readdirSync(`/proc/${pid}/task`)) {
+    if (fs.readFileSync(`/proc/${pid}/task/${tid}/comm`, 'utf8').trim() !== 'control') continue;
+    const stat = fs.readFileSync(`/proc/${pid}/task/${tid}/stat`, 'utf8');
+    const fields = stat.slice(stat.lastIndexOf(')') + 2).split(' ');  // fields[0] is field 3
+    return {policy: Number(fields[41 - 3]), priority: Number(fields[40 - 3])};
+  }
+  assert.fail(`no thread named "control" in process ${pid}`);
+}
+
+test('GET /health says whether the control loop got real-time priority, as the kernel has it', async () => {
+  const res = await call('GET', '/health', {token: null, client: null});
+  assert.equal(res.status, 200, res.text);
+  assert.equal(res.json.mode, 'live');
+  const rt = res.json.control_realtime;
+  assert.equal(rt.requested, true, 'tests/api/server.sh asks for real-time priority');
+  const kernel = controlThreadScheduling();
+  const SCHED_FIFO = 1;
+  assert.equal(rt.granted, kernel.policy === SCHED_FIFO, `health ${JSON.stringify(rt)}, kernel ${JSON.stringify(kernel)}`);
+  if (rt.granted) {
+    assert.equal(rt.priority, kernel.priority);
+    assert.equal(rt.reason, '');
+  } else {
+    assert.equal(rt.priority, 0);
+    assert.ok(rt.reason.length > 0, 'a refusal says why');
+  }
 });
 
 test('calls without a token or with a wrong token get 401 with the error shape', async () => {

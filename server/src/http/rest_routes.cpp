@@ -121,7 +121,9 @@ RouteResult handle_api(HttpServer::Impl& server, const Request& req, const Reque
   if (route == std::vector<std::string>{"health"}) {
     if (method != bhttp::verb::get) return method_not_allowed(req, "GET");
     const double uptime = std::chrono::duration<double>(SteadyClock::now() - server.started_at).count();
-    return json_response(req, 200, {{"status", "ok"}, {"version", version()}, {"uptime_s", uptime}});
+    nlohmann::json body = server.opts.health_details;
+    body.update({{"status", "ok"}, {"version", version()}, {"uptime_s", uptime}});
+    return json_response(req, 200, body);
   }
   // Public like /health: it documents the interface (the same file is in the repository) and
   // reveals no state, so API tools can read it before they have a token.

@@ -39,6 +39,14 @@ async function recordedChannels() {
   return channels;
 }
 
+test('GET /health says the server replays (the console asks GET /replay only then) and runs no control loop', async () => {
+  const res = await call('GET', '/health', {token: null, client: null});
+  assert.equal(res.status, 200, res.text);
+  assert.equal(res.json.mode, 'replay');
+  assert.equal(res.json.control_realtime.requested, false);
+  assert.equal(res.json.control_realtime.granted, false);
+});
+
 test('GET /replay describes the recording; PUT refuses bad input with 400 and a message', async () => {
   const res = await get('/replay');
   assert.equal(res.status, 200, res.text);

@@ -46,6 +46,11 @@ struct LoopStatistics {
   double work_p50_us = 0, work_p99_us = 0, work_max_us = 0;
   bool realtime_scheduling = false;  // SCHED_FIFO granted
   bool memory_locked = false;        // mlockall granted
+  bool realtime_requested = false;   // SCHED_FIFO and mlockall were asked for
+  int realtime_priority = 0;         // the SCHED_FIFO priority asked for
+  // pthread_setschedparam's error when SCHED_FIFO was refused (EPERM: no CAP_SYS_NICE, or a cgroup
+  // with no real-time budget, as a container's is by default); 0 when granted or not asked for.
+  int realtime_error = 0;
 };
 
 // What a cycle learns about its own timing.
@@ -68,6 +73,8 @@ class PeriodicThread {
   PeriodicThread(const PeriodicThread&) = delete;
   PeriodicThread& operator=(const PeriodicThread&) = delete;
 
+  // Returns once the thread has asked for (or not) real-time scheduling, so statistics() tells at
+  // once whether it was granted.
   void start(std::string name, std::chrono::nanoseconds period, Cycle cycle, bool request_realtime,
              int priority = 80);
   void stop();
@@ -91,6 +98,8 @@ class PeriodicThread {
   std::atomic<std::int64_t> lost_max_ns_{0};
   std::array<std::atomic<std::uint64_t>, 4> lost_over_{};  // over 1, 5, 20, 50 ms
   std::atomic<bool> realtime_{false}, locked_{false};
+  std::atomic<int> realtime_error_{0};
+  std::atomic<bool> realtime_decided_{false};  // the thread has asked for real-time scheduling, or not
   MicrosecondHistogram period_error_;
   MicrosecondHistogram work_;
 };

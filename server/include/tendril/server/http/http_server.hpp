@@ -115,6 +115,8 @@ struct HttpOptions {
   std::shared_ptr<ReplayControl> replay;
   // A second reader of every channel, message and command (e.g. the session recording); null = none.
   std::shared_ptr<http::PublishTap> tap;
+  // More fields of GET /api/v1/health, fixed at start-up (the control thread's real-time priority).
+  nlohmann::json health_details = nlohmann::json::object();
   // Where the front end logs (refused connections, contained exceptions); null = standard error.
   std::function<void(const std::string&)> log;
 };
