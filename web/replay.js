@@ -1,5 +1,5 @@
-// The replay bar: shown only when the server replays a recording (tendrild --replay; GET /api/v1/replay
-// answers 200, a live server 404). Play/pause, a position slider over the recording's span, the rate
+// The replay bar: shown only when the server replays a recording (tendrild --replay: GET /api/v1/health
+// says mode "replay"; a live server is not asked for GET /replay, which it answers 404). Play/pause, a position slider over the recording's span, the rate
 // and the time (elapsed / total, and the recorded wall-clock time). It reads GET /replay four times a
 // second and changes the playback with PUT /replay ({playing}, {position_ns}, {rate}); the recorded
 // topics themselves arrive on the WebSocket as from a live server.
@@ -46,6 +46,7 @@ export class ReplayBar {
   // Resolves true when the server replays (the bar is then shown and kept up to date), false otherwise.
   async start() {
     try {
+      if ((await this.api.health()).mode !== 'replay') return false;
       this.apply(await this.api.get('/replay'));
     } catch (err) {
       if (err.status !== 404) this.status(`Replay: ${err.message}`, 'error');

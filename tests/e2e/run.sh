@@ -71,6 +71,8 @@ start_tendrild "$binary" || exit 1
 run_file "$here/tracking.e2e.mjs"
 # The 3D view's generic pieces (point clouds, SceneUpdate primitives, /tf frames) on the same server.
 run_file "$here/scene_update.e2e.mjs"
+# A live server's console asks no replay (replay_bar_live.e2e.mjs), on the same server.
+run_file "$here/replay_bar_live.e2e.mjs"
 stop_tendrild
 
 # The replay bar (replay.e2e.mjs): a few seconds recorded by a live server (SIGTERM finalises them),
