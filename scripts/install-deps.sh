@@ -35,10 +35,11 @@ if [ "$with_tests" = 1 ]; then
   packages+=(libgtest-dev libgmock-dev libbenchmark-dev clang-format clang-tidy libclang-rt-14-dev
     chromium qemu-system-x86 busybox-static iproute2 xz-utils cpio can-utils kmod)
 fi
-# --container: what scripts/test-container.sh needs to make the debian:12 base image and build and
-# run tendril's image with podman (runc: crun fails on this kind of machine with setrlimit).
+# --container: what scripts/test-container.sh needs to make the debian:12 base image, build and run
+# tendril's image with podman (runc: crun fails on this kind of machine with setrlimit), and bring
+# docker/compose.yaml up with Debian's podman-compose (catatonit: the compose file's "init: true").
 if [ "$with_container" = 1 ]; then
-  packages+=(podman runc debootstrap iproute2)
+  packages+=(podman runc debootstrap iproute2 podman-compose catatonit)
 fi
 
 missing=()
