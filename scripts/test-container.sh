@@ -126,7 +126,7 @@ stage "compose: docker/compose.yaml as written (podman-compose)"
 # loopback is a free one, and its token is known to the test.
 compose_project="tendril-compose-test-$$"
 compose=(podman-compose --podman-args="--runtime runc" -p "$compose_project" -f docker/compose.yaml)
-export TENDRIL_PORT TENDRIL_TOKEN
+export TENDRIL_PORT TENDRIL_TOKEN TENDRIL_URL
 TENDRIL_PORT="$(free_port)"
 TENDRIL_TOKEN="compose-$(od -An -N12 -tx1 /dev/urandom | tr -d ' \n')"
 TENDRIL_URL="http://127.0.0.1:$TENDRIL_PORT"
@@ -152,12 +152,14 @@ if "${compose[@]}" up -d > "$compose_log" 2>&1 && wait_health; then
   if [ "$hc" = "<nil>" ] || [ "$hc" = "" ] || grep -q NONE <<< "$hc"; then
     echo "ok - compose: dds-subscriber has no health check of tendrild's"
   else echo "not ok - compose: dds-subscriber inherits a health check: $hc"; status=1; fi
-  # Its joint states over DDS, across the two containers (bounded: 100 tries).
+  # Its joint states over DDS, across the two containers (bounded: 100 tries). grep -c reads the whole
+  # log: grep -q would stop early, and podman's SIGPIPE would fail the pipeline under pipefail.
+  joint_states() { "${podman[@]}" logs "$compose_subscriber" 2>/dev/null | grep -c '"position"'; }
   for _ in $(seq 100); do
-    "${podman[@]}" logs "$compose_subscriber" 2>/dev/null | grep -q '"position"' && break
+    [ "$(joint_states)" -gt 0 ] && break
     sleep 0.2
   done
-  if "${podman[@]}" logs "$compose_subscriber" 2>/dev/null | grep -q '"position"'; then
+  if [ "$(joint_states)" -gt 0 ]; then
     echo "ok - compose: dds-subscriber prints tendrild's joint states"
   else echo "not ok - compose: no joint states in dds-subscriber's log"; status=1; fi
   calibration="srmc-calibrated-compose-$$.json"
