@@ -36,10 +36,17 @@ async function waitForJob(id, polls = 1200) {
   return {job: last.job, seen};
 }
 
-function inlinePlan() {
+// A plan carries the design it was made for (issue 31): by default the mounted one, as GET /robots gives it.
+async function mountedDesign() {
+  const robots = await get('/robots');
+  assert.equal(robots.status, 200, robots.text);
+  return robots.json.find((r) => r.name === ROBOT).design;
+}
+
+function inlinePlan(design) {
   const steps = [];
   for (let k = 0; k < 4; k++) steps.push({q: [10 + 2 * k, 0.05 * k, 0.4 * k, -0.2 * k]});
-  return {steps};
+  return {design, steps};
 }
 
 after(async () => {
@@ -179,16 +186,50 @@ test('DELETE /jobs/{id} cancels a plan job', async () => {
   assert.equal(job.state, cancelled.json.state);
 });
 
+// Issue 31, server side: a plan made for another catheter is refused naming both designs, whether it
+// comes from a plan job or is written inline; so is a plan that does not say its catheter.
+test('path following refuses a plan made for another catheter, naming both designs', async () => {
+  const design = await mountedDesign();
+  // A plan job for the planning study's nominal catheter (tip-only bend gains 1.4 rad/mm).
+  const res = await post('/plans', {robot: ROBOT, vessel: vesselId, ds: 0.5, dq1: 3, design: 'nominal'});
+  assert.equal(res.status, 202, res.text);
+  const {job} = await waitForJob(res.json.id);
+  assert.equal(job.state, 'succeeded', JSON.stringify(job));
+  assert.equal(job.result.design.k1, 1.4);
+  await holdLease();
+  const loadedPlan = async () => {
+    const {loaded, steps, plan} = (await get(`${R}/path_following`)).json;
+    return {loaded, steps, plan};
+  };
+  const before = await loadedPlan();
+  const nominal = await post(`${R}/path_following`, {plan: job.id});
+  assertErrorShape(nominal, 422, 'other_catheter');
+  assert.equal(nominal.json.error.message,
+               'This plan was made for another catheter, with bend gains of 1.4 and 1.4 rad per mm of drive; ' +
+               'the mounted catheter has bend gains of 0.0882 and 0.238 rad per mm of drive. ' +
+               'Compute the plan again for the mounted catheter.');
+  // The design optimiser's 5/5 mm segments (the issue's plan), inline.
+  const other = await post(`${R}/path_following`, {plan: inlinePlan({...design, L1: 5, L2: 5})});
+  assertErrorShape(other, 422, 'other_catheter');
+  assert.match(other.json.error.message, /with segments of 5 and 5 mm; the mounted catheter has segments of 22 and 18\.8 mm\./);
+  const unsaid = await post(`${R}/path_following`, {plan: {steps: inlinePlan(design).steps}});
+  assertErrorShape(unsaid, 422, 'no_design');
+  assert.match(unsaid.json.error.message, /^This plan does not say which catheter it was made for, so it cannot be checked against the mounted catheter \(segments of 22 and 18\.8 mm, /);
+  // Nothing was loaded by any of them.
+  assert.deepEqual(await loadedPlan(), before);
+});
+
 test('path following: load needs the lease; mode switch needs a plan; steps move the robot', async () => {
   // Taken here, not earlier: the plan jobs before may take longer than the lease lasts unused (30 s).
   await holdLease();
-  assertErrorShape(await script('not-the-holder').post(`${R}/path_following`, {plan: inlinePlan()}), 409, 'lease_held');
+  const design = await mountedDesign();
+  assertErrorShape(await script('not-the-holder').post(`${R}/path_following`, {plan: inlinePlan(design)}), 409, 'lease_held');
   // Start from joint mode with no plan of an earlier run: a fresh server has none.
   const before = await get(`${R}/path_following`);
   assert.equal(before.status, 200, before.text);
   if (!before.json.loaded) assertErrorShape(await post(`${R}/mode`, {mode: 'path_following'}), 409, 'no_plan');
 
-  const bad = inlinePlan();
+  const bad = inlinePlan(design);
   bad.steps[2].q[3] = 9;  // distal_bend limit is 5 mm
   const refused = await post(`${R}/path_following`, {plan: bad});
   assertErrorShape(refused, 422, 'out_of_limits');
@@ -206,7 +247,7 @@ test('path following: load needs the lease; mode switch needs a plan; steps move
     assert.match(fromJob.json.error.message, /^step \d+: /);
   }
 
-  const loaded = await post(`${R}/path_following`, {plan: inlinePlan()});
+  const loaded = await post(`${R}/path_following`, {plan: inlinePlan(design)});
   assert.equal(loaded.status, 200, loaded.text);
   assert.deepEqual(loaded.json, {steps: 4, step: -1, plan: null});
 
@@ -250,7 +291,7 @@ test('path following: load needs the lease; mode switch needs a plan; steps move
   }, {polls: 400});
   assert.ok(reached1.done, JSON.stringify(reached1.s));
   const sp = (await get(`${R}/setpoint_js`)).json.position;
-  inlinePlan().steps[1].q.forEach((v, i) => assert.ok(Math.abs(sp[i] - v) < 1e-6, `joint ${i}: ${sp[i]} vs ${v}`));
+  inlinePlan(design).steps[1].q.forEach((v, i) => assert.ok(Math.abs(sp[i] - v) < 1e-6, `joint ${i}: ${sp[i]} vs ${v}`));
   assertErrorShape(await post(`${R}/path_following/step`, {step: 9}), 422, 'out_of_range');
   assertErrorShape(await post(`${R}/path_following/step`, {advance: 2}), 400, 'bad_request');
 

@@ -8,7 +8,7 @@
 import {test, before, after} from 'node:test';
 import assert from 'node:assert/strict';
 import path from 'node:path';
-import {ARTIFACTS, WAIT, openBrowser, serverUnderTest, tid} from './browser.mjs';
+import {ARTIFACTS, WAIT, openBrowser, serverUnderTest, tid, clickWhenEnabled} from './browser.mjs';
 
 const {BASE_URL, TOKEN} = serverUnderTest();
 // A bound on a hung server only: the robot's own clock times the moves (simulated time runs slower than
@@ -17,18 +17,6 @@ const HANG_MS = 180000;
 
 let page;
 let closeBrowser;
-
-// Clicks the element in the same page task that sees it enabled: a check and a separate click race a
-// page that turns STALE in between (its buttons are disabled while its data is old).
-async function clickWhenEnabled(where, selector) {
-  await where.waitForFunction((sel) => {
-    const element = document.querySelector(sel);
-    if (!element || element.disabled) return false;
-    element.scrollIntoView({block: 'nearest'});
-    element.click();
-    return true;
-  }, selector, WAIT);
-}
 const pageErrors = [];
 
 before(async () => {
@@ -92,14 +80,27 @@ async function sampleAfter(robot, from, seconds) {
   return s;
 }
 
+// Presses a jog button in the page task that sees it enabled (as clickWhenEnabled does for a click: a
+// page that turns STALE between a check and a press disables the button under the pointer), and lets
+// it go.
+const press = (selector) => page.waitForFunction((sel) => {
+  const b = document.querySelector(sel);
+  if (!b || b.disabled) return false;
+  b.dispatchEvent(new PointerEvent('pointerdown', {bubbles: true}));
+  return true;
+}, selector, WAIT);
+const release = (selector) => page.evaluate((sel) => {
+  document.querySelector(sel).dispatchEvent(new PointerEvent('pointerup', {bubbles: true}));
+}, selector);
+
 // Holds a jog button until the tip has moved 2 mm along its axis, then releases it: the tip moved that
 // way, no faster than the chosen speed, little off the axis, and is still once released.
 async function jog(robot, axis, sign, speedMmS) {
   const index = {x: 0, y: 1, z: 2}[axis];
   await page.selectOption(tid('cart-jog-speed'), String(speedMmS));
   const s0 = await sampleOf(robot);
-  await page.locator(tid(`cart-jog-${axis}-${sign > 0 ? 'plus' : 'minus'}`)).hover();
-  await page.mouse.down();
+  const button = tid(`cart-jog-${axis}-${sign > 0 ? 'plus' : 'minus'}`);
+  await press(button);
   await page.waitForFunction(() => document.querySelector('[data-testid="cart-panel"]').dataset.jogging === 'true', null, WAIT);
   let s = s0;
   let stale = false;
@@ -112,7 +113,7 @@ async function jog(robot, axis, sign, speedMmS) {
     stale ||= held.stale === 'true';
     if (held.jogging !== 'true') break;  // the page ended the jog while held: the assertion below says why
   }
-  await page.mouse.up();
+  await release(button);
   const jogging = await page.locator(tid('cart-panel')).getAttribute('data-jogging');
   const why = await text('cart-jog-why');
   const status = await text('command-status');
@@ -188,13 +189,12 @@ test('the arm in Cartesian mode: the tool position, Go, a jog that stops on rele
   await page.waitForFunction(() => Number(document.querySelector('[data-testid="cart-force"]').dataset.value) < 0.3, null, WAIT);
 
   // E-STOP while a jog button is held: the stream ends at once and the button says why.
-  await page.locator(tid('cart-jog-x-plus')).hover();
-  await page.mouse.down();
+  await press(tid('cart-jog-x-plus'));
   await page.waitForFunction(() => document.querySelector('[data-testid="cart-panel"]').dataset.jogging === 'true', null, WAIT);
   await page.evaluate(() => document.querySelector('#estop-button').click());
   await page.waitForFunction(() => document.querySelector('[data-testid="cart-panel"]').dataset.jogging === 'false', null, WAIT);
   assert.match(await text('cart-jog-why'), /E-STOP latched/);
-  await page.mouse.up();
+  await release(tid('cart-jog-x-plus'));
   const e1 = await sampleAfter('ur5', await sampleOf('ur5'), 0.3);
   const e2 = await sampleAfter('ur5', e1, 0.5);
   assert.ok(Math.hypot(...e2.p.map((v, i) => v - e1.p[i])) < 0.3, `after the E-STOP the tool is still: ${JSON.stringify({e1, e2})}`);

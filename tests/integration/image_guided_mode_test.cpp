@@ -176,7 +176,14 @@ class ImageGuidedModeTest : public ::testing::Test {
     for (const auto& st : p.steps) steps.push_back({{"q", {st.q[0], st.q[1], st.q[2], st.q[3]}}});
     auto path = nlohmann::json::array();
     for (const auto& x : vessel.points()) path.push_back({x.x(), x.y(), x.z()});
-    return {{"steps", steps}, {"vessel_path", path}};
+    // The design it was made for, as the planner's results carry it (path following refuses a plan
+    // for another catheter, or one that does not say).
+    const nlohmann::json made_for = {{"L1", design.proximal_length},
+                                     {"L2", design.distal_length},
+                                     {"k1", design.proximal_curvature_gain},
+                                     {"k2", design.distal_curvature_gain},
+                                     {"delta2", design.plane_offset}};
+    return {{"design", made_for}, {"steps", steps}, {"vessel_path", path}};
   }
   std::vector<Eigen::Vector3d> world_vessel() {
     std::vector<Eigen::Vector3d> out;

@@ -34,11 +34,17 @@ std::string read_file(const std::filesystem::path& p) {
   return s.str();
 }
 
+// The mounted catheter's design as srmc.json gives it (and GET /robots): a plan carries the design it
+// was made for.
+nlohmann::json srmc_design() {
+  return {{"L1", 22.0}, {"L2", 18.8}, {"k1", 0.0882}, {"k2", 0.238}, {"delta2", -0.76}};
+}
+
 // Five steps inside the limits, starting where the simulated robot starts (insertion 10 mm).
 nlohmann::json inline_plan() {
   auto steps = nlohmann::json::array();
   for (int k = 0; k < 5; ++k) steps.push_back({{"q", {10.0 + 3.0 * k, 0.1 * k, 0.5 * k, -0.3 * k}}});
-  return {{"steps", steps}};
+  return {{"design", srmc_design()}, {"steps", steps}};
 }
 
 class PathFollowingTest : public ::testing::Test {
@@ -120,6 +126,35 @@ TEST_F(PathFollowingTest, LoadRejectsAStepOutsideTheJointLimitsNamingIt) {
   plan["steps"][1]["q"] = {1, 2, 3};
   EXPECT_EQ(api->load_path("srmc", plan, "").status, 422);  // wrong size
   EXPECT_EQ(api->load_path("srmc", {{"steps", nlohmann::json::array()}}, "").status, 400);
+}
+
+// Issue 31: a plan made for another catheter (the design optimiser's 5/5 mm segments) is refused naming
+// both designs, and so is a plan that does not say its catheter; nothing is loaded.
+TEST_F(PathFollowingTest, LoadRefusesAPlanForAnotherCatheterNamingBothDesigns) {
+  auto plan = inline_plan();
+  plan["design"]["L1"] = 5.0;
+  plan["design"]["L2"] = 5.0;
+  auto r = api->load_path("srmc", plan, "j7");
+  EXPECT_EQ(r.status, 422);
+  EXPECT_EQ(r.code, "other_catheter");
+  EXPECT_NE(r.message.find("segments of 5 and 5 mm; the mounted catheter has segments of 22 and 18.8 mm"),
+            std::string::npos)
+      << r.message;
+  EXPECT_FALSE(status()["loaded"].get<bool>());
+
+  plan = inline_plan();
+  plan.erase("design");
+  r = api->load_path("srmc", plan, "");
+  EXPECT_EQ(r.status, 422);
+  EXPECT_EQ(r.code, "no_design");
+  EXPECT_NE(r.message.find("does not say which catheter it was made for"), std::string::npos) << r.message;
+  EXPECT_FALSE(status()["loaded"].get<bool>());
+
+  // The design as GET /robots gives it is the mounted one: loaded.
+  plan = inline_plan();
+  plan["design"] = api->robots()[0]["design"];
+  EXPECT_EQ(api->load_path("srmc", plan, "").status, 200);
+  EXPECT_TRUE(status()["loaded"].get<bool>());
 }
 
 TEST_F(PathFollowingTest, SwitchesOnlyWhileHoldingAndStepsThroughThePlanWithoutASetpointJump) {

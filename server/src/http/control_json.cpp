@@ -647,6 +647,10 @@ ApiResult JsonControlApi::load_path(const std::string& robot, const json& plan, 
   if (!service_.has_robot(robot)) return to_api_result(unknown_robot(robot));
   if (!plan.is_object() || !plan.contains("steps") || !plan["steps"].is_array() || plan["steps"].empty())
     return ApiResult::error(400, "bad_request", "expected a plan {\"steps\": [{\"q\": [joint values]}, …]}");
+  // The robot type's own check first (a catheter refuses a plan made for another design): it says why
+  // in the operator's words, where a step's joint values out of limits would only be its symptom.
+  if (auto* ext = extension(robot))
+    if (auto refused = ext->refuse_plan(plan)) return *refused;
   PathPlan typed;
   typed.id = plan_id;
   const auto& steps = plan["steps"];

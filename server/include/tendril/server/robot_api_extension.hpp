@@ -23,6 +23,12 @@ class RobotApiExtension {
   virtual void scene(nlohmann::json& entities) const { (void)entities; }
   // The type's commands; command() gets the parsed JSON body (the caller checked role and lease).
   virtual std::vector<RobotCommandInfo> commands() const { return {}; }
+  // A plan offered to path following (the request's JSON, or a plan job's result), before its steps are
+  // checked: the type's refusal, or nullopt to go on (a catheter refuses a plan made for another design).
+  virtual std::optional<ApiResult> refuse_plan(const nlohmann::json& plan) const {
+    (void)plan;
+    return std::nullopt;
+  }
   virtual ApiResult command(const std::string& name, const nlohmann::json& body) {
     (void)body;
     return ApiResult::error(404, "not_found", "no command " + name);

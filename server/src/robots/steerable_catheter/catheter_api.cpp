@@ -9,6 +9,7 @@
 
 #include "steerable_catheter/catheter_robot.hpp"
 #include "steerable_catheter/image_guidance.hpp"
+#include "steerable_catheter/plan_design.hpp"
 #include "tendril/server/robot_api_extension.hpp"
 
 namespace tendril::server {
@@ -93,17 +94,19 @@ class CatheterApi final : public RobotApiExtension {
     out["imaged"] = robot_.guidance().tracking();
     // The mounted catheter's design, as the planner reads it from the robot file ("kinematics"): a plan
     // carries the design it was made for, and one made for another catheter is not followable here.
-    try {
-      const auto& k = robot_.config().settings.at("kinematics");
-      out["design"] = {{"L1", k.at("segment_lengths_mm").at(0).get<double>()},
-                       {"L2", k.at("segment_lengths_mm").at(1).get<double>()},
-                       {"delta2", k.at("plane_offset_rad").get<double>()},
-                       {"flexure_rad", k.value("flexure_rad", 0.0)},
-                       {"k1", k.at("bend_gain_rad_per_mm").at(0).get<double>()},
-                       {"k2", k.at("bend_gain_rad_per_mm").at(1).get<double>()}};
-    } catch (const std::exception&) {
-      out["design"] = nullptr;  // no planning design in the file
-    }
+    const auto design = mounted_design();
+    out["design"] = design ? design_json(*design) : json(nullptr);  // null: no planning design in the file
+  }
+
+  // A plan is followed only by the catheter it was made for (plan_design.hpp). A robot file without a
+  // planning design has nothing to compare with: the planner cannot plan for it either, so its plans are
+  // written by hand and taken as they are.
+  std::optional<ApiResult> refuse_plan(const json& plan) const override {
+    const auto mounted = mounted_design();
+    if (!mounted) return std::nullopt;
+    if (auto refused = plan_design_refusal(plan, *mounted))
+      return ApiResult::error(422, refused->code, refused->message);
+    return std::nullopt;
   }
 
   void state(json& out) const override {
@@ -234,6 +237,11 @@ class CatheterApi final : public RobotApiExtension {
   }
 
  private:
+  std::optional<CatheterDesign> mounted_design() const {
+    const auto k = robot_.config().settings.find("kinematics");
+    return k == robot_.config().settings.end() ? std::nullopt : design_from_kinematics(*k);
+  }
+
   static Eigen::Vector4d effective_actuation(const CatheterSnapshot& s) {
     // What reaches the tubes: the drive position less the spring deflection (drive − carriage).
     return {s.position[0], s.position[1], s.position[2] - s.spring_deflection[0],
