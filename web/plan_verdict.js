@@ -5,14 +5,14 @@
 // radius (GET /vessels/{id}?branch=k). Nothing is invented: where a number is missing the verdict
 // says what it could not check.
 //
-// Bounds (chosen here; the seeds give the planner's error ranges, not a go/no-go rule):
+// Bounds (chosen here; Abah 2022 gives the planner's error ranges, not a go/no-go rule):
 // - cannot follow: a step's worst position error over OFF_PATH_MM (10 mm, the planner's δ_p,range) or
 //   worst orientation error over OFF_PATH_DEG (57.3°, δ_t,range = 1 rad): the planned shape is not in
 //   the vessel; or a joint outside its limits (the robot cannot take the step at all).
 // - expect contact: a step's worst position error over the lumen radius: the planned backbone leaves
 //   the centreline by more than the vessel is wide, so it presses on the wall; the springs deflect
 //   and the robot may hold (spring-deflection hold).
-// - ok: within both. The seeds' optimised designs stay at 0.96–1.40 mm and 0.22–0.23 rad worst.
+// - ok: within both. The optimised designs of Abah 2022 stay at 0.96–1.40 mm and 0.22–0.23 rad worst.
 
 export const OFF_PATH_MM = 10;
 export const OFF_PATH_DEG = 57.3;
@@ -173,7 +173,7 @@ export function movePreview(from, to, joints = []) {
 // Where the plan ends (its vessel path's last point: the vessel's end unless the plan was truncated to the
 // insertion range), in the robot's frame through the robot's vessel_entry (position, orientation [x, y, z, w]),
 // and the tip's distance from it. Reached: the tip within the lumen radius there (the last of the branch's
-// radii, or its one radius), i.e. inside the vessel at its end: the seeds give no tolerance, and a tip
+// radii, or its one radius), i.e. inside the vessel at its end: Abah 2022 gives no tolerance, and a tip
 // closer than the wall is where the vessel ends. null when a number is missing (nothing is guessed).
 export function targetReach(plan, entry, radiusMm, tip) {
   const path = Array.isArray(plan?.vessel_path) ? plan.vessel_path : [];

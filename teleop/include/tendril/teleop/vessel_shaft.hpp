@@ -8,7 +8,7 @@
 // entry (s_b ≤ 0) the base runs straight along the entry's axis (an introducer); past the vessel's end
 // it goes straight on along the last tangent.
 //
-// Assumptions (the seeds are silent, chosen here): the shaft follows the centerline exactly (no slack,
+// Assumptions (Abah 2022 is silent, chosen here): the shaft follows the centerline exactly (no slack,
 // no buckling, no lateral offset inside the lumen, no friction), so it feels no wall force and the wall
 // acts on the steerable segments only; the whole insertion advances the base along the vessel.
 //
