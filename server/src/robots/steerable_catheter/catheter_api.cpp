@@ -22,7 +22,7 @@ using safety::OperatingState;
 constexpr const char* kConfigurationNames[4] = {"insertion", "roll", "theta_proximal", "theta_distal"};
 constexpr const char* kSpringNames[2] = {"proximal", "distal"};
 // The distance a hold's "withdraw N mm" offers (mm): about a third of the distal segment, enough to take
-// the tip back out of the bend that held it (chosen here; the seeds give none).
+// the tip back out of the bend that held it (chosen here; Abah 2022 gives none).
 constexpr double kSuggestedWithdrawMm = 5.0;
 
 // Why the last relax stopped, in words: "the distal bend drive at its upper limit (4.9 mm)".
