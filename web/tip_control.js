@@ -58,6 +58,9 @@ export class TipPanel {
     this.pose = null;
     this.edited = false;
     this.container.replaceChildren();
+    // The previous robot's controls are gone: nothing may update them (a robot without a Cartesian
+    // mode has none, and the page's state updates keep coming).
+    this.ui = null;
     this.mode = cartesianModeOf(robot);
     if (!this.mode) {
       this.timer = null;
