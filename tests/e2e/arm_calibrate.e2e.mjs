@@ -61,9 +61,14 @@ test('Calibrate robot says why it is not offered outside an ENABLED arm in carte
   await page.waitForFunction(() => document.querySelector('[data-testid="us-message"]').textContent.length > 0, null, WAIT);
   assert.doesNotMatch(await page.locator(tid('us-message')).textContent(), /POST |\{"action"/);
   // Cartesian mode: offered, no reason left.
+  // Modes change only while the robot holds: a freshly enabled arm settles first (the badge says busy).
+  await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').title.includes('busy false'), null, WAIT);
   await clickWhenEnabled(page, tid('mode-cartesian'));
   await page.waitForFunction(() => document.querySelector('[data-testid="mode-cartesian"]').getAttribute('aria-pressed') === 'true',
-                             null, WAIT);
+                             null, WAIT).catch(async (err) => {
+    err.message += `; status: ${await page.locator(tid('command-status')).textContent()}`;
+    throw err;
+  });
   await page.waitForFunction(() => !document.querySelector('[data-testid="us-cal-robot-calibrate"]').disabled, null, WAIT);
   c = await calibrate();
   assert.equal(c.message, '', JSON.stringify(c));

@@ -59,7 +59,10 @@ async function ready(robot, mode, tabLabel) {
   await page.waitForFunction(() => /Enable the robot first/.test(document.querySelector('[data-testid="cart-jog-why"]').textContent), null, WAIT);
   await clickWhenEnabled(page, tid('enable-button'));
   await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED', null, WAIT);
-  await page.waitForFunction(() => !document.querySelector('[data-testid="cart-jog-x-plus"]').disabled, null, WAIT);
+  await page.waitForFunction(() => !document.querySelector('[data-testid="cart-jog-x-plus"]').disabled, null, WAIT).catch(async (err) => {
+    err.message += `; ${await text('cart-jog-why')}; status: ${await text('command-status')}`;
+    throw err;
+  });
   assert.equal(await text('cart-jog-why'), '');
 }
 
