@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <span>
 #include "tendril/server/config.hpp"
 
@@ -84,8 +85,8 @@ class ShaftDisplayModel final : public RobotKinematics {
     if (shaft_length_ > 0 && !local.empty() && local.front().head<2>().norm() < 1e-9 &&
         local.front().z() < -1e-9) {
       first = 1;  // the inner model's shaft start: replaced by the shaft along the vessel, a point a mm
-      for (double back = shaft_length_; back > 0.0; back -= 1.0)
-        out.push_back(shaft_.shaft_point(q[0], back));
+      const auto points = static_cast<int>(std::ceil(shaft_length_));
+      for (int i = 0; i < points; ++i) out.push_back(shaft_.shaft_point(q[0], shaft_length_ - i));
     }
     const std::size_t drawn = out.size();
     out.insert(out.end(), local.begin() + static_cast<std::ptrdiff_t>(first), local.end());
