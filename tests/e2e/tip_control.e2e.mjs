@@ -59,7 +59,9 @@ async function ready(robot, mode, tabLabel) {
   await page.waitForFunction(() => /Enable the robot first/.test(document.querySelector('[data-testid="cart-jog-why"]').textContent), null, WAIT);
   await clickWhenEnabled(page, tid('enable-button'));
   await page.waitForFunction(() => document.querySelector('[data-testid="state-badge"]').dataset.state === 'ENABLED', null, WAIT);
-  await page.waitForFunction(() => !document.querySelector('[data-testid="cart-jog-x-plus"]').disabled, null, WAIT).catch(async (err) => {
+  // The drives switch on in the robot's time, which runs slower than the wall clock on a loaded machine
+  // (simulated time): bounded like a move, by HANG_MS.
+  await page.waitForFunction(() => !document.querySelector('[data-testid="cart-jog-x-plus"]').disabled, null, {timeout: HANG_MS}).catch(async (err) => {
     err.message += `; ${await text('cart-jog-why')}; status: ${await text('command-status')}`;
     throw err;
   });
