@@ -177,6 +177,20 @@ class CatheterReachTest : public ::testing::Test {
   Eigen::Vector3d target = Eigen::Vector3d::Zero();
   long tick = 0;
   bool imaging = false;
+  // Enables the robot, loads the plan and steps along it to its end or a hold, each step to rest.
+  void follow(const nlohmann::json& plan) {
+    enable();
+    ASSERT_EQ(api->load_path("srmc", plan, "p").status, 200);
+    ASSERT_EQ(api->mode("srmc", {{"mode", "path_following"}}).status, 200);
+    steps(2);
+    for (std::size_t k = 0; k < plan["steps"].size() && !held(); ++k) {
+      const auto r = api->path_step("srmc", {{"advance", 1}});
+      ASSERT_EQ(r.status, 202) << r.message;
+      steps(3);
+      ASSERT_TRUE(step_until([&] { return !api->path_following("srmc").body["moving"].get<bool>(); }, 30000));
+    }
+  }
+
   double servo_insertion = 0.0;
   double peak = 0.0;
   std::mt19937 rng{3};
@@ -185,16 +199,8 @@ class CatheterReachTest : public ::testing::Test {
 TEST_F(CatheterReachTest, PathFollowingReachesTheTarget) {
   const auto& plan = shipped_plan();
   ASSERT_TRUE(plan["within_joint_limits"].get<bool>()) << plan["limit_violation"];
-  enable();
-  ASSERT_EQ(api->load_path("srmc", plan, "p").status, 200);
-  ASSERT_EQ(api->mode("srmc", {{"mode", "path_following"}}).status, 200);
-  steps(2);
-  for (std::size_t k = 0; k < plan["steps"].size() && !held(); ++k) {
-    const auto r = api->path_step("srmc", {{"advance", 1}});
-    ASSERT_EQ(r.status, 202) << r.message;
-    steps(3);
-    ASSERT_TRUE(step_until([&] { return !api->path_following("srmc").body["moving"].get<bool>(); }, 30000));
-  }
+  follow(plan);
+  if (HasFatalFailure()) return;
   report("path_following");
   EXPECT_FALSE(held()) << op()["hold"].dump();
   EXPECT_LT(to_target(), kReachedMm);
@@ -205,16 +211,8 @@ TEST_F(CatheterReachTest, PathFollowingReachesTheTarget) {
 TEST_F(CatheterReachTest, WithTheStraightShaftOfBeforePathFollowingDoesNotReachTheTarget) {
   start(true);
   const auto& plan = shipped_plan();
-  enable();
-  ASSERT_EQ(api->load_path("srmc", plan, "p").status, 200);
-  ASSERT_EQ(api->mode("srmc", {{"mode", "path_following"}}).status, 200);
-  steps(2);
-  for (std::size_t k = 0; k < plan["steps"].size() && !held(); ++k) {
-    const auto r = api->path_step("srmc", {{"advance", 1}});
-    ASSERT_EQ(r.status, 202) << r.message;
-    steps(3);
-    ASSERT_TRUE(step_until([&] { return !api->path_following("srmc").body["moving"].get<bool>(); }, 30000));
-  }
+  follow(plan);
+  if (HasFatalFailure()) return;
   report("path_following, straight shaft (before issue 31)");
   EXPECT_TRUE(held() || to_target() > kReachedMm);
 }
