@@ -99,7 +99,7 @@ class CatheterReachTest : public ::testing::Test {
       const auto file = std::filesystem::temp_directory_path() / "catheter_reach_straight_shaft.csv";
       std::ofstream out(file);
       out << "x,y,z\n";
-      for (double z = -1.0; z < 40.8; z += 0.5) out << "0,0," << z << "\n";
+      for (int i = 0; - 1.0 + 0.5 * i < 40.8; ++i) out << "0,0," << -1.0 + 0.5 * i << "\n";
       for (const auto& p : branch.points) {
         const Eigen::Vector3d q = placement * p;
         out << q.x() << "," << q.y() << "," << q.z() << "\n";
